@@ -1,0 +1,12 @@
+"""simtest: simulation-driven synthetic data and closed-loop grasp testbed for 6D pose estimation.
+
+Conventions (see docs/architecture.md): metres, radians and seconds inside the library; millimetres only
+inside :mod:`simtest.io.bop`. ``T_a_b`` maps points from frame ``b`` into frame ``a``. Camera frames follow
+OpenCV (x right, y down, z forward); depth images hold planar z in metres, 0 meaning "no measurement".
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+__all__ = ["__version__"]

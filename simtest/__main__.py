@@ -1,0 +1,5 @@
+import sys
+
+from simtest.cli import main
+
+sys.exit(main())
