@@ -1,0 +1,30 @@
+"""Pose-estimation metrics. Metres and radians inside; each function states its units.
+
+* :mod:`.pose` — instance level (BOP toolkit): ADD, ADD-S, re/te, MSSD, MSPD, VSD, ADD(-S)-0.1d.
+* :mod:`.auc` — YCB-Video ADD(-S) AUC (VOC-style rule, threshold 0.10 m) and ADD-S < 2 cm.
+* :mod:`.bop19` — BOP19 matching, recalls and Average Recall.
+* :mod:`.nocs` — category level (NOCS): rotation / translation errors, n deg m cm, oriented-box 3D IoU,
+  Chamfer distance.
+* :mod:`.viewpoint` — viewpoint protocol: geodesic error, Acc@pi/6, Acc@pi/18, median error, and the
+  (azimuth, elevation, theta) parameterisation.
+"""
+
+from simtest.metrics.pose import (
+    add,
+    add_01d,
+    add_s,
+    add_s_or_add,
+    adi,
+    mspd,
+    mssd,
+    re,
+    rotation_error_rad,
+    te,
+    vsd,
+    vsd_from_depth,
+)
+
+__all__ = [
+    "add", "adi", "add_s", "re", "rotation_error_rad", "te", "mssd", "mspd", "vsd", "vsd_from_depth",
+    "add_s_or_add", "add_01d",
+]
