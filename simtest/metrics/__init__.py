@@ -9,6 +9,7 @@
   (azimuth, elevation, theta) parameterisation.
 """
 
+from simtest.metrics.auc import accuracy_below, auc_mean_rule, ycb_auc
 from simtest.metrics.pose import (
     add,
     add_01d,
@@ -27,4 +28,5 @@ from simtest.metrics.pose import (
 __all__ = [
     "add", "adi", "add_s", "re", "rotation_error_rad", "te", "mssd", "mspd", "vsd", "vsd_from_depth",
     "add_s_or_add", "add_01d",
+    "ycb_auc", "auc_mean_rule", "accuracy_below",
 ]
