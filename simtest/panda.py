@@ -513,7 +513,10 @@ def tcp_pose(data: mujoco.MjData, ids: PandaIds) -> Pose:
 
 
 def wrist_camera_model(data: mujoco.MjData, ids: PandaIds) -> CameraModel:
-    """The wrist camera's :class:`CameraModel` with its current world pose.
+    """The wrist camera's :class:`CameraModel` with its world pose from the last forward pass.
+
+    ``data.cam_xpos`` / ``cam_xmat`` are filled by ``mj_forward`` / ``mj_step`` (or ``mj_kinematics``
+    followed by ``mj_camlight``).
 
     Raises:
         ConfigError: If the Panda was attached without a wrist camera.
