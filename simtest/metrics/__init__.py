@@ -25,8 +25,22 @@ from simtest.metrics.pose import (
     vsd_from_depth,
 )
 
+from simtest.metrics.viewpoint import (
+    accuracy_at,
+    geodesic_error,
+    median_error_deg,
+    pose_to_viewpoint,
+    rotation_errors,
+    rotation_to_viewpoint,
+    viewpoint_summary,
+    viewpoint_to_pose,
+    viewpoint_to_rotation,
+)
+
 __all__ = [
     "add", "adi", "add_s", "re", "rotation_error_rad", "te", "mssd", "mspd", "vsd", "vsd_from_depth",
     "add_s_or_add", "add_01d",
     "ycb_auc", "auc_mean_rule", "accuracy_below",
+    "geodesic_error", "rotation_errors", "accuracy_at", "median_error_deg", "viewpoint_summary",
+    "viewpoint_to_rotation", "rotation_to_viewpoint", "viewpoint_to_pose", "pose_to_viewpoint",
 ]
