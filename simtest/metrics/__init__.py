@@ -10,6 +10,17 @@
 """
 
 from simtest.metrics.auc import accuracy_below, auc_mean_rule, ycb_auc
+from simtest.metrics.nocs import (
+    chamfer_distance,
+    iou_3d,
+    iou_3d_legacy,
+    iou_accuracy,
+    n_deg_m_cm,
+    n_deg_m_cm_accuracy,
+    rotation_error,
+    rotation_error_deg,
+    translation_error_cm,
+)
 from simtest.metrics.pose import (
     add,
     add_01d,
@@ -43,4 +54,6 @@ __all__ = [
     "ycb_auc", "auc_mean_rule", "accuracy_below",
     "geodesic_error", "rotation_errors", "accuracy_at", "median_error_deg", "viewpoint_summary",
     "viewpoint_to_rotation", "rotation_to_viewpoint", "viewpoint_to_pose", "pose_to_viewpoint",
+    "rotation_error", "rotation_error_deg", "translation_error_cm", "n_deg_m_cm", "n_deg_m_cm_accuracy",
+    "iou_3d", "iou_3d_legacy", "iou_accuracy", "chamfer_distance",
 ]
