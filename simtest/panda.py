@@ -14,8 +14,13 @@ Frames (all poses are ``T_world_x``: frame ``x`` in the world, metres):
   object is held between the pads along y.
 * **Wrist camera** (OpenCV: x right, y down, z forward): optical axis parallel to the approach axis z,
   image x along the closing axis y, mounted on the hand beside the fingers at ``T_tcp_cam`` (see
-  :data:`T_TCP_CAM`): 6.5 cm off the finger plane along the gripper's x axis and 9 cm behind the TCP, so
-  the fingertips appear near the bottom edge of the image, like a RealSense on a Panda hand.
+  :data:`T_TCP_CAM`): 6.5 cm off the finger plane along the gripper's x axis and 9 cm behind the TCP,
+  like a RealSense on a Panda hand. The fingers sit just below the bottom edge of the default view
+  (they are 30 deg off-axis; the D435-like camera's vertical half field of view is 21 deg).
+
+Gripper geometry: the pads are 2.2 cm long beyond the TCP (:data:`TCP_TO_FINGERTIP`), so a grasp centred
+lower than that above a support surface pushes the fingertips into it; the largest pad gap is
+:data:`GRIPPER_OPEN` (0.08 m).
 
 Changes to the source model, and why:
 
@@ -42,10 +47,10 @@ import importlib.util
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 import simtest  # noqa: F401  (selects the GL backend before mujoco is imported)
 import mujoco
@@ -67,6 +72,7 @@ __all__ = [
     "PandaIds",
     "T_TCP_CAM",
     "T_LINK7_TCP",
+    "TCP_TO_FINGERTIP",
     "UnreachableError",
     "attach_panda",
     "benchmark",
@@ -122,6 +128,9 @@ T_LINK7_TCP = Pose.from_quat_wxyz(_Q_LINK7_FINGER_WXYZ / np.linalg.norm(_Q_LINK7
 #: Pose of the wrist camera (OpenCV frame) in the TCP frame: image x = closing axis y, image y = -x,
 #: optical axis = approach z; 6.5 cm along +x off the finger plane, 9 cm behind the TCP.
 T_TCP_CAM = Pose(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), [0.065, 0.0, -0.09])
+
+#: Distance from the TCP to the fingertips along the approach axis, m.
+TCP_TO_FINGERTIP = 0.022
 
 #: Gripper commands: the gap between the finger pads (m).
 GRIPPER_OPEN = 0.08
@@ -613,11 +622,11 @@ def _pose_error(target: Pose, pos: np.ndarray, R: np.ndarray) -> tuple[np.ndarra
     return e_p, e_r
 
 
-def _dls(J: np.ndarray, e: np.ndarray, damping: float) -> tuple[np.ndarray, None]:
+def _dls(J: np.ndarray, e: np.ndarray, damping: float) -> np.ndarray:
     """Damped least-squares step ``J^T (J J^T + damping^2 I)^-1 e``."""
     JJt = J @ J.T
     JJt[np.diag_indices_from(JJt)] += damping ** 2
-    return J.T @ np.linalg.solve(JJt, e), None
+    return J.T @ np.linalg.solve(JJt, e)
 
 
 def _ik_iterations(model: mujoco.MjModel, scratch: mujoco.MjData, ids: PandaIds, site: int, target: Pose,
@@ -642,7 +651,7 @@ def _ik_iterations(model: mujoco.MjModel, scratch: mujoco.MjData, ids: PandaIds,
         free = np.ones(7, dtype=bool)
         for _ in range(3):  # drop joints pinned at a limit and pushed beyond it, then re-solve
             Jf = J[:, free]
-            dq_f, _ = _dls(Jf, e, damping)
+            dq_f = _dls(Jf, e, damping)
             null = np.eye(Jf.shape[1]) - np.linalg.pinv(Jf, rcond=1e-3) @ Jf
             dq_f = dq_f + null @ (posture_gain * (posture - q)[free])
             dq = np.zeros(7)
@@ -857,7 +866,8 @@ def move_to(
         settle: Longest time holding the goal after the motion, s.
         settle_tol: (position m, angle rad) at which settling stops early.
         gripper: If given, the pad gap command (m) during the motion; otherwise unchanged.
-        q_ref: Current arm command (7,) rad; default ``data.ctrl`` of the arm actuators.
+        q_ref: Arm command (7,) rad to start from; default the measured arm configuration. Pass the
+            value returned by the previous call to chain motions without re-basing on the servo lag.
         callback: Called as ``callback(model, data)`` after every control period.
 
     Returns:
@@ -871,7 +881,8 @@ def move_to(
         raise ConfigError(f"path must be 'cartesian' or 'joint', got {path!r}")
     if not duration >= 0:
         raise ConfigError(f"duration must be >= 0 s, got {duration!r}")
-    q_cmd = data.ctrl[ids.arm_actuators].copy() if q_ref is None else np.asarray(q_ref, dtype=np.float64)
+    q_cmd = ids.arm_q(data) if q_ref is None else np.asarray(q_ref, dtype=np.float64)
+    _check_q(q_cmd, ids)
     goal = solve_ik(model, data, ids, target, q_cmd)
     if not goal.success:
         raise UnreachableError(
@@ -905,7 +916,8 @@ def move_to(
         q_cmd = goal.q
     data.ctrl[ids.arm_actuators] = q_cmd
     for _ in range(int(round(settle / control_dt))):
-        e_p, e_r = _pose_error(target, data.site_xpos[ids.tcp_site], data.site_xmat[ids.tcp_site].reshape(3, 3))
+        e_p, e_r = _pose_error(target, data.site_xpos[ids.tcp_site],
+                               data.site_xmat[ids.tcp_site].reshape(3, 3))
         if (np.linalg.norm(e_p) <= settle_tol[0] and np.linalg.norm(e_r) <= settle_tol[1]
                 and np.abs(data.qvel[ids.arm_dof]).max() < 0.02):
             break
@@ -984,12 +996,13 @@ def grasp_and_lift(
 
     kw = dict(callback=callback)
     try:
-        q_now = data.ctrl[ids.arm_actuators].copy()
+        q_now = ids.arm_q(data)
         pre_ik = solve_ik(model, data, ids, pre, q_now)
         if not pre_ik.success:
             return _result(False, "unreachable")
-        free_time = max(_duration(tcp_pose(data, ids), pre), float(np.abs(pre_ik.q - q_now).max()) / joint_speed)
-        q = move_to(model, data, ids, pre, free_time, path="joint", gripper=GRIPPER_OPEN, **kw)
+        free_time = max(_duration(tcp_pose(data, ids), pre),
+                        float(np.abs(pre_ik.q - q_now).max()) / joint_speed)
+        q = move_to(model, data, ids, pre, free_time, path="joint", gripper=GRIPPER_OPEN, q_ref=q_now, **kw)
         for pose in (grasp_pose_world, lifted):  # reachability of the rest, before touching anything
             if not solve_ik(model, data, ids, pose, q).success:
                 return _result(False, "unreachable")
@@ -1026,7 +1039,7 @@ def symmetric_grasp(grasp_pose_world: Pose) -> Pose:
 def _choose_grasp(model: mujoco.MjModel, data: mujoco.MjData, ids: PandaIds, grasp: Pose,
                   pregrasp: float) -> Pose:
     """Of ``grasp`` and its symmetric twin, the one whose pre-grasp needs the smallest joint motion."""
-    q_now = data.ctrl[ids.arm_actuators].copy()
+    q_now = ids.arm_q(data)
     best, best_cost = grasp, np.inf
     for cand in (grasp, symmetric_grasp(grasp)):
         pre = Pose(cand.R, cand.t - pregrasp * cand.R[:, 2])

@@ -82,6 +82,7 @@ def test_attach_into_fresh_spec(box_scene):
     assert len(ids.arm_qpos) == 7 and len(ids.finger_qpos) == 2
     assert ids.camera >= 0 and ids.tcp_site >= 0 and len(ids.finger_geoms) > 0
     assert model.opt.timestep == pytest.approx(0.002)
+    np.testing.assert_allclose(ids.arm_limits, panda.ARM_JOINT_LIMITS)
     assert np.all(HOME_QPOS > ids.arm_limits[:, 0]) and np.all(HOME_QPOS < ids.arm_limits[:, 1])
     # The wrist camera carries the requested intrinsics.
     assert model.cam_resolution[ids.camera].tolist() == [64, 48]
@@ -92,6 +93,12 @@ def test_attach_into_fresh_spec(box_scene):
     np.testing.assert_allclose(T.t, [0.45, 0.0, 0.40], atol=3e-3)
     assert rot_angle(T.R, R_TOP_DOWN) < np.deg2rad(1.0)
     assert gripper_width(data, ids) == pytest.approx(GRIPPER_OPEN, abs=1e-3)
+    # The TCP sits between the pads, TCP_TO_FINGERTIP behind the fingertips.
+    T_tcp_world = T.inverse()
+    pads = T_tcp_world.apply(data.geom_xpos[ids.finger_geoms])
+    assert np.abs(pads[:, 0]).max() < 1e-6
+    tips = pads[:, 2] + model.geom_size[ids.finger_geoms, 0]  # capsule radius beyond the centre line
+    assert tips.max() == pytest.approx(panda.TCP_TO_FINGERTIP, abs=1.5e-3)
 
 
 def test_attach_honours_base_pose_and_rejects_reused_prefix():
