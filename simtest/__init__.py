@@ -7,6 +7,10 @@ OpenCV (x right, y down, z forward); depth images hold planar z in metres, 0 mea
 
 from __future__ import annotations
 
+from simtest import gl as _gl
+
+_gl.configure()  # must precede any import of mujoco
+
 __version__ = "0.1.0"
 
 __all__ = ["__version__"]

@@ -1,0 +1,230 @@
+"""``SceneBuilder``: the only code that turns a :class:`SceneSpec` into a MuJoCo model, through ``MjSpec``.
+
+Each object instance is a free body whose frame *is* the object's model frame (BOP convention); its visual
+mesh (geom group 1) is drawn and segmented, its convex collision parts (group 3, never drawn) collide.
+Distractors and the room (floor, walls, table or bin) are in group 0 / 2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import simtest  # noqa: F401  (GL backend before mujoco)
+import mujoco
+
+from simtest.camera import CameraModel
+from simtest.generators.config import GenerateConfig
+from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
+from simtest.objects import ObjectModel, ObjectSet
+
+__all__ = ["SimScene", "SceneBuilder", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
+
+VISUAL_GROUP = 1
+COLLISION_GROUP = 3
+DRAWN_GROUPS = (0, 1, 2)
+CAMERA_NAME = "render_cam"
+#: Contact parameters of object collision geoms: sliding, torsional, rolling friction.
+OBJECT_FRICTION = (0.9, 0.005, 0.002)
+
+
+@dataclass
+class SimScene:
+    """A compiled scene and the maps from MuJoCo ids to object instances.
+
+    Attributes:
+        model, data: MuJoCo model and data.
+        spec: The scene description it was built from.
+        instance_obj_ids: obj_id of each instance (index = instance index, order of ``spec.objects``).
+        instance_bodies: Body id of each instance.
+        instance_qpos: qpos address of each instance's free joint (7 values: position, quat w x y z).
+        instance_dofs: dof address of each instance's free joint (6 values).
+        geom_instance: (ngeom,) instance index of each geom, -1 for geoms that are not annotated objects.
+        camera_id: Id of the render camera (moved per view).
+        active: Instances still on the table (fallen ones are moved away and excluded).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    spec: SceneSpec
+    instance_obj_ids: list[int]
+    instance_bodies: list[int]
+    instance_qpos: list[int]
+    instance_dofs: list[int]
+    geom_instance: np.ndarray
+    camera_id: int
+    active: list[bool] = field(default_factory=list)
+    panda: object | None = None  # simtest.panda handles when the arm is in the scene
+
+    def object_pose_world(self, instance: int) -> tuple[np.ndarray, np.ndarray]:
+        """(R (3x3), t (3,) metres) of an instance's model frame in the world."""
+        b = self.instance_bodies[instance]
+        return self.data.xmat[b].reshape(3, 3).copy(), self.data.xpos[b].copy()
+
+    def set_camera(self, camera: CameraModel) -> None:
+        """Place the render camera at ``camera.T_world_cam`` (takes effect at the next render)."""
+        pos, R_mj = camera.mujoco_pose()
+        self.data.cam_xpos[self.camera_id] = pos
+        self.data.cam_xmat[self.camera_id] = R_mj.reshape(-1)
+
+
+class SceneBuilder:
+    """Builds MuJoCo scenes for one object set and one config.
+
+    Args:
+        objects: The object set (meshes, collision parts, inertia).
+        cfg: Generation config (table, timestep, camera intrinsics, render profile).
+    """
+
+    def __init__(self, objects: ObjectSet, cfg: GenerateConfig) -> None:
+        self.objects = objects
+        self.cfg = cfg
+        self.camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+
+    # ------------------------------------------------------------------------------------------------------
+    def build(self, spec: SceneSpec) -> SimScene:
+        cfg = self.cfg
+        ms = mujoco.MjSpec()
+        ms.modelname = f"scene_{spec.scene_index:06d}"
+        ms.option.timestep = cfg.scene.timestep
+        ms.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        ms.option.noslip_iterations = 0
+        ms.stat.extent = 2.0
+        ms.stat.center = [0.0, 0.0, cfg.scene.table_height]
+        ms.visual.map.znear = 0.005  # x extent: 1 cm near plane
+        ms.visual.map.zfar = 5.0  # x extent: 10 m far plane
+        ms.visual.global_.offwidth = max(cfg.camera.width, 64)
+        ms.visual.global_.offheight = max(cfg.camera.height, 64)
+        ms.visual.quality.offsamples = 4 if cfg.render.profile == "quality" else 0
+        ms.visual.quality.shadowsize = 2048 if cfg.render.profile == "quality" else 0
+        ms.visual.headlight.ambient = [spec.ambient] * 3
+        ms.visual.headlight.diffuse = [0.0, 0.0, 0.0]
+        ms.visual.headlight.specular = [0.0, 0.0, 0.0]
+
+        self._room(ms, spec)
+        for i, light in enumerate(spec.lights):
+            ms.worldbody.add_light(
+                name=f"light_{i}", pos=list(light.position), dir=list(light.direction), diffuse=list(light.diffuse),
+                specular=[light.specular] * 3, castshadow=cfg.render.profile == "quality")
+
+        # Object assets, one per distinct obj_id (shared by instances).
+        for oid in sorted({p.obj_id for p in spec.objects}):
+            self._mesh_assets(ms, self.objects.get(oid))
+
+        bodies = []
+        for i, p in enumerate(spec.objects):
+            obj = self.objects.get(p.obj_id)
+            body = ms.worldbody.add_body(name=f"obj_{i}", pos=list(p.position), quat=list(p.quat_wxyz))
+            body.add_freejoint(name=f"obj_{i}_joint")
+            body.explicitinertial = True
+            body.mass = obj.mass
+            body.ipos = obj.center_of_mass.tolist()
+            body.fullinertia = _full_inertia(obj.inertia)
+            ms.add_material(name=f"obj_{i}_mat", rgba=list(p.rgba), specular=p.specular, shininess=p.shininess,
+                            reflectance=p.reflectance)
+            body.add_geom(name=f"obj_{i}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"mesh_{p.obj_id}",
+                          material=f"obj_{i}_mat", group=VISUAL_GROUP, contype=0, conaffinity=0, density=0,
+                          mass=0)
+            for k in range(len(obj.collision_parts)):
+                body.add_geom(name=f"obj_{i}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH,
+                              meshname=f"mesh_{p.obj_id}_col{k}", group=COLLISION_GROUP, density=0, mass=0,
+                              friction=list(OBJECT_FRICTION), condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
+                              solref=[0.004, 1.0])
+            bodies.append(body)
+
+        for j, d in enumerate(spec.distractors):
+            b = ms.worldbody.add_body(name=f"distractor_{j}", pos=list(d.position), quat=list(d.quat_wxyz))
+            b.add_freejoint()
+            gtype = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+                     "sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE}[d.shape]
+            b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=list(d.rgba), density=400,
+                       friction=list(OBJECT_FRICTION), condim=6, group=0)
+
+        ms.worldbody.add_camera(name=CAMERA_NAME, pos=[0, 0, 1], **self.camera.mujoco_intrinsics())
+
+        panda = None
+        if cfg.scene.panda or cfg.rig == "wrist":
+            from simtest.panda import attach_panda
+            from simtest.geometry import Pose
+
+            panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-cfg.scene.table_size[0] / 2 - 0.1, 0.0,
+                                                               cfg.scene.table_height]),
+                                 wrist_camera=self.camera)
+
+        model = ms.compile()
+        data = mujoco.MjData(model)
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj_{i}") for i in range(len(spec.objects))]
+        geom_instance = np.full(model.ngeom, -1, dtype=np.int32)
+        for i, b in enumerate(ids):
+            geom_instance[model.body_geomadr[b]:model.body_geomadr[b] + model.body_geomnum[b]] = i
+        qpos = [int(model.jnt_qposadr[model.body_jntadr[b]]) for b in ids]
+        dofs = [int(model.jnt_dofadr[model.body_jntadr[b]]) for b in ids]
+        cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME)
+        if panda is not None:
+            panda = panda.bind(model)
+        mujoco.mj_forward(model, data)
+        return SimScene(model, data, spec, [p.obj_id for p in spec.objects], ids, qpos, dofs, geom_instance, cam_id,
+                        [True] * len(spec.objects), panda)
+
+    # ------------------------------------------------------------------------------------------------------
+    def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> None:
+        mesh = ms.add_mesh(name=f"mesh_{obj.obj_id}")
+        mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
+        mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # robust for open meshes; mass comes from obj
+        for k, part in enumerate(obj.collision_parts):
+            m = ms.add_mesh(name=f"mesh_{obj.obj_id}_col{k}")
+            m.uservert = np.asarray(part.vertices, dtype=np.float64).reshape(-1).tolist()
+            m.userface = np.asarray(part.faces, dtype=np.int32).reshape(-1).tolist()
+            m.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+
+    def _texture_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
+        builtin = {"checker": mujoco.mjtBuiltin.mjBUILTIN_CHECKER, "gradient": mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+                   "flat": mujoco.mjtBuiltin.mjBUILTIN_FLAT}[s.pattern]
+        ms.add_texture(name=f"{name}_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=builtin,
+                       rgb1=list(s.rgb1), rgb2=list(s.rgb2), width=128, height=128,
+                       mark=mujoco.mjtMark.mjMARK_RANDOM if s.noise > 0 else mujoco.mjtMark.mjMARK_NONE,
+                       random=s.noise, markrgb=list(s.rgb2))
+        mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False)
+        textures = [""] * int(mujoco.mjtTextureRole.mjNTEXROLE)
+        textures[int(mujoco.mjtTextureRole.mjTEXROLE_RGB)] = f"{name}_tex"
+        mat.textures = textures
+        return f"{name}_mat"
+
+    def _room(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
+        sc = self.cfg.scene
+        floor_mat = self._texture_material(ms, "floor", spec.floor, 1.0)
+        ms.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[3.0, 3.0, 0.1],
+                              material=floor_mat, group=2, friction=list(OBJECT_FRICTION))
+        wall_mat = self._texture_material(ms, "wall", spec.walls, 1.0)
+        for k, (pos, size) in enumerate([([3.0, 0, 1.5], [0.05, 3.0, 1.5]), ([-3.0, 0, 1.5], [0.05, 3.0, 1.5]),
+                                          ([0, 3.0, 1.5], [3.0, 0.05, 1.5]), ([0, -3.0, 1.5], [3.0, 0.05, 1.5])]):
+            ms.worldbody.add_geom(name=f"wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,
+                                  material=wall_mat, group=2, contype=0, conaffinity=0)
+        table_mat = self._texture_material(ms, "table", spec.table, 1.0)
+        hx, hy = sc.table_size[0] / 2, sc.table_size[1] / 2
+        h = sc.table_height
+        thick = min(0.04, h / 2) if h > 0 else 0.0
+        if h > 0:
+            ms.worldbody.add_geom(name="table_top", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[0, 0, h - thick / 2],
+                                  size=[hx, hy, thick / 2], material=table_mat, group=2,
+                                  friction=list(OBJECT_FRICTION))
+            for k, (sx, sy) in enumerate([(1, 1), (1, -1), (-1, 1), (-1, -1)]):
+                ms.worldbody.add_geom(name=f"table_leg_{k}", type=mujoco.mjtGeom.mjGEOM_BOX,
+                                      pos=[sx * (hx - 0.03), sy * (hy - 0.03), (h - thick) / 2],
+                                      size=[0.02, 0.02, (h - thick) / 2], material=table_mat, group=2)
+        if sc.container == "bin":
+            wall_h, t = 0.12, 0.01
+            for k, (pos, size) in enumerate([([hx - t, 0, h + wall_h / 2], [t, hy, wall_h / 2]),
+                                              ([-hx + t, 0, h + wall_h / 2], [t, hy, wall_h / 2]),
+                                              ([0, hy - t, h + wall_h / 2], [hx, t, wall_h / 2]),
+                                              ([0, -hy + t, h + wall_h / 2], [hx, t, wall_h / 2])]):
+                ms.worldbody.add_geom(name=f"bin_wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,
+                                      material=table_mat, group=2, friction=list(OBJECT_FRICTION))
+
+
+def _full_inertia(I: np.ndarray) -> list[float]:
+    """MuJoCo ``fullinertia`` order: Ixx, Iyy, Izz, Ixy, Ixz, Iyz (kg m^2)."""
+    I = np.asarray(I, dtype=np.float64)
+    return [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]

@@ -1,0 +1,279 @@
+"""Generation config: every randomization parameter with a sane default, validated at the boundary.
+
+A config is a tree of frozen dataclasses. :func:`load_config` reads TOML or JSON, :meth:`GenerateConfig.
+from_dict` validates (unknown keys, types, ranges) and raises :class:`ConfigError` naming the field (dotted
+path), the bad value and what is allowed. Lengths are metres, angles degrees (as users write them), times
+seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from simtest.errors import ConfigError
+
+__all__ = [
+    "CameraConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
+    "GenerateConfig", "load_config",
+]
+
+
+def _rng_pair(lo_min: float, hi_max: float):
+    """Metadata for a [lo, hi] range field whose values must lie in [lo_min, hi_max]."""
+    return {"pair": (lo_min, hi_max)}
+
+
+def _bounds(lo: float | None = None, hi: float | None = None, choices: tuple | None = None):
+    return {"bounds": (lo, hi), "choices": choices}
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole intrinsics (pixels) and image size. Defaults: RealSense-D435-like colour camera at 640x480."""
+
+    width: int = field(default=640, metadata=_bounds(16, 8192))
+    height: int = field(default=480, metadata=_bounds(16, 8192))
+    fx: float | None = field(default=None, metadata=_bounds(1.0, 1e5))  # None: 615 * width / 640
+    fy: float | None = field(default=None, metadata=_bounds(1.0, 1e5))
+    cx: float | None = field(default=None, metadata=_bounds(-1e4, 1e4))  # None: (width - 1) / 2
+    cy: float | None = field(default=None, metadata=_bounds(-1e4, 1e4))
+
+    def K(self):
+        from simtest.camera import intrinsics_matrix
+
+        s = self.width / 640.0
+        return intrinsics_matrix(self.fx if self.fx is not None else 615.0 * s,
+                                 self.fy if self.fy is not None else 615.0 * s,
+                                 self.cx if self.cx is not None else (self.width - 1) / 2.0,
+                                 self.cy if self.cy is not None else (self.height - 1) / 2.0)
+
+
+@dataclass(frozen=True)
+class ShellRig:
+    """Cameras on a spherical shell around a point of interest on the table (degrees, metres)."""
+
+    distance: tuple[float, float] = field(default=(0.45, 0.9), metadata=_rng_pair(0.05, 20.0))
+    elevation_deg: tuple[float, float] = field(default=(25.0, 80.0), metadata=_rng_pair(-89.0, 89.9))
+    azimuth_deg: tuple[float, float] = field(default=(0.0, 360.0), metadata=_rng_pair(-360.0, 720.0))
+    roll_deg: float = field(default=10.0, metadata=_bounds(0.0, 180.0))  # in-plane jitter, +/-
+    poi_jitter: float = field(default=0.05, metadata=_bounds(0.0, 1.0))  # metres, around the objects' centre
+
+
+@dataclass(frozen=True)
+class SequenceRig:
+    """A smooth camera trajectory per scene: approach from ``start_distance`` toward ``end_distance``."""
+
+    start_distance: tuple[float, float] = field(default=(0.8, 1.0), metadata=_rng_pair(0.05, 20.0))
+    end_distance: tuple[float, float] = field(default=(0.35, 0.5), metadata=_rng_pair(0.05, 20.0))
+    elevation_deg: tuple[float, float] = field(default=(30.0, 70.0), metadata=_rng_pair(-89.0, 89.9))
+    sweep_deg: float = field(default=40.0, metadata=_bounds(0.0, 360.0))  # azimuth swept over the sequence
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """What is on the table and how it settles."""
+
+    objects_per_scene: tuple[int, int] = field(default=(3, 6), metadata=_rng_pair(1, 200))
+    distractors: tuple[int, int] = field(default=(0, 2), metadata=_rng_pair(0, 100))
+    allow_repeats: bool = True  # the same object may appear more than once in a scene
+    container: Literal["table", "bin"] = field(default="table", metadata=_bounds(choices=("table", "bin")))
+    table_size: tuple[float, float] = field(default=(0.8, 0.6), metadata={"each": (0.1, 10.0)})  # x, y metres
+    table_height: float = field(default=0.4, metadata=_bounds(0.0, 2.0))
+    drop_height: tuple[float, float] = field(default=(0.05, 0.25), metadata=_rng_pair(0.0, 2.0))
+    drop_area: float = field(default=0.6, metadata=_bounds(0.05, 1.0))  # fraction of the table objects drop over
+    settle_max_time: float = field(default=4.0, metadata=_bounds(0.1, 60.0))  # seconds of simulated time
+    settle_velocity: float = field(default=0.01, metadata=_bounds(1e-5, 1.0))  # m/s (and rad/s) at rest
+    timestep: float = field(default=0.002, metadata=_bounds(1e-4, 0.01))
+    panda: bool = False  # put the Panda arm in the scene (always on for the wrist rig)
+    max_attempts: int = field(default=5, metadata=_bounds(1, 100))  # re-sample a scene that cannot be placed
+
+
+@dataclass(frozen=True)
+class LightConfig:
+    count: tuple[int, int] = field(default=(1, 4), metadata=_rng_pair(0, 8))
+    distance: tuple[float, float] = field(default=(0.8, 2.0), metadata=_rng_pair(0.1, 20.0))
+    intensity: tuple[float, float] = field(default=(0.3, 0.9), metadata=_rng_pair(0.0, 1.0))  # diffuse
+    ambient: tuple[float, float] = field(default=(0.1, 0.35), metadata=_rng_pair(0.0, 1.0))
+    colour_jitter: float = field(default=0.15, metadata=_bounds(0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class MaterialConfig:
+    """Per-object and background appearance randomization (MuJoCo material parameters, each in [0, 1])."""
+
+    randomize_object_colour: bool = True
+    colour_jitter: float = field(default=0.15, metadata=_bounds(0.0, 1.0))  # around each object's own colour
+    specular: tuple[float, float] = field(default=(0.0, 0.7), metadata=_rng_pair(0.0, 1.0))
+    shininess: tuple[float, float] = field(default=(0.0, 0.8), metadata=_rng_pair(0.0, 1.0))
+    reflectance: tuple[float, float] = field(default=(0.0, 0.15), metadata=_rng_pair(0.0, 1.0))
+    background_textures: bool = True  # procedural table / floor / wall textures
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    profile: Literal["fast", "quality"] = field(default="fast", metadata=_bounds(choices=("fast", "quality")))
+    depth_scale: float = field(default=0.1, metadata=_bounds(1e-3, 100.0))  # mm per depth PNG unit (BOP)
+    rgb_format: Literal["png", "jpg"] = field(default="png", metadata=_bounds(choices=("png", "jpg")))
+    jpg_quality: int = field(default=95, metadata=_bounds(1, 100))
+    coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Everything ``simtest generate`` needs. See the module docstring for units."""
+
+    objects: str = "builtin"  # "builtin", "builtin-small", or a path (mesh folder, mesh file, BOP models/)
+    units: Literal["m", "mm", "auto"] = field(default="auto", metadata=_bounds(choices=("m", "mm", "auto")))
+    scenes: int = field(default=10, metadata=_bounds(1, 10_000_000))
+    frames_per_scene: int = field(default=10, metadata=_bounds(1, 100_000))
+    rig: Literal["shell", "wrist", "sequence"] = field(
+        default="shell", metadata=_bounds(choices=("shell", "wrist", "sequence")))
+    split: str = "train_pbr"
+    seed: int = field(default=0, metadata=_bounds(0, 2**63 - 1))
+    workers: int = field(default=1, metadata=_bounds(1, 256))
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    shell: ShellRig = field(default_factory=ShellRig)
+    sequence: SequenceRig = field(default_factory=SequenceRig)
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    lights: LightConfig = field(default_factory=LightConfig)
+    materials: MaterialConfig = field(default_factory=MaterialConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+
+    @staticmethod
+    def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":
+        """Validate ``data`` (nested dicts) into a config; errors name ``source`` and the dotted field."""
+        return _build(GenerateConfig, data, prefix="", source=source)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _to_plain(dataclasses.asdict(self))
+
+    def replace(self, **overrides: Any) -> "GenerateConfig":
+        """A copy with dotted-path overrides, validated: ``cfg.replace(**{"camera.width": 320})``."""
+        data = self.to_dict()
+        for key, value in overrides.items():
+            node = data
+            parts = key.split(".")
+            for p in parts[:-1]:
+                if p not in node or not isinstance(node[p], dict):
+                    raise ConfigError(f"unknown config field {key!r}")
+                node = node[p]
+            node[parts[-1]] = value
+        return GenerateConfig.from_dict(data, source="overrides")
+
+
+def _to_plain(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_to_plain(v) for v in obj]
+    return obj
+
+
+def _build(cls: type, data: Any, prefix: str, source: str):
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: {prefix.rstrip('.') or 'config'} must be a table/object, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: unknown field(s) {', '.join(prefix + u for u in unknown)}; "
+                          f"allowed in {prefix.rstrip('.') or 'the top level'}: {', '.join(fields)}")
+    kwargs = {}
+    for name, value in data.items():
+        f = fields[name]
+        kwargs[name] = _check(hints[name], value, f.metadata, prefix + name, source)
+    return cls(**kwargs)
+
+
+def _check(tp: Any, value: Any, meta: Any, path: str, source: str):
+    def bad(allowed: str):
+        return ConfigError(f"{source}: {path} = {value!r} is invalid; allowed: {allowed}")
+
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, path + ".", source)
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        tp = next(a for a in args if a is not type(None))
+        return _check(tp, value, meta, path, source)
+    if origin is Literal:
+        if value not in args:
+            raise bad(" | ".join(map(repr, args)))
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise bad(f"a list of {len(args)} numbers")
+        out = tuple(_check(a, v, {}, f"{path}[{i}]", source) for i, (a, v) in enumerate(zip(args, value)))
+        if "each" in meta:
+            lo, hi = meta["each"]
+            if not all(lo <= v <= hi for v in out):
+                raise bad(f"{len(args)} numbers, each in [{lo}, {hi}]")
+        if "pair" in meta:
+            lo, hi = meta["pair"]
+            if not (lo <= out[0] <= out[1] <= hi):
+                raise bad(f"[min, max] with {lo} <= min <= max <= {hi}")
+        return out
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad("an integer" + _range_text(meta))
+        _in_bounds(value, meta, bad)
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
+            raise bad("a number" + _range_text(meta))
+        _in_bounds(value, meta, bad)
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str) or not value:
+            raise bad("a non-empty string")
+        return value
+    return value  # pragma: no cover
+
+
+def _range_text(meta: Any) -> str:
+    lo, hi = meta.get("bounds", (None, None)) if meta else (None, None)
+    if lo is None and hi is None:
+        return ""
+    return f" in [{lo}, {hi}]"
+
+
+def _in_bounds(value: float, meta: Any, bad) -> None:
+    lo, hi = meta.get("bounds", (None, None)) if meta else (None, None)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise bad(f"[{lo}, {hi}]")
+
+
+def load_config(path: str | Path) -> GenerateConfig:
+    """Read a TOML (``.toml``) or JSON (``.json``) generation config and validate it."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    text = path.read_text(encoding="utf-8")
+    try:
+        if path.suffix.lower() == ".toml":
+            try:
+                import tomllib
+            except ModuleNotFoundError:  # Python 3.10
+                import tomli as tomllib  # type: ignore[no-redef]
+            data = tomllib.loads(text)
+        elif path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            raise ConfigError(f"config file {str(path)!r}: unsupported extension {path.suffix!r}; use .toml or .json")
+    except (ValueError, json.JSONDecodeError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"config file {str(path)!r} does not parse: {exc}") from exc
+    return GenerateConfig.from_dict(data, source=str(path))

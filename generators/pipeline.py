@@ -1,0 +1,284 @@
+"""``generate()``: config + seed -> BOP dataset. Workers own whole scenes; scenes are written atomically.
+
+Determinism: scene ``i`` draws everything from ``child_rng(seed, i, attempt)``, so its files do not depend on
+which worker ran it, on how many workers there were, or on whether the run was resumed.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import platform
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import simtest
+from simtest.camera import CameraModel
+from simtest.errors import ConfigError, DatasetError
+from simtest.generators.config import GenerateConfig
+from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
+from simtest.io.files import atomic_write_json
+from simtest.rng import child_rng
+
+__all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
+
+MANIFEST = "manifest.json"
+_HAS_MODELS_WRITER = False  # TEMP
+
+
+@dataclass
+class SceneReport:
+    """What happened while making one scene."""
+
+    scene_id: int
+    frames: int
+    attempts: int
+    retry_reasons: list[str]
+    removed: int
+    settle_time: float
+    at_rest: bool
+    seconds: float
+
+
+@dataclass
+class GenerateReport:
+    """Summary of a ``generate`` run."""
+
+    out_dir: Path
+    scenes_total: int
+    scenes_done: int
+    scenes_skipped: int
+    frames_written: int
+    seconds: float
+    scenes: list[SceneReport] = field(default_factory=list)
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames_written / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def retried(self) -> list[SceneReport]:
+        return [s for s in self.scenes if s.attempts > 1]
+
+
+def _versions() -> dict[str, str]:
+    import mujoco
+
+    return {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+            "python": platform.python_version()}
+
+
+def _load_objects(cfg: GenerateConfig):
+    from simtest.objects import load_object_set
+
+    return load_object_set(cfg.objects, units=cfg.units)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# One scene (runs in a worker)
+_WORKER: dict = {}
+
+
+def _worker_init(cfg_dict: dict) -> None:
+    cfg = GenerateConfig.from_dict(cfg_dict)
+    _WORKER["cfg"] = cfg
+    _WORKER["objects"] = _load_objects(cfg)
+
+
+def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
+    """Sample, build and settle scene ``scene_id``, re-sampling (new sub-seed) when it cannot be used.
+
+    Returns:
+        ``(scene, settle_result, attempts, reasons)``.
+
+    Raises:
+        DatasetError: If no attempt out of ``cfg.scene.max_attempts`` gave a usable scene.
+    """
+    from simtest.generators.builder import SceneBuilder
+    from simtest.generators.scene_spec import PlacementError, sample_scene_spec
+    from simtest.generators.settle import settle
+
+    builder = SceneBuilder(objects, cfg)
+    reasons: list[str] = []
+    for attempt in range(cfg.scene.max_attempts):
+        rng = child_rng(cfg.seed, scene_id, attempt)
+        try:
+            spec = sample_scene_spec(cfg, objects, rng, scene_id, attempt)
+        except PlacementError as exc:
+            reasons.append(str(exc))
+            continue
+        scene = builder.build(spec)
+        result = settle(scene, cfg.scene)
+        if not any(scene.active):
+            reasons.append(f"scene {scene_id} attempt {attempt}: every object fell off the table")
+            continue
+        scene.rng = rng  # views and wrist configurations continue this stream
+        return scene, result, attempt + 1, reasons
+    raise DatasetError(f"scene {scene_id}: no usable scene in {cfg.scene.max_attempts} attempts "
+                       f"(scene.max_attempts); reasons: {'; '.join(reasons)}")
+
+
+def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndarray | None]]:
+    """Every view of a settled scene: its camera (OpenCV ``T_world_cam``) and, for the wrist rig, the arm
+    configuration that puts the wrist camera there (``None`` otherwise)."""
+    from simtest.generators.scene_spec import view_to_camera_pose
+
+    base = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+    pts = np.array([scene.data.xpos[b] for b, a in zip(scene.instance_bodies, scene.active) if a])
+    poi = pts.mean(axis=0)
+    poi[2] = max(poi[2], cfg.scene.table_height)
+    if cfg.rig == "wrist":
+        from simtest.generators.wrist import wrist_cameras
+
+        return wrist_cameras(cfg, scene, poi, base)
+    return [(base.with_pose(view_to_camera_pose(v, poi)), None) for v in scene.spec.views]
+
+
+def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path, renderer_cache: dict | None = None
+                 ) -> SceneReport:
+    """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole)."""
+    from simtest.generators.annotate import annotate
+    from simtest.render import Renderer
+
+    t0 = time.perf_counter()
+    scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
+    cameras = scene_cameras(cfg, scene)
+    writer = SceneWriter(split_dir, scene_id, cameras[0][0], depth_scale=cfg.render.depth_scale,
+                         rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco)
+    with Renderer(scene.model, cfg.camera.width, cfg.camera.height, profile=cfg.render.profile) as renderer:
+        for im_id, (cam, arm_q) in enumerate(cameras):
+            if arm_q is not None:
+                scene.set_arm(arm_q)
+            scene.set_camera(cam)
+            frame = renderer.render(scene.data, scene.camera_id)
+            anns = annotate(scene, frame, cam, objects)
+            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
+                       [a.mask_visib for a in anns])
+    report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
+                         settled.at_rest, time.perf_counter() - t0)
+    atomic_write_json(writer.dir / "scene_info.json", {
+        "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
+        "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
+        "spec": scene.spec.to_dict()})
+    writer.close()
+    return report
+
+
+def _worker_scene(args: tuple[int, str]) -> SceneReport:
+    scene_id, split_dir = args
+    return render_scene(_WORKER["cfg"], _WORKER["objects"], scene_id, Path(split_dir))
+
+
+# ---------------------------------------------------------------------------------------------------------
+def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool) -> None:
+    if resume and overwrite:
+        raise ConfigError("--resume and --overwrite exclude each other; choose one")
+    if not out.exists() or not any(out.iterdir()):
+        return
+    if overwrite:
+        shutil.rmtree(out)
+        return
+    if not resume:
+        raise DatasetError(f"output folder {str(out)!r} is not empty; pass --resume to continue an interrupted "
+                           f"run or --overwrite to replace it")
+    manifest = out / MANIFEST
+    if not manifest.is_file():
+        raise DatasetError(f"cannot resume into {str(out)!r}: it has no {MANIFEST} (not a simtest dataset)")
+    import json
+
+    old = json.loads(manifest.read_text())["config"]
+    new = cfg.to_dict()
+    old.pop("workers", None)
+    new.pop("workers", None)
+    if old != new:
+        diffs = _diff(old, new)
+        raise DatasetError(f"cannot resume into {str(out)!r}: its config differs from this run's at "
+                           f"{', '.join(diffs[:8])}; use the same config (or --overwrite)")
+
+
+def _diff(a, b, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b)):
+            out += _diff(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [f"{prefix.rstrip('.')} ({a!r} -> {b!r})"]
+
+
+def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, overwrite: bool = False,
+             progress: bool = True, command_line: list[str] | None = None) -> GenerateReport:
+    """Generate a BOP dataset.
+
+    Args:
+        cfg: Validated config (``cfg.seed`` and ``cfg.workers`` included).
+        out_dir: Dataset folder. Must be empty or absent unless ``resume`` or ``overwrite``.
+        resume: Continue an interrupted run: complete scenes are kept, the rest are made.
+        overwrite: Delete ``out_dir`` first.
+        progress: Show a progress bar (frames/s, ETA) on stderr.
+        command_line: Recorded in the manifest (defaults to ``sys.argv``).
+
+    Raises:
+        DatasetError: Non-empty output without ``resume``/``overwrite``, or a resume with another config.
+    """
+    out = Path(out_dir)
+    _check_out_dir(out, cfg, resume, overwrite)
+    t0 = time.perf_counter()
+    objects = _load_objects(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    split_dir = out / cfg.split
+    split_dir.mkdir(exist_ok=True)
+    camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+    if not (out / MANIFEST).exists():
+        atomic_write_json(out / MANIFEST, {
+            "format": "bop-scenewise", "generator": "simtest", "versions": _versions(), "seed": cfg.seed,
+            "config": cfg.to_dict(), "object_set": objects.name, "objects": [
+                {"obj_id": o.obj_id, "name": o.name, "category": o.category, "source": o.source} for o in objects],
+            "command_line": list(command_line if command_line is not None else sys.argv),
+            "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
+    write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
+    if not (out / "models" / "models_info.json").exists() and _HAS_MODELS_WRITER:
+        from simtest.io.bop_models import write_bop_models
+
+        write_bop_models(objects, out / "models")
+    done = {int(p.name) for p in scene_dirs(split_dir)}
+    todo = [i for i in range(cfg.scenes) if i not in done]
+    for partial in split_dir.glob(".*.partial"):
+        shutil.rmtree(partial, ignore_errors=True)
+    report = GenerateReport(out, cfg.scenes, 0, len(done), 0, 0.0)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo) * cfg.frames_per_scene, unit="frame", desc="generate", dynamic_ncols=True,
+                   smoothing=0.1, file=sys.stderr)
+    try:
+        if cfg.workers <= 1 or len(todo) <= 1:
+            for i in todo:
+                rep = render_scene(cfg, objects, i, split_dir)
+                _account(report, rep, bar)
+        else:
+            ctx = mp.get_context("spawn")  # GL contexts do not survive fork
+            with ctx.Pool(min(cfg.workers, len(todo)), initializer=_worker_init, initargs=(cfg.to_dict(),)) as pool:
+                for rep in pool.imap_unordered(_worker_scene, [(i, str(split_dir)) for i in todo]):
+                    _account(report, rep, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    report.seconds = time.perf_counter() - t0
+    report.scenes.sort(key=lambda s: s.scene_id)
+    return report
+
+
+def _account(report: GenerateReport, rep: SceneReport, bar) -> None:
+    report.scenes.append(rep)
+    report.scenes_done += 1
+    report.frames_written += rep.frames
+    if bar is not None:
+        bar.update(rep.frames)
+        if rep.attempts > 1:
+            bar.write(f"scene {rep.scene_id}: re-sampled {rep.attempts - 1}x ({rep.retry_reasons[-1]})")

@@ -1,0 +1,288 @@
+"""BOP dataset reader and writer (scenewise layout, as the BOP toolkit reads it).
+
+This module (with :mod:`simtest.io.bop_models` for ``models/``) is the only place that knows millimetres and
+``depth_scale``: everything it returns or accepts is in metres, and it converts at the file boundary.
+
+Layout written::
+
+    DATASET/camera.json, models/, manifest.json
+    DATASET/{split}/{scene:06d}/rgb/{im:06d}.png|jpg, depth/{im:06d}.png (uint16, mm = value * depth_scale),
+        mask/{im:06d}_{gt:06d}.png, mask_visib/..., scene_camera.json, scene_gt.json, scene_gt_info.json,
+        scene_gt_coco.json (optional)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from simtest.camera import CameraModel
+from simtest.errors import DatasetError
+from simtest.geometry import Pose
+from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json, dump_json_keyed
+
+__all__ = [
+    "MM_PER_M", "ImageGT", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
+    "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
+]
+
+#: The only metres <-> millimetres factor in simtest.
+MM_PER_M = 1000.0
+#: Largest representable depth value of a uint16 PNG.
+_UINT16_MAX = 65535
+
+
+def pose_to_bop(T: Pose) -> tuple[list[float], list[float]]:
+    """(cam_R_m2c as 9 row-major floats, cam_t_m2c in mm) from a pose in metres."""
+    return [float(v) for v in T.R.reshape(-1)], [float(v) for v in T.t * MM_PER_M]
+
+
+def pose_from_bop(R9, t3_mm) -> Pose:
+    """A pose in metres from BOP's flat rotation and millimetre translation."""
+    return Pose(np.asarray(R9, dtype=np.float64).reshape(3, 3), np.asarray(t3_mm, dtype=np.float64) / MM_PER_M)
+
+
+def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
+    """Planar depth in metres -> uint16 BOP depth (``mm = value * depth_scale``).
+
+    Missing depth (0) stays 0; depth beyond the largest representable value becomes 0 (missing) rather than
+    wrapping or clipping to a wrong distance.
+    """
+    v = np.round(np.asarray(depth_m, dtype=np.float64) * (MM_PER_M / depth_scale))
+    v[(v > _UINT16_MAX) | ~np.isfinite(v) | (v < 0)] = 0
+    return v.astype(np.uint16)
+
+
+def decode_depth(value: np.ndarray, depth_scale: float) -> np.ndarray:
+    """uint16 BOP depth -> float32 metres (0 = missing)."""
+    return (value.astype(np.float64) * (depth_scale / MM_PER_M)).astype(np.float32)
+
+
+def _png(img: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:  # pragma: no cover
+        raise DatasetError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float) -> None:
+    K = camera.K
+    atomic_write_json(path, {"cx": float(K[0, 2]), "cy": float(K[1, 2]), "depth_scale": float(depth_scale),
+                             "fx": float(K[0, 0]), "fy": float(K[1, 1]), "height": camera.height,
+                             "width": camera.width})
+
+
+def read_camera_json(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: camera.json is missing")
+    try:
+        data = json.loads(path.read_text())
+        for key in ("fx", "fy", "cx", "cy", "width", "height"):
+            if key not in data:
+                raise DatasetError(f"{path}: field {key!r} is missing")
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
+    return data
+
+
+@dataclass(frozen=True)
+class ImageGT:
+    """Ground truth of one object instance in one image, as written to / read from the BOP files."""
+
+    obj_id: int
+    T_cam_obj: Pose
+    bbox_obj: list[int]
+    bbox_visib: list[int]
+    px_count_all: int
+    px_count_valid: int
+    px_count_visib: int
+    visib_fract: float
+
+
+class SceneWriter:
+    """Writes one BOP scene folder; frames are added one by one, the JSON files at :meth:`close`.
+
+    The scene is assembled in a hidden sibling folder (``.{scene:06d}.partial``) and renamed into place when
+    complete, so a scene folder either exists whole or not at all (a killed run leaves only a partial folder,
+    which :meth:`close` of a later run replaces).
+    """
+
+    def __init__(self, split_dir: str | Path, scene_id: int, camera: CameraModel, depth_scale: float = 0.1,
+                 rgb_format: str = "png", jpg_quality: int = 95, coco: bool = False) -> None:
+        self.final_dir = Path(split_dir) / f"{scene_id:06d}"
+        self.dir = Path(split_dir) / f".{scene_id:06d}.partial"
+        if self.dir.exists():
+            shutil.rmtree(self.dir)
+        for sub in ("rgb", "depth", "mask", "mask_visib"):
+            (self.dir / sub).mkdir(parents=True)
+        self.scene_id = scene_id
+        self.camera = camera
+        self.depth_scale = float(depth_scale)
+        self.rgb_format = rgb_format
+        self.jpg_quality = int(jpg_quality)
+        self.coco = coco
+        self.scene_camera: dict[str, dict] = {}
+        self.scene_gt: dict[str, list] = {}
+        self.scene_gt_info: dict[str, list] = {}
+        self.coco_images: list[dict] = []
+        self.coco_annotations: list[dict] = []
+
+    def add(self, im_id: int, rgb: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+            instances: list, masks: list[np.ndarray], masks_visib: list[np.ndarray]) -> None:
+        """Write one image.
+
+        Args:
+            im_id: Image id within the scene.
+            rgb: (H, W, 3) uint8, RGB order.
+            depth_m: (H, W) planar depth, metres, 0 = missing.
+            camera: Camera of this image (K and ``T_world_cam``).
+            instances: Per-instance objects with the :class:`ImageGT` fields.
+            masks, masks_visib: (H, W) bool amodal / visible masks, same order as ``instances``.
+        """
+        key = str(im_id)
+        if self.rgb_format == "jpg":
+            ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.jpg_quality])
+            atomic_write_bytes(self.dir / "rgb" / f"{im_id:06d}.jpg", buf.tobytes())
+        else:
+            atomic_write_bytes(self.dir / "rgb" / f"{im_id:06d}.png", _png(np.ascontiguousarray(rgb[..., ::-1])))
+        atomic_write_bytes(self.dir / "depth" / f"{im_id:06d}.png", _png(encode_depth(depth_m, self.depth_scale)))
+        T_cam_world = camera.T_cam_world
+        R9, t_mm = pose_to_bop(T_cam_world)
+        self.scene_camera[key] = {"cam_K": [float(v) for v in camera.K.reshape(-1)], "depth_scale": self.depth_scale,
+                                  "cam_R_w2c": R9, "cam_t_w2c": t_mm}
+        gts, infos = [], []
+        for gt_id, (inst, m, mv) in enumerate(zip(instances, masks, masks_visib)):
+            R9, t_mm = pose_to_bop(inst.T_cam_obj)
+            gts.append({"cam_R_m2c": R9, "cam_t_m2c": t_mm, "obj_id": int(inst.obj_id)})
+            infos.append({"bbox_obj": list(inst.bbox_obj), "bbox_visib": list(inst.bbox_visib),
+                          "px_count_all": int(inst.px_count_all), "px_count_valid": int(inst.px_count_valid),
+                          "px_count_visib": int(inst.px_count_visib), "visib_fract": float(inst.visib_fract)})
+            atomic_write_bytes(self.dir / "mask" / f"{im_id:06d}_{gt_id:06d}.png", _png(m.astype(np.uint8) * 255))
+            atomic_write_bytes(self.dir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png",
+                               _png(mv.astype(np.uint8) * 255))
+            if self.coco and inst.px_count_visib > 0:
+                self._coco_annotation(im_id, inst, mv)
+        self.scene_gt[key] = gts
+        self.scene_gt_info[key] = infos
+        if self.coco:
+            ext = "jpg" if self.rgb_format == "jpg" else "png"
+            self.coco_images.append({"id": im_id, "file_name": f"rgb/{im_id:06d}.{ext}", "width": camera.width,
+                                     "height": camera.height})
+
+    def _coco_annotation(self, im_id: int, inst, mask_visib: np.ndarray) -> None:
+        from pycocotools import mask as mask_utils
+
+        rle = mask_utils.encode(np.asfortranarray(mask_visib.astype(np.uint8)))
+        rle["counts"] = rle["counts"].decode("ascii")
+        self.coco_annotations.append({
+            "id": len(self.coco_annotations), "image_id": im_id, "category_id": int(inst.obj_id),
+            "iscrowd": 0, "area": int(inst.px_count_visib), "bbox": list(inst.bbox_visib), "segmentation": rle,
+            "ignore": False})
+
+    def close(self) -> Path:
+        """Write the scene JSON files and move the finished scene into place; returns its folder."""
+        atomic_write_text(self.dir / "scene_camera.json", dump_json_keyed(self.scene_camera))
+        atomic_write_text(self.dir / "scene_gt.json", dump_json_keyed(self.scene_gt))
+        atomic_write_text(self.dir / "scene_gt_info.json", dump_json_keyed(self.scene_gt_info))
+        if self.coco:
+            cats = sorted({a["category_id"] for a in self.coco_annotations})
+            atomic_write_json(self.dir / "scene_gt_coco.json", {
+                "info": {"description": f"scene {self.scene_id}"}, "images": self.coco_images,
+                "annotations": self.coco_annotations,
+                "categories": [{"id": c, "name": str(c), "supercategory": "object"} for c in cats]}, indent=None)
+        if self.final_dir.exists():
+            shutil.rmtree(self.final_dir)
+        os.replace(self.dir, self.final_dir)
+        return self.final_dir
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Reading
+def scene_dirs(split_dir: str | Path) -> list[Path]:
+    """Complete scene folders of a split (``000000``, ``000001``, ...), sorted; partial folders excluded."""
+    split_dir = Path(split_dir)
+    if not split_dir.is_dir():
+        raise DatasetError(f"{split_dir}: split folder does not exist")
+    return sorted(p for p in split_dir.iterdir() if p.is_dir() and p.name.isdigit() and len(p.name) == 6)
+
+
+def _load_json(path: Path) -> dict:
+    if not path.is_file():
+        raise DatasetError(f"{path}: file is missing")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
+
+
+def read_scene(scene_dir: str | Path) -> dict[int, dict]:
+    """All annotations of one scene, in metres.
+
+    Returns:
+        ``{im_id: {"K": 3x3, "depth_scale": float, "T_cam_world": Pose | None, "gt": [ImageGT, ...]}}``.
+    """
+    scene_dir = Path(scene_dir)
+    cams = _load_json(scene_dir / "scene_camera.json")
+    gts = _load_json(scene_dir / "scene_gt.json")
+    info_path = scene_dir / "scene_gt_info.json"
+    infos = _load_json(info_path) if info_path.exists() else {}
+    out: dict[int, dict] = {}
+    for key, cam in cams.items():
+        T_cw = pose_from_bop(cam["cam_R_w2c"], cam["cam_t_w2c"]) if "cam_R_w2c" in cam else None
+        items = []
+        for j, g in enumerate(gts.get(key, [])):
+            info = infos.get(key, [{}] * (j + 1))[j] if key in infos else {}
+            items.append(ImageGT(
+                obj_id=int(g["obj_id"]), T_cam_obj=pose_from_bop(g["cam_R_m2c"], g["cam_t_m2c"]),
+                bbox_obj=info.get("bbox_obj", [-1] * 4), bbox_visib=info.get("bbox_visib", [-1] * 4),
+                px_count_all=int(info.get("px_count_all", -1)), px_count_valid=int(info.get("px_count_valid", -1)),
+                px_count_visib=int(info.get("px_count_visib", -1)), visib_fract=float(info.get("visib_fract", -1))))
+        out[int(key)] = {"K": np.asarray(cam["cam_K"], dtype=np.float64).reshape(3, 3),
+                         "depth_scale": float(cam.get("depth_scale", 1.0)), "T_cam_world": T_cw, "gt": items}
+    return out
+
+
+def _image_path(scene_dir: Path, sub: str, name: str) -> Path:
+    for ext in (".png", ".jpg", ".tif"):
+        p = scene_dir / sub / f"{name}{ext}"
+        if p.exists():
+            return p
+    raise DatasetError(f"{scene_dir / sub}: no image {name}.png/.jpg")
+
+
+def read_image(scene_dir: str | Path, im_id: int) -> np.ndarray:
+    """RGB image (H, W, 3) uint8."""
+    p = _image_path(Path(scene_dir), "rgb", f"{im_id:06d}")
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise DatasetError(f"{p}: unreadable image")
+    return img[..., ::-1].copy()
+
+
+def read_depth(scene_dir: str | Path, im_id: int, depth_scale: float) -> np.ndarray:
+    """Depth (H, W) float32 in metres, 0 = missing."""
+    p = _image_path(Path(scene_dir), "depth", f"{im_id:06d}")
+    raw = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.dtype != np.uint16:
+        raise DatasetError(f"{p}: expected a 16-bit depth PNG")
+    return decode_depth(raw, depth_scale)
+
+
+def read_mask(scene_dir: str | Path, im_id: int, gt_id: int, visible: bool = True) -> np.ndarray:
+    """Visible (``mask_visib``) or amodal (``mask``) mask as bool (H, W)."""
+    p = Path(scene_dir) / ("mask_visib" if visible else "mask") / f"{im_id:06d}_{gt_id:06d}.png"
+    m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if m is None:
+        raise DatasetError(f"{p}: mask is missing or unreadable")
+    return m > 127
+
+
+def manifest_text(manifest: dict) -> str:
+    return dump_json(manifest)
