@@ -10,6 +10,14 @@
 """
 
 from simtest.metrics.auc import accuracy_below, auc_mean_rule, ycb_auc
+from simtest.metrics.bop19 import (
+    Bop19Result,
+    EvalImage,
+    GroundTruthPose,
+    PoseEstimate,
+    evaluate_bop19,
+    match_greedy,
+)
 from simtest.metrics.nocs import (
     chamfer_distance,
     iou_3d,
@@ -35,7 +43,6 @@ from simtest.metrics.pose import (
     vsd,
     vsd_from_depth,
 )
-
 from simtest.metrics.viewpoint import (
     accuracy_at,
     geodesic_error,
@@ -49,11 +56,17 @@ from simtest.metrics.viewpoint import (
 )
 
 __all__ = [
+    # pose
     "add", "adi", "add_s", "re", "rotation_error_rad", "te", "mssd", "mspd", "vsd", "vsd_from_depth",
     "add_s_or_add", "add_01d",
+    # auc
     "ycb_auc", "auc_mean_rule", "accuracy_below",
-    "geodesic_error", "rotation_errors", "accuracy_at", "median_error_deg", "viewpoint_summary",
-    "viewpoint_to_rotation", "rotation_to_viewpoint", "viewpoint_to_pose", "pose_to_viewpoint",
+    # bop19
+    "PoseEstimate", "GroundTruthPose", "EvalImage", "Bop19Result", "evaluate_bop19", "match_greedy",
+    # nocs
     "rotation_error", "rotation_error_deg", "translation_error_cm", "n_deg_m_cm", "n_deg_m_cm_accuracy",
     "iou_3d", "iou_3d_legacy", "iou_accuracy", "chamfer_distance",
+    # viewpoint
+    "geodesic_error", "rotation_errors", "accuracy_at", "median_error_deg", "viewpoint_summary",
+    "viewpoint_to_rotation", "rotation_to_viewpoint", "viewpoint_to_pose", "pose_to_viewpoint",
 ]
