@@ -9,12 +9,12 @@ Gripper frame (all grasp poses are ``T_obj_grasp``: gripper frame -> object mode
 - **y**: the closing axis; the fingers move along +-y (as the Panda's finger joints in the hand frame).
 - **x**: ``y x z`` (right-handed), across the finger width.
 
-With :data:`PANDA` the fingertips reach ``tip_offset`` = 0.01 m beyond the origin along +z (the contact
-sits on the pads about 1 cm from the tips, as on the real hand); the fingers are ``finger_length`` = 0.045 m
-long, so the palm face is at ``z = -0.035`` m and the palm extends further along -z. An object can
-therefore reach 0.035 m past the contacts towards the palm. The Panda hand flange is not part of this
-frame: its offset to the grasp origin (about 0.1034 m - 0.01 m along the flange z axis) belongs to the
-robot model. ``widths`` are the distances between the two contacts; the fingers should open to
+With :data:`PANDA` the fingertips reach ``tip_offset`` = 0.022 m beyond the origin along +z (the contacts
+sit at the distal pad centres, as the TCP of :mod:`simtest.panda`); the fingers are ``finger_length`` =
+0.054 m long, so the palm face is at ``z = -0.032`` m and the palm extends further along -z. An object can
+therefore reach 0.032 m past the contacts towards the palm. Most candidates have their contacts at the
+origin; for rims and edges the contacts may instead sit up to ``max(contact_shifts)`` = 0.012 m further
+along +z (nearer the fingertips, still on the pads); ``contacts`` holds the exact points. ``widths`` are the distances between the two contacts; the fingers should open to
 ``min(width + gripper.clearance, gripper.max_width)`` before closing. A rotation by pi about z gives the
 same grasp with the fingers swapped.
 
@@ -55,16 +55,19 @@ class Gripper:
         palm_size: Palm box extents (x, y, z); its +z face is where the fingers start.
         clearance: Extra opening beyond the contact width before closing (sum over both fingers).
         min_width: Narrowest contact width accepted.
+        contact_shifts: Where along z the contacts may sit on the pads (0: at the origin; 0.012: 12 mm
+            towards the fingertips, for rims and edges). Grasps with a shift score slightly lower.
     """
 
     max_width: float = 0.08
-    finger_length: float = 0.045
-    tip_offset: float = 0.01
+    finger_length: float = 0.054
+    tip_offset: float = 0.022
     finger_width: float = 0.02
     finger_thickness: float = 0.01
     palm_size: tuple[float, float, float] = (0.06, 0.21, 0.06)
     clearance: float = 0.01
     min_width: float = 0.002
+    contact_shifts: tuple[float, ...] = (0.0, 0.012)
 
     @property
     def max_contact_width(self) -> float:
@@ -256,20 +259,21 @@ def _sample(mesh: trimesh.Trimesh, mesh_hash: str, com: np.ndarray, diameter: fl
         py, pu, pv = d @ y, d @ u, d @ v
         pz = ct * pu + st * pv          # (A, P)
         px = ct * pv - st * pu
-        hit = np.zeros(num_approaches, dtype=bool)
-        for lo, hi in lo_hi:
-            inside = ((px >= lo[0]) & (px <= hi[0]) & (py >= lo[1]) & (py <= hi[1])
-                      & (pz >= lo[2]) & (pz <= hi[2]))
-            hit |= inside.any(axis=1)
-        for k in np.flatnonzero(~hit):
-            z = ct[k, 0] * u + st[k, 0] * v
-            x = np.cross(y, z)
-            T = np.eye(4)
-            T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, centers[i]
-            poses.append(T)
-            out_w.append(w[i])
-            out_s.append(0.5 * s_anti[i] + 0.5 * s_com[i])
-            out_c.append((p[i], q[i]))
+        for shift, factor in zip(g.contact_shifts, (1.0, 0.95, 0.9)):
+            hit = np.zeros(num_approaches, dtype=bool)
+            for lo, hi in lo_hi:
+                inside = ((px >= lo[0]) & (px <= hi[0]) & (py >= lo[1]) & (py <= hi[1])
+                          & (pz + shift >= lo[2]) & (pz + shift <= hi[2]))
+                hit |= inside.any(axis=1)
+            for k in np.flatnonzero(~hit):
+                z = ct[k, 0] * u + st[k, 0] * v
+                x = np.cross(y, z)
+                T = np.eye(4)
+                T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, centers[i] - shift * z
+                poses.append(T)
+                out_w.append(w[i])
+                out_s.append(factor * (0.5 * s_anti[i] + 0.5 * s_com[i]))
+                out_c.append((p[i], q[i]))
     if not poses:
         return GraspSet.empty()
     poses_a, w_a, s_a, c_a = np.stack(poses), np.asarray(out_w), np.asarray(out_s), np.asarray(out_c)

@@ -1,0 +1,233 @@
+"""BOP ``models/`` folders: ``obj_{id:06d}.ply`` in millimetres and ``models_info.json``.
+
+Together with :mod:`simtest.io.bop` this is the only place that converts between metres (used everywhere
+in simtest) and the millimetres of the BOP format, through :data:`MM_PER_M`.
+
+Written layout (what the BOP toolkit's ``inout.load_ply`` and ``load_json`` read)::
+
+    models/obj_000001.ply      binary little-endian PLY: x y z nx ny nz (float32, mm), red green blue
+                               (uchar), faces as "list uchar int vertex_indices"
+    models/models_info.json    {"1": {diameter, min_x, min_y, min_z, size_x, size_y, size_z,
+                                      symmetries_discrete?: [[16 floats, translation in mm]],
+                                      symmetries_continuous?: [{axis: [3], offset: [3] (mm)}]}}
+    models/simtest_objects.json  simtest's extra metadata (name, category, instance, density, rgba,
+                                 source); the BOP toolkit ignores it
+
+Every file is written atomically (a temporary file in the same folder, then ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from simtest.errors import AssetError
+
+__all__ = ["MM_PER_M", "write_bop_models", "read_bop_models", "models_info_entry", "INFO_FILE", "META_FILE"]
+
+#: Millimetres per metre: BOP files are in mm, simtest is in m.
+MM_PER_M = 1000.0
+INFO_FILE = "models_info.json"
+META_FILE = "simtest_objects.json"
+#: A BOP model whose bbox centre is farther than this from its origin (metres) triggers a warning.
+CENTER_TOLERANCE = 1e-3
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray | None,
+              comment: str = "") -> bytes:
+    """A binary little-endian PLY (float32 positions in mm and normals, optional uchar colours)."""
+    n = len(vertices_mm)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if rgb is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    vert = np.zeros(n, dtype=fields)
+    for i, key in enumerate("xyz"):
+        vert[key] = vertices_mm[:, i]
+        vert["n" + key] = normals[:, i]
+    if rgb is not None:
+        for i, key in enumerate(("red", "green", "blue")):
+            vert[key] = rgb[:, i]
+    face = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"] = 3
+    face["v"] = faces
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {line}" for line in comment.splitlines() if line]
+    header += [f"element vertex {n}"] + [f"property {'float' if t == '<f4' else 'uchar'} {k}" for k, t in fields]
+    header += [f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + vert.tobytes() + face.tobytes()
+
+
+def models_info_entry(obj) -> dict:
+    """The ``models_info.json`` record of one object (millimetres)."""
+    lo = obj.bbox[0] * MM_PER_M
+    size = obj.size * MM_PER_M
+    info = {"diameter": float(obj.diameter * MM_PER_M),
+            "min_x": float(lo[0]), "min_y": float(lo[1]), "min_z": float(lo[2]),
+            "size_x": float(size[0]), "size_y": float(size[1]), "size_z": float(size[2])}
+    if obj.symmetries_discrete:
+        flat = []
+        for T in obj.symmetries_discrete:
+            T = np.array(T, dtype=np.float64)
+            T[:3, 3] *= MM_PER_M
+            flat.append([float(v) + 0.0 for v in T.reshape(-1)])  # + 0.0 turns -0.0 into 0.0
+        info["symmetries_discrete"] = flat
+    if obj.symmetries_continuous:
+        info["symmetries_continuous"] = [
+            {"axis": [float(a) for a in s.axis], "offset": [float(o) * MM_PER_M for o in s.offset]}
+            for s in obj.symmetries_continuous]
+    return info
+
+
+def write_bop_models(objects, out_dir: str | Path) -> Path:
+    """Write an object set as a BOP ``models/`` folder (millimetres).
+
+    Args:
+        objects: An :class:`~simtest.objects.ObjectSet` (or any iterable of ``ObjectModel``).
+        out_dir: The ``models`` folder to write (created if needed; existing files are replaced).
+
+    Returns:
+        ``out_dir`` as a Path.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    info: dict[str, dict] = {}
+    meta: dict[str, dict] = {}
+    for obj in objects:
+        mesh = obj.mesh
+        rgb = np.tile(np.round(np.asarray(obj.rgba[:3]) * 255).astype(np.uint8), (len(mesh.vertices), 1))
+        data = ply_bytes(np.asarray(mesh.vertices) * MM_PER_M, np.asarray(mesh.faces),
+                         np.asarray(mesh.vertex_normals), rgb,
+                         comment=f"simtest obj_id {obj.obj_id} {obj.name}\nunits mm, origin at bbox centre, Z up")
+        _atomic_write(out / f"obj_{obj.obj_id:06d}.ply", data)
+        info[str(obj.obj_id)] = models_info_entry(obj)
+        meta[str(obj.obj_id)] = {"name": obj.name, "category": obj.category, "instance": int(obj.instance),
+                                 "density": float(obj.density), "rgba": [float(c) for c in obj.rgba],
+                                 "source": obj.source}
+    _atomic_write(out / INFO_FILE, (json.dumps(info, indent=2) + "\n").encode("utf-8"))
+    _atomic_write(out / META_FILE, (json.dumps(meta, indent=2) + "\n").encode("utf-8"))
+    return out
+
+
+def _floats(value, n: int, where: str, field: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise AssetError(f"{where}: {field} must be {n} numbers, got {value!r}") from None
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise AssetError(f"{where}: {field} must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _load_json(path: Path) -> dict:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except FileNotFoundError:
+        raise AssetError(f"{path}: file not found") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise AssetError(f"{path}: cannot read JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise AssetError(f"{path}: expected a JSON object keyed by obj_id, got {type(data).__name__}")
+    return data
+
+
+def read_bop_models(models_dir: str | Path, units: str = "mm") -> "ObjectSet":  # noqa: F821
+    """Read a BOP ``models/`` folder into an :class:`~simtest.objects.ObjectSet` (metres).
+
+    The model frame of the files is kept as it is (ground-truth poses of a BOP dataset refer to it); BOP
+    models have their origin at the bbox centre, and a model whose bbox centre is more than 1 mm off
+    its origin triggers a warning (its offset is recorded in ``extra["bbox_center"]``).
+
+    Args:
+        models_dir: Folder with ``models_info.json`` and ``obj_{id:06d}.ply``; a dataset root holding a
+            ``models/`` folder is accepted too.
+        units: Units of the files: ``"mm"`` (the BOP standard), ``"m"`` or ``"auto"`` (by size).
+
+    Raises:
+        AssetError: Missing folder, ``models_info.json`` or model file, malformed entries (naming the file,
+            object and field), absurd sizes for the units, or broken meshes.
+    """
+    from simtest.objects.loaders import load_mesh, unit_scale
+    from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
+
+    root = Path(models_dir)
+    if not root.is_dir():
+        raise AssetError(f"{root}: BOP models folder not found")
+    if not (root / INFO_FILE).exists() and (root / "models" / INFO_FILE).exists():
+        root = root / "models"
+    info_path = root / INFO_FILE
+    info = _load_json(info_path)
+    meta = _load_json(root / META_FILE) if (root / META_FILE).exists() else {}
+    objects = []
+    for key, entry in info.items():
+        if not re.fullmatch(r"\d+", str(key)) or int(key) < 1:
+            raise AssetError(f"{info_path}: keys must be positive integer object ids, got {key!r}")
+        obj_id = int(key)
+        where = f"{info_path} (obj_id {obj_id})"
+        if not isinstance(entry, dict):
+            raise AssetError(f"{where}: expected an object with diameter, min_x, ..., got {entry!r}")
+        ply = root / f"obj_{obj_id:06d}.ply"
+        if not ply.exists():
+            raise AssetError(f"{ply}: model file of obj_id {obj_id} listed in {info_path} not found")
+        mesh, raw_rgba = load_mesh(ply)
+        scale, unit = unit_scale(mesh, units, ply)
+        mesh = trimesh.Trimesh(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces), process=False)
+        to_m = scale  # file units -> metres, applied to the symmetry translations too
+        sym_d = []
+        for i, flat in enumerate(entry.get("symmetries_discrete", []) or []):
+            T = _floats(flat, 16, where, f"symmetries_discrete[{i}]").reshape(4, 4).copy()
+            R = T[:3, :3]
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+                raise AssetError(f"{where}: symmetries_discrete[{i}] is not a rigid transform: {flat!r}")
+            T[:3, 3] *= to_m
+            sym_d.append(T)
+        sym_c = []
+        for i, sym in enumerate(entry.get("symmetries_continuous", []) or []):
+            if not isinstance(sym, dict) or "axis" not in sym:
+                raise AssetError(f"{where}: symmetries_continuous[{i}] must be {{axis, offset}}, got {sym!r}")
+            axis = _floats(sym["axis"], 3, where, f"symmetries_continuous[{i}].axis")
+            if np.linalg.norm(axis) == 0:
+                raise AssetError(f"{where}: symmetries_continuous[{i}].axis must be non-zero, got {sym['axis']!r}")
+            offset = _floats(sym.get("offset", [0, 0, 0]), 3, where, f"symmetries_continuous[{i}].offset")
+            sym_c.append(ContinuousSymmetry(tuple(float(a) for a in axis), tuple(float(o) * to_m for o in offset)))
+        m = meta.get(str(obj_id), {}) if isinstance(meta, dict) else {}
+        center = 0.5 * (mesh.bounds[0] + mesh.bounds[1])
+        extra = {"units": unit, "scale": scale, "path": str(ply)}
+        if np.linalg.norm(center) > CENTER_TOLERANCE:
+            warnings.warn(f"{ply}: bbox centre is {np.round(center * 1000, 2).tolist()} mm off the model origin "
+                          "(BOP models are centred); the file frame is kept so dataset poses stay valid",
+                          stacklevel=2)
+            extra["bbox_center"] = center.tolist()
+        rgba = tuple(m.get("rgba", raw_rgba or (0.7, 0.7, 0.7, 1.0)))
+        objects.append(ObjectModel(
+            obj_id=obj_id, name=str(m.get("name", f"obj_{obj_id:06d}")), category=str(m.get("category", "obj")),
+            instance=int(m.get("instance", 0)), mesh=mesh, density=float(m.get("density", 500.0)), rgba=rgba,
+            symmetries_discrete=tuple(sym_d), symmetries_continuous=tuple(sym_c),
+            source=str(m.get("source", str(ply))), extra=extra))
+    listed = {f"obj_{o.obj_id:06d}.ply" for o in objects}
+    extra_files = sorted(p.name for p in root.glob("obj_*.ply") if p.name not in listed)
+    if extra_files:
+        warnings.warn(f"{root}: model files not listed in {INFO_FILE} are ignored: {', '.join(extra_files)}",
+                      stacklevel=2)
+    objects.sort(key=lambda o: o.obj_id)
+    return ObjectSet(objects, name=str(root))
