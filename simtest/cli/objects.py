@@ -1,0 +1,145 @@
+"""``simtest objects``: list an object set, export it as BOP models, render a preview of one object."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from simtest.errors import AssetError, DatasetError
+
+__all__ = ["register", "object_table", "render_preview"]
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("objects", help="list, export or preview object sets",
+                                   description="List, export or preview object sets.")
+    sub = parser.add_subparsers(dest="objects_command", metavar="SUBCOMMAND")
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--set", dest="set", default="builtin",
+                       help="builtin, builtin-small, a BOP models folder, a mesh folder or a mesh file")
+        p.add_argument("--units", default="auto", choices=["m", "mm", "auto"], help="units of mesh files")
+        p.add_argument("--seed", type=int, default=0, help="seed of the built-in sets")
+
+    p_list = sub.add_parser("list", help="print a table of the objects")
+    common(p_list)
+    p_list.add_argument("--no-grasps", action="store_true", help="skip grasp sampling (faster)")
+    p_list.set_defaults(func=_cmd_list)
+
+    p_exp = sub.add_parser("export", help="write the set as a BOP models/ folder (millimetres)")
+    common(p_exp)
+    p_exp.add_argument("--out", required=True, help="output folder (the models/ folder itself)")
+    p_exp.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
+    p_exp.set_defaults(func=_cmd_export)
+
+    p_prev = sub.add_parser("preview", help="render one object from a few views into a PNG")
+    common(p_prev)
+    p_prev.add_argument("obj_id", type=int, help="object id")
+    p_prev.add_argument("--out", required=True, help="PNG file to write")
+    p_prev.add_argument("--size", type=int, default=256, help="pixels per view (square)")
+    p_prev.set_defaults(func=_cmd_preview)
+
+    parser.set_defaults(func=lambda args: (parser.print_help(), 2)[1])
+
+
+def object_table(objects, grasps: bool = True) -> str:
+    """A fixed-width text table: id, name, category, diameter/size (mm), mass (g), symmetry, grasps."""
+    header = ["id", "name", "category", "diam_mm", "size_mm", "mass_g", "symmetry", "graspable", "grasps"]
+    rows = []
+    for o in objects:
+        n = len(o.grasps) if grasps else None
+        rows.append([str(o.obj_id), o.name, o.category, f"{o.diameter * 1000:.1f}",
+                     "x".join(f"{s * 1000:.0f}" for s in o.size), f"{o.mass * 1000:.0f}", o.symmetry_label(),
+                     "-" if n is None else ("yes" if (o.graspable if o.graspable_override is not None else n > 0)
+                                            else "no"),
+                     "-" if n is None else str(n)])
+    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header] + rows]
+    return "\n".join(lines)
+
+
+def _load(args):
+    from simtest.objects import load_object_set
+
+    return load_object_set(args.set, units=args.units, seed=args.seed)
+
+
+def _cmd_list(args) -> int:
+    objects = _load(args)
+    print(f"# {objects.name}: {len(objects)} objects, categories: {', '.join(objects.categories)}")
+    print(object_table(objects, grasps=not args.no_grasps))
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from simtest.io.bop_models import write_bop_models
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
+        raise DatasetError(f"{out}: folder is not empty; pass --overwrite to write into it")
+    objects = _load(args)
+    write_bop_models(objects, out)
+    print(f"wrote {len(objects)} models to {out}")
+    return 0
+
+
+def render_preview(obj, size: int = 256, views: int = 4) -> np.ndarray:
+    """Render ``obj`` alone from ``views`` azimuths (MuJoCo offscreen), side by side: (size, views*size, 3) uint8."""
+    import mujoco
+
+    spec = mujoco.MjSpec()
+    spec.visual.global_.offwidth = max(size, 64)
+    spec.visual.global_.offheight = max(size, 64)
+    mesh = spec.add_mesh()
+    mesh.name = "obj"
+    mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
+    mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
+    body = spec.worldbody.add_body()
+    geom = body.add_geom()
+    geom.type = mujoco.mjtGeom.mjGEOM_MESH
+    geom.meshname = "obj"
+    geom.rgba = list(obj.rgba)
+    geom.contype = 0
+    geom.conaffinity = 0
+    light = spec.worldbody.add_light()
+    light.pos = [0.0, -0.3, 1.0]
+    light.dir = [0.0, 0.3, -1.0]
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = 0.0
+    cam.distance = 2.2 * max(obj.diameter, 0.02)
+    cam.elevation = -30.0
+    images = []
+    with mujoco.Renderer(model, size, size) as renderer:
+        for k in range(views):
+            cam.azimuth = 45.0 + 360.0 * k / views
+            renderer.update_scene(data, camera=cam)
+            images.append(renderer.render().copy())
+    return np.concatenate(images, axis=1)
+
+
+def _cmd_preview(args) -> int:
+    from PIL import Image
+
+    objects = _load(args)
+    obj = objects.get(args.obj_id)
+    try:
+        image = render_preview(obj, size=args.size)
+    except Exception as exc:  # no GL backend, etc.
+        from simtest.errors import RenderError
+
+        raise RenderError(f"cannot render a preview of {obj.name}: {exc} (try MUJOCO_GL=egl or osmesa)") from exc
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        raise AssetError(f"--out must be a .png file, got {out}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(image).save(out)
+    print(f"wrote {out} ({obj.name}, {image.shape[1]}x{image.shape[0]} px)")
+    return 0
