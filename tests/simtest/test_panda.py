@@ -201,6 +201,16 @@ def test_top_down_grasp_lifts_and_holds(shape):
     assert result.sim_time > 1.0  # includes the 1 s hold
 
 
+def test_side_grasp_of_can_and_diagonal_grasp_of_box():
+    # Horizontal approach along world +x, closing axis world -y (x = y cross z = world +z).
+    side = np.column_stack([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
+    for shape, R in (("can", side), ("box", R_TOP_DOWN @ rotation_about([0, 0, 1], np.pi / 4))):
+        model, data, ids = make_scene(shape)
+        obj = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "obj")
+        result = grasp_and_lift(model, data, ids, Pose(R, data.xpos[obj].copy()), obj)
+        assert result.success, (shape, result)
+
+
 def test_offset_grasp_beside_the_object_does_not_lift():
     model, data, ids = make_scene("box")
     obj = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "obj")
