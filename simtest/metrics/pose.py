@@ -195,12 +195,38 @@ def mssd(R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, pts
     pts = _points(pts)
     R_e, t_e, R_g, t_g = _rot(R_e, "R_e"), _vec(t_e, "t_e"), _rot(R_g, "R_g"), _vec(t_g, "t_g")
     S = as_symmetries(syms)
+    if len(S) == 1:
+        return _mssd_exact(R_e, t_e, R_g, t_g, pts, S)
+    # The norm is rotation invariant: || R_e x + t_e - R_g (R_s x + t_s) - t_g || = || q - R_s x - t_s ||
+    # with q = R_g^T (R_e x + t_e - t_g). Expanding the square turns the (S, N) distances into matrix
+    # products: |q|^2 + |x|^2 + |t_s|^2 - 2 <R_s, q x^T> - 2 q.t_s + 2 (R_s^T t_s).x.
+    q = _posed(pts, R_e, t_e) - t_g
+    q = q @ R_g  # rows R_g^T (...)
+    Rs, ts = S[:, :3, :3], S[:, :3, 3]
+    base = (q * q).sum(axis=1) + (pts * pts).sum(axis=1)  # (N,)
+    qx = (q[:, :, None] * pts[:, None, :]).reshape(len(pts), 9)  # (N, 9): q_i x_j
+    # One matrix product: per symmetry [R_s (9), t_s (3), R_s^T t_s (3), |t_s|^2], per point
+    # [-2 q x^T (9), -2 q (3), 2 x (3), 1].
+    F = np.concatenate([Rs.reshape(len(S), 9), ts, np.einsum("sji,sj->si", Rs, ts),
+                        (ts * ts).sum(axis=1, keepdims=True)], axis=1)
+    G = np.concatenate([-2.0 * qx, -2.0 * q, 2.0 * pts, np.ones((len(pts), 1))], axis=1)
+    d2max = np.empty(len(S))
+    for sl in _sym_chunks(len(S), len(pts)):
+        d2max[sl] = (F[sl] @ G.T + base[None, :]).max(axis=1)
+    approx = np.sqrt(np.maximum(d2max, 0.0))  # (S,)
+    # The expansion loses ~1e-9 m to cancellation; rescore the near-best symmetries exactly.
+    cand = np.flatnonzero(approx <= approx.min() + 1e-6)
+    return _mssd_exact(R_e, t_e, R_g, t_g, pts, S[cand])
+
+
+def _mssd_exact(R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, pts: np.ndarray,
+                S: np.ndarray) -> float:
     pe = _posed(pts, R_e, t_e)
     R_gs = R_g @ S[:, :3, :3]  # (S, 3, 3)
     t_gs = S[:, :3, 3] @ R_g.T + t_g  # (S, 3)
     best = np.inf
     for sl in _sym_chunks(len(S), len(pts)):
-        pg = np.einsum("sij,nj->sni", R_gs[sl], pts) + t_gs[sl, None, :]
+        pg = np.matmul(pts[None], R_gs[sl].transpose(0, 2, 1)) + t_gs[sl, None, :]
         err = np.sqrt(((pe[None] - pg) ** 2).sum(axis=2)).max(axis=1)
         best = min(best, float(err.min()))
     return best
@@ -244,12 +270,15 @@ def mspd(R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, K: 
             raise ConfigError(f"image_width must be > 0 pixels, got {image_width!r}")
         scale = MSPD_REFERENCE_WIDTH / float(image_width)
     pe = _project(_posed(pts, R_e, t_e), K)
-    R_gs = R_g @ S[:, :3, :3]
-    t_gs = S[:, :3, 3] @ R_g.T + t_g
+    # Homogeneous image points of the symmetric GT poses: K (R_g (R_s x + t_s) + t_g) = A_s x + b_s.
+    A = K @ R_g @ S[:, :3, :3]  # (S, 3, 3)
+    b = (S[:, :3, 3] @ R_g.T + t_g) @ K.T  # (S, 3)
     best = np.inf
     for sl in _sym_chunks(len(S), len(pts)):
-        pg = _project(np.einsum("sij,nj->sni", R_gs[sl], pts) + t_gs[sl, None, :], K)
-        err = np.sqrt(((pe[None] - pg) ** 2).sum(axis=2)).max(axis=1)
+        h = np.matmul(pts[None], A[sl].transpose(0, 2, 1)) + b[sl, None, :]  # (s, N, 3)
+        du = h[..., 0] / h[..., 2] - pe[None, :, 0]
+        dv = h[..., 1] / h[..., 2] - pe[None, :, 1]
+        err = np.sqrt((du * du + dv * dv).max(axis=1))
         best = min(best, float(err.min()))
     return best * scale
 

@@ -142,3 +142,23 @@ def test_bad_inputs_raise_config_error(box):
         vsd(I3, T0, I3, T0, np.zeros((4, 4)), K, box, 0.015, [0.1], 0.1, cost_type="linear")
     with pytest.raises(ConfigError, match="symmetries"):
         as_symmetries(np.zeros((3, 3, 3)))
+
+
+def test_vectorised_mssd_and_mspd_equal_a_loop_over_symmetries(can):
+    rng = np.random.default_rng(2)
+    pts, syms = can.vertices, can.symmetry_transforms()
+
+    def proj(p):
+        q = p @ K.T
+        return q[:, :2] / q[:, 2:]
+
+    for i in range(6):
+        R_g = random_rotation(rng)
+        R_e = R_g @ syms[rng.integers(len(syms)), :3, :3] if i % 2 else random_rotation(rng)
+        t_e = T0 + rng.normal(scale=0.005 * (i % 3), size=3)
+        posed = [pts @ (R_g @ s[:3, :3]).T + R_g @ s[:3, 3] + T0 for s in syms]
+        pe = pts @ R_e.T + t_e
+        ref_mssd = min(np.linalg.norm(pe - p, axis=1).max() for p in posed)
+        ref_mspd = min(np.linalg.norm(proj(pe) - proj(p), axis=1).max() for p in posed)
+        assert mssd(R_e, t_e, R_g, T0, pts, syms) == pytest.approx(ref_mssd, abs=1e-12)
+        assert mspd(R_e, t_e, R_g, T0, K, pts, syms) == pytest.approx(ref_mspd, abs=1e-9)
