@@ -102,7 +102,8 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
     keep = (np.abs(area2) > 1e-12) & (umax >= umin) & (vmax >= vmin)
     if not np.any(keep):
         return np.zeros((height, width), dtype=np.float32)
-    u0, u1, u2, v0, v1, v2, area2, iz = u0[keep], u1[keep], u2[keep], v0[keep], v1[keep], v2[keep], area2[keep], iz[keep]
+    u0, u1, u2, v0, v1, v2 = u0[keep], u1[keep], u2[keep], v0[keep], v1[keep], v2[keep]
+    area2, iz = area2[keep], iz[keep]
     umin, umax = umin[keep].astype(np.int64), umax[keep].astype(np.int64)
     vmin, vmax = vmin[keep].astype(np.int64), vmax[keep].astype(np.int64)
 

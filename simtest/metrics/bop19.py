@@ -7,7 +7,8 @@ Follows the BOP toolkit (``scripts/eval_calc_errors.py``, ``scripts/eval_calc_sc
   neither counted nor matchable.
 * Per image and object id, the estimates are sorted by decreasing score and the top ``n_top`` kept
   (BOP19: ``n_top = -1``, as many as there are targets of that object in the image). Errors of an
-  estimate are computed against every target of the same ``obj_id`` in the image.
+  estimate are computed against every target of the same ``obj_id`` in the image (the toolkit also
+  computes them against the non-target instances, which can never be matched; the result is the same).
 * Greedy matching, separately for each error type and threshold: in order of decreasing score, an estimate
   is matched to the not yet matched target with the lowest error among those with ``error < threshold``.
   Each target is matched at most once, each estimate at most once.

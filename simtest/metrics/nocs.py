@@ -215,7 +215,9 @@ def _clip_segments(edges: np.ndarray, planes: np.ndarray, tol: float) -> np.ndar
     return pts[inside]
 
 
-def _intersection_volume(T1: np.ndarray, size1: np.ndarray, T2: np.ndarray, size2: np.ndarray) -> tuple[float, float, float]:
+def _intersection_volume(T1: np.ndarray, size1: np.ndarray, T2: np.ndarray, size2: np.ndarray
+                         ) -> tuple[float, float, float]:
+    """Intersection volume and the two box volumes (cubic metres)."""
     c1, e1, h1, v1 = _box_geometry(T1, size1)
     c2, e2, h2, v2 = _box_geometry(T2, size2)
     tol = 1e-9 * max(np.ptp(np.vstack([c1, c2]), axis=0).max(), 1e-12)
