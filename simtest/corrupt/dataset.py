@@ -1,0 +1,283 @@
+"""Write a corrupted copy of a BOP dataset.
+
+Everything that is ground truth is copied byte-identically: ``camera.json``, ``models/``, ``scene_gt.json``,
+``scene_camera.json``, amodal ``mask/`` files and any other file (``manifest.json``, ...). Changed are:
+
+* ``rgb/`` images, when an image corruption or an occlusion is asked (written in the same format and file
+  name; JPEG files are re-encoded at quality 95);
+* ``depth/`` PNGs, only when a depth-noise preset is asked (same ``depth_scale`` as in ``scene_camera.json``);
+* with a paste occlusion, the ``mask_visib/`` files of occluded instances and ``scene_gt_info.json``
+  (``px_count_visib``, ``visib_fract``, ``bbox_visib``): in the occluded copy the visible masks and
+  visibility fractions include the pasted occluders, while amodal masks, poses, ``px_count_all`` and
+  ``px_count_valid`` (clean depth) are unchanged. ``scene_gt_coco.json``, if present, is copied unchanged and
+  so still describes the unoccluded visible masks (``corruption.json`` lists it under ``stale_files``).
+
+``corruption.json`` at the top of the copy records the spec, the seed, the implied parameters and the
+achieved occlusion fractions per image. Each image draws from its own generator,
+``SeedSequence(seed, spawn_key=(scene_id, im_id))`` (:func:`simtest.rng.child_rng`), so results do not depend
+on the processing order. Every file is written atomically (temporary file + ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
+from simtest.corrupt.spec import CorruptionSpec
+from simtest.errors import ConfigError, DatasetError
+from simtest.rng import child_rng
+
+__all__ = ["corrupt_dataset", "depth_png_to_m", "depth_m_to_png", "find_scenes"]
+
+_SCENE_RE = re.compile(r"^\d{6}$")
+_JPEG_QUALITY = 95
+
+
+# The project's BOP reader and writer will live in simtest/io/bop.py (the one place meant to know
+# millimetres and depth_scale); until then these two functions are the only mm <-> m conversion here.
+def depth_png_to_m(png: np.ndarray, depth_scale: float) -> np.ndarray:
+    """BOP depth PNG values -> metres: ``value * depth_scale`` mm / 1000 (0 stays 0). float32."""
+    return png.astype(np.float32) * np.float32(depth_scale / 1000.0)
+
+
+def depth_m_to_png(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
+    """Metres -> BOP depth PNG values ``round(z_mm / depth_scale)`` as uint16.
+
+    Missing (``<= 0``, non-finite) and out-of-range (``> 65535`` steps) values are written as 0 ("no
+    measurement") rather than clipped to a false depth.
+    """
+    v = np.rint(np.asarray(depth_m, dtype=np.float64) * (1000.0 / depth_scale))
+    bad = ~np.isfinite(v) | (v <= 0) | (v > 65535)
+    return np.where(bad, 0, v).astype(np.uint16)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, path)
+
+
+def _atomic_copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
+    shutil.copyfile(src, tmp)
+    shutil.copystat(src, tmp)
+    os.replace(tmp, dst)
+
+
+def _encode(image: np.ndarray, suffix: str) -> bytes:
+    params = [cv2.IMWRITE_JPEG_QUALITY, _JPEG_QUALITY] if suffix.lower() in (".jpg", ".jpeg") else []
+    ok, buf = cv2.imencode(suffix, image, params)
+    if not ok:
+        raise DatasetError(f"could not encode an image as {suffix!r}")
+    return buf.tobytes()
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"cannot read {path}: {exc}") from exc
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise DatasetError(f"cannot read image {path}")
+    return img
+
+
+def find_scenes(dataset: Path) -> list[Path]:
+    """Scene folders ``DATASET/<split>/<6 digits>/`` holding a ``scene_camera.json``, sorted."""
+    scenes = []
+    for split in sorted(p for p in dataset.iterdir() if p.is_dir()):
+        for scene in sorted(p for p in split.iterdir() if p.is_dir() and _SCENE_RE.match(p.name)):
+            if (scene / "scene_camera.json").is_file():
+                scenes.append(scene)
+    return scenes
+
+
+def _prepare_out(in_dir: Path, out_dir: Path, overwrite: bool) -> None:
+    if out_dir == in_dir or in_dir in out_dir.parents or out_dir in in_dir.parents:
+        raise DatasetError(f"output {out_dir} must not be, contain or lie inside the input dataset {in_dir}")
+    if out_dir.exists():
+        if not out_dir.is_dir():
+            raise DatasetError(f"output {out_dir} exists and is not a directory")
+        if any(out_dir.iterdir()):
+            if not overwrite:
+                raise DatasetError(f"output {out_dir} is not empty; pass overwrite=True (--overwrite) to replace it")
+            for child in out_dir.iterdir():
+                if child.is_dir() and not child.is_symlink():
+                    shutil.rmtree(child)
+                else:
+                    child.unlink()
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec: CorruptionSpec, seed: int,
+                    overwrite: bool = False, progress: bool = True) -> dict[str, Any]:
+    """Write a corrupted copy of the BOP dataset ``in_dir`` to ``out_dir`` (see the module docstring).
+
+    Args:
+        in_dir: Source BOP dataset folder (``camera.json``, ``models/``, ``<split>/<scene>/``...).
+        out_dir: Destination; must not exist or be empty unless ``overwrite``.
+        spec: What to corrupt.
+        seed: Non-negative integer seed; image ``(scene_id, im_id)`` uses ``child_rng(seed, scene_id, im_id)``.
+        overwrite: Replace the contents of a non-empty ``out_dir``.
+        progress: Show a tqdm progress bar.
+
+    Returns:
+        The record written to ``out_dir/corruption.json``.
+
+    Raises:
+        DatasetError: Missing or malformed input dataset, or a non-empty output without ``overwrite``.
+        ConfigError: Bad seed or spec.
+    """
+    from tqdm import tqdm
+
+    from simtest import __version__
+
+    if not isinstance(spec, CorruptionSpec):
+        raise ConfigError(f"spec must be a CorruptionSpec, got {type(spec).__name__}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    src = Path(in_dir).resolve()
+    dst = Path(out_dir).resolve()
+    if not src.is_dir():
+        raise DatasetError(f"dataset folder {src} does not exist")
+    scenes = find_scenes(src)
+    if not scenes:
+        raise DatasetError(f"no BOP scene folders (<split>/<6-digit scene>/scene_camera.json) found in {src}")
+    _prepare_out(src, dst, overwrite)
+
+    work = []
+    for scene in scenes:
+        rgb_dir = scene / "rgb"
+        if rgb_dir.is_dir():
+            work.extend((scene, p) for p in sorted(rgb_dir.iterdir()) if p.is_file() and p.stem.isdigit())
+    change_rgb = spec.weather is not None or spec.occlusion is not None
+
+    produced: set[Path] = set()  # source files whose output was written by the corruption
+    occlusion_records: list[dict[str, Any]] = []
+    cache: dict[Path, dict[str, Any]] = {}
+    gt_info_dirty: set[Path] = set()
+    bar = tqdm(total=len(work), desc=f"corrupt {spec.label()}", unit="img", disable=not progress)
+    try:
+        for scene, rgb_path in work:
+            if scene not in cache:
+                cache[scene] = {
+                    "camera": _read_json(scene / "scene_camera.json"),
+                    "gt": _read_json(scene / "scene_gt.json") if (scene / "scene_gt.json").is_file() else {},
+                    "gt_info": (_read_json(scene / "scene_gt_info.json")
+                                if (scene / "scene_gt_info.json").is_file() else None),
+                }
+            meta = cache[scene]
+            scene_id, im_id = int(scene.name), int(rgb_path.stem)
+            rec = _corrupt_image(src, dst, scene, rgb_path, scene_id, im_id, meta, spec, seed, change_rgb, produced)
+            if rec is not None:
+                occlusion_records.append(rec)
+                gt_info_dirty.add(scene)
+            bar.update(1)
+    finally:
+        bar.close()
+
+    for scene in gt_info_dirty:
+        info_path = scene / "scene_gt_info.json"
+        if cache[scene]["gt_info"] is not None:
+            _atomic_write(dst / info_path.relative_to(src),
+                          json.dumps(cache[scene]["gt_info"], indent=2).encode("utf-8"))
+            produced.add(info_path)
+
+    # everything else byte-identical
+    for root, _dirs, files in os.walk(src):
+        for name in files:
+            path = Path(root) / name
+            if path not in produced:
+                _atomic_copy(path, dst / path.relative_to(src))
+
+    record: dict[str, Any] = {
+        "simtest_version": __version__,
+        "source": str(src),
+        "seed": int(seed),
+        "rng": "per image: numpy SeedSequence(seed, spawn_key=(scene_id, im_id)); spec.apply spawns 3 children "
+               "(occlusion, image, depth)",
+        **spec.describe(),
+        "images": len(work),
+        "modified": (["rgb"] if change_rgb else []) + (["depth"] if spec.depth_noise is not None else [])
+                    + (["mask_visib", "scene_gt_info.json"] if spec.occlusion is not None else []),
+        "stale_files": (["scene_gt_coco.json"] if spec.occlusion is not None else []),
+    }
+    if spec.occlusion is not None and occlusion_records:
+        fg = np.array([r["fg_fraction"] for r in occlusion_records])
+        bg = np.array([r["bg_fraction"] for r in occlusion_records])
+        record["occlusion"].update({
+            "mean_fg_fraction": float(fg.mean()), "mean_bg_fraction": float(bg.mean()),
+            "in_band_fraction": float(np.mean([r["in_band"] for r in occlusion_records])),
+            "per_image": occlusion_records,
+        })
+    _atomic_write(dst / "corruption.json", json.dumps(record, indent=2).encode("utf-8"))
+    return record
+
+
+def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: int, im_id: int,
+                   meta: dict[str, Any], spec: CorruptionSpec, seed: int, change_rgb: bool,
+                   produced: set[Path]) -> dict[str, Any] | None:
+    cam = meta["camera"].get(str(im_id))
+    if cam is None:
+        raise DatasetError(f"image id {im_id} of {rgb_path} has no entry in {scene / 'scene_camera.json'}")
+    K = np.asarray(cam["cam_K"], dtype=np.float64).reshape(3, 3) if "cam_K" in cam else None
+    bgr = _read_image(rgb_path, cv2.IMREAD_COLOR)
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    h, w = rgb.shape[:2]
+
+    depth = None
+    depth_path = scene / "depth" / f"{im_id:06d}.png"
+    depth_scale = float(cam.get("depth_scale", 1.0))
+    if spec.depth_noise is not None:
+        if not depth_path.is_file():
+            raise DatasetError(f"depth noise asked but {depth_path} is missing")
+        depth = depth_png_to_m(_read_image(depth_path, cv2.IMREAD_UNCHANGED), depth_scale)
+
+    visib_paths: list[Path] = []
+    masks = None
+    if spec.occlusion is not None:
+        n_gt = len(meta["gt"].get(str(im_id), []))
+        visib_paths = [scene / "mask_visib" / f"{im_id:06d}_{g:06d}.png" for g in range(n_gt)]
+        masks = [(_read_image(p, cv2.IMREAD_GRAYSCALE) > 0) if p.is_file() else np.zeros((h, w), bool)
+                 for p in visib_paths]
+
+    rng = child_rng(seed, scene_id, im_id)
+    out_rgb, out_depth, occ, info = spec.apply_with_info(rgb, depth, masks if masks is not None else [], rng, K)
+
+    if change_rgb:
+        _atomic_write(dst / rgb_path.relative_to(src),
+                      _encode(cv2.cvtColor(out_rgb, cv2.COLOR_RGB2BGR), rgb_path.suffix))
+        produced.add(rgb_path)
+    if spec.depth_noise is not None:
+        _atomic_write(dst / depth_path.relative_to(src), _encode(depth_m_to_png(out_depth, depth_scale), ".png"))
+        produced.add(depth_path)
+    if spec.occlusion is None:
+        return None
+
+    new_masks = update_visible_masks(masks, occ) if masks else []
+    infos = meta["gt_info"].get(str(im_id)) if meta["gt_info"] is not None else None
+    for g, (p, old, new) in enumerate(zip(visib_paths, masks, new_masks)):
+        if p.is_file() and not np.array_equal(old, new):
+            _atomic_write(dst / p.relative_to(src), _encode(new.astype(np.uint8) * 255, ".png"))
+            produced.add(p)
+        if infos is not None and g < len(infos):
+            infos[g].update(visibility_stats(new, int(infos[g].get("px_count_all", 0))))
+    assert info is not None
+    return {"scene_id": scene_id, "im_id": im_id, "split": scene.parent.name, **{
+        k: info[k] for k in ("fg_fraction", "bg_fraction", "in_band", "n_occluders")}}
