@@ -139,7 +139,7 @@ def look_at_pose(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0
         raise ConfigError(f"camera eye and target coincide at {eye.tolist()}")
     z /= n
     up = np.asarray(up, dtype=np.float64)
-    x = np.cross(z, -up)
+    x = np.cross(z, up)  # image right; image down (y) then points along -up
     if np.linalg.norm(x) < 1e-6:  # looking straight along up: pick any perpendicular
         x = np.cross(z, np.array([0.0, 1.0, 0.0]))
     x /= np.linalg.norm(x)
