@@ -52,59 +52,62 @@ class InstanceAnnotation:
 
 
 def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
-    """Fill projected triangles with the pixel-centre rule (pixel (x, y) covers the point (x, y)).
+    """Fill the union of projected triangles with the pixel-centre rule (pixel (x, y) samples point (x, y)).
+
+    Uses the non-zero winding rule over the triangles' oriented edges, scanline by scanline: each triangle adds
+    +1 (or -1, by its 2D orientation) inside itself, so with every triangle oriented the same way (front faces
+    of a closed mesh) the union is where the winding number is non-zero. Edges shared by two triangles cancel.
+    Cost grows with the edge count and the rows they span, not with the filled area.
 
     Args:
         uv: (N, 2) projected vertex positions in pixels (OpenCV: pixel centres at integers).
-        tris: (M, 3) vertex indices of the triangles to fill.
+        tris: (M, 3) vertex indices of the triangles to fill, all with the same 2D orientation.
 
     Returns:
         ``(mask, (x0, y0))``: a bool mask over the triangles' pixel bounding box and the pixel coordinates of
-        its top-left element. Empty triangles are ignored; the mask may be 0x0.
+        its top-left element (may be 0x0).
     """
     if len(tris) == 0:
         return np.zeros((0, 0), dtype=bool), (0, 0)
-    p = uv[tris]  # (M, 3, 2)
-    lo = np.ceil(p.min(axis=1) - 1e-9).astype(np.int64)
-    hi = np.floor(p.max(axis=1) + 1e-9).astype(np.int64)
-    keep = np.all(hi >= lo, axis=1)
-    p, lo, hi = p[keep], lo[keep], hi[keep]
-    if len(p) == 0:
+    p = uv[tris]
+    x0 = int(np.ceil(p[..., 0].min() - 1e-9))
+    y0 = int(np.ceil(p[..., 1].min() - 1e-9))
+    x1 = int(np.floor(p[..., 0].max() + 1e-9))
+    y1 = int(np.floor(p[..., 1].max() + 1e-9))
+    if x1 < x0 or y1 < y0:
         return np.zeros((0, 0), dtype=bool), (0, 0)
-    x0, y0 = lo.min(axis=0)
-    x1, y1 = hi.max(axis=0)
-    mask = np.zeros((y1 - y0 + 1, x1 - x0 + 1), dtype=bool)
-    w = hi[:, 0] - lo[:, 0] + 1
-    h = hi[:, 1] - lo[:, 1] + 1
-    counts = w * h
-    # Big triangles are few: fill them with OpenCV-free exact tests in chunks to bound memory.
-    order = np.argsort(counts)
-    p, lo, w, h, counts = p[order], lo[order], w[order], h[order], counts[order]
-    csum = np.cumsum(counts)
-    start = 0
-    budget = 2_000_000
-    while start < len(p):
-        end = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + budget, side="right"))
-        end = max(end, start + 1)
-        _fill(mask, p[start:end], lo[start:end], w[start:end], counts[start:end], x0, y0)
-        start = end
-    return mask, (int(x0), int(y0))
-
-
-def _fill(mask, p, lo, w, counts, x0, y0) -> None:
-    tri = np.repeat(np.arange(len(p)), counts)
-    first = np.cumsum(counts) - counts
-    local = np.arange(int(counts.sum())) - np.repeat(first, counts)
-    px = lo[tri, 0] + local % w[tri]
-    py = lo[tri, 1] + local // w[tri]
-    a, b, c = p[tri, 0], p[tri, 1], p[tri, 2]
-
-    def edge(v0, v1):
-        return (v1[:, 0] - v0[:, 0]) * (py - v0[:, 1]) - (v1[:, 1] - v0[:, 1]) * (px - v0[:, 0])
-
-    e0, e1, e2 = edge(a, b), edge(b, c), edge(c, a)
-    inside = ((e0 >= 0) & (e1 >= 0) & (e2 >= 0)) | ((e0 <= 0) & (e1 <= 0) & (e2 <= 0))
-    mask[py[inside] - y0, px[inside] - x0] = True
+    # Directed edges; an undirected edge used in both directions (shared by two triangles) cancels out.
+    a = np.concatenate([tris[:, 0], tris[:, 1], tris[:, 2]])
+    b = np.concatenate([tris[:, 1], tris[:, 2], tris[:, 0]])
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo.astype(np.int64) * (int(hi.max()) + 1) + hi
+    uniq, inv = np.unique(key, return_inverse=True)
+    net = np.bincount(inv, weights=np.where(a < b, 1.0, -1.0), minlength=len(uniq)).astype(np.int64)
+    keep = net != 0
+    first = np.zeros(len(uniq), dtype=np.int64)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    ea, eb, w = lo[first[keep]], hi[first[keep]], net[keep]  # edge lo -> hi with winding weight w
+    pa, pb = uv[ea], uv[eb]
+    # Canonical direction per edge (upward in y) so equal edges give bit-identical crossings.
+    up = pa[:, 1] <= pb[:, 1]
+    s = np.where(up[:, None], pa, pb)
+    e = np.where(up[:, None], pb, pa)
+    w = np.where(up, w, -w)
+    r0 = np.ceil(s[:, 1]).astype(np.int64)  # rows with s.y <= row < e.y (half-open: vertices count once)
+    r1 = np.ceil(e[:, 1]).astype(np.int64)
+    n = np.maximum(r1 - r0, 0)
+    sel = n > 0
+    s, e, w, r0, n = s[sel], e[sel], w[sel], r0[sel], n[sel]
+    idx = np.repeat(np.arange(len(n)), n)
+    rows = r0[idx] + (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
+    t = (rows - s[idx, 1]) / (e[idx, 1] - s[idx, 1])
+    xc = s[idx, 0] + t * (e[idx, 0] - s[idx, 0])
+    col = np.clip(np.ceil(xc).astype(np.int64) - x0, 0, x1 - x0 + 1)
+    H, W = y1 - y0 + 1, x1 - x0 + 1
+    diff = np.zeros((H, W + 1), dtype=np.int32)
+    np.add.at(diff, (rows - y0, col), w[idx].astype(np.int32))
+    mask = np.cumsum(diff[:, :W], axis=1) != 0
+    return mask, (x0, y0)
 
 
 def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> list[int]:
@@ -141,16 +144,18 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
         v_cam = T.apply(obj.vertices)
         uv, z = camera.project(v_cam)
         faces = obj.faces
-        fz = z[faces]
-        ok = np.all(fz > near, axis=1)
-        # Front faces only: for a closed mesh their union is the silhouette, at half the work.
+        ok = np.all(z[faces] > near, axis=1)
         f = faces[ok]
-        a, b, c = v_cam[f[:, 0]], v_cam[f[:, 1]], v_cam[f[:, 2]]
-        normal = np.cross(b - a, c - a)
-        # Keep faces up to slightly past edge-on, so float error never drops a silhouette face.
-        cos = np.einsum("ij,ij->i", normal, a)
-        front = cos < 1e-3 * np.linalg.norm(normal, axis=1) * np.linalg.norm(a, axis=1)
-        sil, (x0, y0) = rasterize_silhouette(uv, f[front] if obj.is_watertight else f)
+        # Front faces (positive 2D orientation): for a closed mesh their union is the silhouette.
+        pa, pb, pc = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
+        area2 = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0])
+        if obj.is_watertight:
+            sil, (x0, y0) = rasterize_silhouette(uv, f[area2 > 0])
+        else:  # open mesh: fill every face, each in its own orientation
+            flip = area2 < 0
+            g = f.copy()
+            g[flip] = g[flip][:, ::-1]
+            sil, (x0, y0) = rasterize_silhouette(uv, g[area2 != 0])
         px_all = int(sil.sum())
         mask = np.zeros((H, W), dtype=bool)
         if sil.size:

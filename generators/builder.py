@@ -62,6 +62,14 @@ class SimScene:
         b = self.instance_bodies[instance]
         return self.data.xmat[b].reshape(3, 3).copy(), self.data.xpos[b].copy()
 
+    def set_arm(self, q: np.ndarray) -> None:
+        """Put the Panda (if present) at joint configuration ``q`` (rad) and update kinematics."""
+        from simtest.panda import reset_arm
+
+        if self.panda is None:
+            raise ValueError("this scene has no Panda arm")
+        reset_arm(self.model, self.data, self.panda, q)
+
     def set_camera(self, camera: CameraModel) -> None:
         """Place the render camera at ``camera.T_world_cam`` (takes effect at the next render)."""
         pos, R_mj = camera.mujoco_pose()
@@ -150,7 +158,7 @@ class SceneBuilder:
 
             panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-cfg.scene.table_size[0] / 2 - 0.1, 0.0,
                                                                cfg.scene.table_height]),
-                                 wrist_camera=self.camera)
+                                 wrist_camera=self.camera, physics=False)
 
         model = ms.compile()
         data = mujoco.MjData(model)
@@ -162,7 +170,10 @@ class SceneBuilder:
         dofs = [int(model.jnt_dofadr[model.body_jntadr[b]]) for b in ids]
         cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME)
         if panda is not None:
+            from simtest.panda import reset_arm
+
             panda = panda.bind(model)
+            reset_arm(model, data, panda)
         mujoco.mj_forward(model, data)
         return SimScene(model, data, spec, [p.obj_id for p in spec.objects], ids, qpos, dofs, geom_instance, cam_id,
                         [True] * len(spec.objects), panda)

@@ -1,0 +1,114 @@
+"""Speed benchmarks, reported as ratios against raw MuJoCo measured in the same run.
+
+``bench_generate``: frames/s of the whole ``generate`` pipeline (sampling, building, settling, rendering,
+annotation, PNG/JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
+segmentation: three ``render()`` calls per frame, MuJoCo's own API for them) for the same settled scenes and
+camera poses; and 1 vs 2 workers.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+
+from simtest.generators.config import GenerateConfig
+
+__all__ = ["bench_generate", "GenerateBench"]
+
+
+@dataclass
+class GenerateBench:
+    width: int
+    height: int
+    objects_per_scene: int
+    scenes: int
+    frames_per_scene: int
+    pipeline_fps: float
+    raw_fps: float
+    pipeline_fps_2workers: float | None
+
+    @property
+    def ratio(self) -> float:
+        return self.pipeline_fps / self.raw_fps if self.raw_fps else 0.0
+
+    @property
+    def speedup_2workers(self) -> float | None:
+        return None if self.pipeline_fps_2workers is None else self.pipeline_fps_2workers / self.pipeline_fps
+
+    def table(self) -> str:
+        rows = [
+            "| measurement | value |", "|---|---|",
+            f"| image size | {self.width}x{self.height} |",
+            f"| objects per scene | {self.objects_per_scene} (+ distractors 0-2) |",
+            f"| scenes x frames | {self.scenes} x {self.frames_per_scene} |",
+            f"| raw MuJoCo render (rgb + depth + seg), frames/s | {self.raw_fps:.2f} |",
+            f"| full pipeline, 1 worker, annotated frames/s | {self.pipeline_fps:.2f} |",
+            f"| pipeline / raw | {self.ratio:.2f} |",
+        ]
+        if self.pipeline_fps_2workers is not None:
+            rows.append(f"| full pipeline, 2 workers, frames/s | {self.pipeline_fps_2workers:.2f} |")
+            rows.append(f"| 2 workers / 1 worker | {self.speedup_2workers:.2f} |")
+        return "\n".join(rows)
+
+
+def _raw_fps(cfg: GenerateConfig) -> float:
+    """Raw ``mujoco.Renderer`` frames/s for the scenes and cameras ``cfg`` produces (settling excluded)."""
+    import mujoco
+
+    from simtest.generators.builder import DRAWN_GROUPS
+    from simtest.generators.pipeline import _load_objects, prepare_scene, scene_cameras
+
+    objects = _load_objects(cfg)
+    total, frames = 0.0, 0
+    for scene_id in range(cfg.scenes):
+        scene, _, _, _ = prepare_scene(cfg, objects, scene_id)
+        cams = scene_cameras(cfg, scene)
+        opt = mujoco.MjvOption()
+        opt.geomgroup[:] = 0
+        for g in DRAWN_GROUPS:
+            opt.geomgroup[g] = 1
+        r = mujoco.Renderer(scene.model, cfg.camera.height, cfg.camera.width)
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
+        for cam, _ in cams:
+            scene.set_camera(cam)
+            t0 = time.perf_counter()
+            r.update_scene(scene.data, camera=scene.camera_id, scene_option=opt)
+            r.render()
+            r.enable_depth_rendering()
+            r.render()
+            r.disable_depth_rendering()
+            r.enable_segmentation_rendering()
+            r.render()
+            r.disable_segmentation_rendering()
+            total += time.perf_counter() - t0
+            frames += 1
+        r.close()
+    return frames / total
+
+
+def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 4,
+                   frames_per_scene: int = 10, objects: str = "builtin", two_workers: bool = True,
+                   seed: int = 0) -> GenerateBench:
+    """Measure the pipeline and raw MuJoCo on the same scenes (fast profile)."""
+    from simtest.generators.pipeline import _load_objects, generate
+
+    cfg = GenerateConfig().replace(**{
+        "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": width,
+        "camera.height": height, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
+        "render.profile": "fast", "seed": seed})
+    _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
+    with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+        rep = generate(cfg, os.path.join(tmp, "w1"), progress=False)
+        fps1 = rep.frames_per_second
+        fps2 = None
+        if two_workers:
+            cfg2 = cfg.replace(workers=2, scenes=max(scenes, 4))
+            t0 = time.perf_counter()
+            rep2 = generate(cfg2, os.path.join(tmp, "w2"), progress=False)
+            fps2 = rep2.frames_written / (time.perf_counter() - t0)
+    raw = _raw_fps(cfg)
+    return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2)
