@@ -80,6 +80,8 @@ class OcclusionInfo:
         trials: Placement trials used (<= 40).
         object_pixels: Pixels in the object mask.
         kinds: Texture of each occluder: ``"crop"``, ``"noise"`` or ``"bank"``.
+        centers: Occluder centres ``(x, y)`` in pixels, the first one on the object.
+        margin: Minimum distance of the centres from the image border (pixels).
     """
 
     level: int
@@ -93,10 +95,13 @@ class OcclusionInfo:
     trials: int
     object_pixels: int
     kinds: tuple[str, ...] = ()
+    centers: tuple[tuple[float, float], ...] = ()
+    margin: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["fg_band"], d["bg_band"], d["kinds"] = list(self.fg_band), list(self.bg_band), list(self.kinds)
+        d["centers"] = [list(c) for c in self.centers]
         return d
 
 
@@ -410,6 +415,7 @@ def paste_occluders(
         level=lvl, definition=definition, fg_fraction=float(fg), bg_fraction=float(bg), fg_band=fg_band,
         bg_band=bg_band, in_band=_band_distance(fg, fg_band) == 0 and _band_distance(bg, bg_band) == 0,
         n_occluders=len(shapes), trials=trials, object_pixels=n_obj, kinds=tuple(kinds),
+        centers=tuple((float(sh.cx), float(sh.cy)) for sh in shapes), margin=margin,
     )
     return out, occ, info
 
