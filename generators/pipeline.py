@@ -28,7 +28,6 @@ from simtest.rng import child_rng
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
 MANIFEST = "manifest.json"
-_HAS_MODELS_WRITER = False  # TEMP
 
 
 @dataclass
@@ -241,7 +240,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
             "command_line": list(command_line if command_line is not None else sys.argv),
             "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
     write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
-    if not (out / "models" / "models_info.json").exists() and _HAS_MODELS_WRITER:
+    if not (out / "models" / "models_info.json").exists():
         from simtest.io.bop_models import write_bop_models
 
         write_bop_models(objects, out / "models")

@@ -1,0 +1,39 @@
+"""``simtest bench generate|grasp``: speed figures as ratios against raw MuJoCo measured in the same run."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="speed benchmarks (ratios against raw MuJoCo in the same run)")
+    bsub = p.add_subparsers(dest="bench_command", metavar="BENCH")
+    g = bsub.add_parser("generate", help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
+    g.add_argument("--width", type=int, default=640)
+    g.add_argument("--height", type=int, default=480)
+    g.add_argument("--objects-per-scene", type=int, default=10)
+    g.add_argument("--scenes", type=int, default=4)
+    g.add_argument("--frames-per-scene", type=int, default=10)
+    g.add_argument("--objects", default="builtin")
+    g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
+    g.set_defaults(func=_generate)
+    gr = bsub.add_parser("grasp", help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
+    gr.add_argument("--episodes", type=int, default=3)
+    gr.set_defaults(func=_grasp)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from simtest.bench import bench_generate
+
+    res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
+                         args.objects, two_workers=not args.no_workers)
+    print(res.table())
+    return 0
+
+
+def _grasp(args: argparse.Namespace) -> int:
+    from simtest.envs.bench import bench_grasp
+
+    print(bench_grasp(episodes=args.episodes).table())
+    return 0
