@@ -14,8 +14,9 @@ sit at the distal pad centres, as the TCP of :mod:`simtest.panda`); the fingers 
 0.054 m long, so the palm face is at ``z = -0.032`` m and the palm extends further along -z. An object can
 therefore reach 0.032 m past the contacts towards the palm. Most candidates have their contacts at the
 origin; for rims and edges the contacts may instead sit up to ``max(contact_shifts)`` = 0.012 m further
-along +z (nearer the fingertips, still on the pads); ``contacts`` holds the exact points. ``widths`` are the distances between the two contacts; the fingers should open to
-``min(width + gripper.clearance, gripper.max_width)`` before closing. A rotation by pi about z gives the
+along +z (nearer the fingertips, still on the pads); ``contacts`` holds the exact points. ``widths`` are
+the distances between the two contacts; the fingers should open to ``min(width + gripper.clearance,
+gripper.max_width)`` before closing. A rotation by pi about z gives the
 same grasp with the fingers swapped.
 
 Candidates are sampled deterministically (seeded from the mesh hash): surface points with their outward
