@@ -19,7 +19,7 @@ from simtest.geometry import Pose
 from simtest.objects import ObjectSet
 from simtest.render import Frame
 
-__all__ = ["InstanceAnnotation", "annotate", "rasterize_silhouette"]
+__all__ = ["InstanceAnnotation", "annotate", "amodal_counts", "rasterize_silhouette"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,7 @@ class InstanceAnnotation:
     visib_fract: float
     bbox_obj: list[int]
     bbox_visib: list[int]
+    instance: int = -1  # index of the instance in the scene
 
 
 def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -118,6 +119,32 @@ def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> list[int]:
     return [int(xs[0] + x0), int(ys[0] + y0), int(xs[-1] - xs[0] + 1), int(ys[-1] - ys[0] + 1)]
 
 
+def _silhouette(scene: SimScene, i: int, obj, camera: CameraModel, T_cam_world: Pose, near: float):
+    """(T_cam_obj, silhouette mask over its pixel bbox, (x0, y0)) of instance ``i``."""
+    R, t = scene.object_pose_world(i)
+    T = T_cam_world @ Pose(R, t)
+    uv, z = camera.project(T.apply(obj.vertices))
+    faces = obj.faces
+    f = faces[np.all(z[faces] > near, axis=1)]
+    # Front faces (positive 2D orientation): for a closed mesh their union is the silhouette.
+    pa, pb, pc = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
+    area2 = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0])
+    if obj.is_watertight:
+        sil, origin = rasterize_silhouette(uv, f[area2 > 0])
+    else:  # open mesh: fill every face, each turned to the same orientation
+        g = f.copy()
+        g[area2 < 0] = g[area2 < 0][:, ::-1]
+        sil, origin = rasterize_silhouette(uv, g[area2 != 0])
+    return T, sil, origin
+
+
+def amodal_counts(scene: SimScene, camera: CameraModel, objects: ObjectSet, near: float = 0.01) -> dict[int, int]:
+    """``{instance: px_count_all}`` of every active instance seen by ``camera`` (no rendering needed)."""
+    T_cam_world = camera.T_cam_world
+    return {i: int(_silhouette(scene, i, objects.get(oid), camera, T_cam_world, near)[1].sum())
+            for i, oid in enumerate(scene.instance_obj_ids) if scene.active[i]}
+
+
 def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: ObjectSet,
              near: float = 0.01) -> list[InstanceAnnotation]:
     """Annotate every active instance of ``scene`` in ``frame`` seen by ``camera``.
@@ -138,24 +165,7 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
     for i, oid in enumerate(scene.instance_obj_ids):
         if not scene.active[i]:
             continue
-        obj = objects.get(oid)
-        R, t = scene.object_pose_world(i)
-        T = T_cam_world @ Pose(R, t)
-        v_cam = T.apply(obj.vertices)
-        uv, z = camera.project(v_cam)
-        faces = obj.faces
-        ok = np.all(z[faces] > near, axis=1)
-        f = faces[ok]
-        # Front faces (positive 2D orientation): for a closed mesh their union is the silhouette.
-        pa, pb, pc = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
-        area2 = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0])
-        if obj.is_watertight:
-            sil, (x0, y0) = rasterize_silhouette(uv, f[area2 > 0])
-        else:  # open mesh: fill every face, each in its own orientation
-            flip = area2 < 0
-            g = f.copy()
-            g[flip] = g[flip][:, ::-1]
-            sil, (x0, y0) = rasterize_silhouette(uv, g[area2 != 0])
+        T, sil, (x0, y0) = _silhouette(scene, i, objects.get(oid), camera, T_cam_world, near)
         px_all = int(sil.sum())
         mask = np.zeros((H, W), dtype=bool)
         if sil.size:
@@ -176,5 +186,5 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
             obj_id=oid, T_cam_obj=T, mask=mask, mask_visib=visib, px_count_all=px_all,
             px_count_valid=px_valid, px_count_visib=px_visib,
             visib_fract=float(px_visib / px_all) if px_all > 0 else 0.0,
-            bbox_obj=_bbox(sil, x0, y0), bbox_visib=_bbox(visib)))
+            bbox_obj=_bbox(sil, x0, y0), bbox_visib=_bbox(visib), instance=i))
     return out

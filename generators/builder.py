@@ -25,6 +25,8 @@ VISUAL_GROUP = 1
 COLLISION_GROUP = 3
 DRAWN_GROUPS = (0, 1, 2)
 CAMERA_NAME = "render_cam"
+#: Mocap occluder boxes pre-allocated when physical occlusion is on.
+N_OCCLUDERS = 1
 #: Contact parameters of object collision geoms: sliding, torsional, rolling friction.
 OBJECT_FRICTION = (0.9, 0.005, 0.002)
 
@@ -148,6 +150,13 @@ class SceneBuilder:
                      "sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE}[d.shape]
             b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=list(d.rgba), density=400,
                        friction=list(OBJECT_FRICTION), condim=6, group=0)
+
+        if cfg.occlusion.level is not None:
+            for k in range(N_OCCLUDERS):
+                body = ms.worldbody.add_body(name=f"occluder_{k}", mocap=True, pos=[500.0, 600.0 + k, -500.0])
+                mat = self._texture_material(ms, f"occluder_{k}", spec.walls, 4.0)
+                body.add_geom(name=f"occluder_{k}_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05],
+                              material=mat, group=0, contype=0, conaffinity=0)
 
         ms.worldbody.add_camera(name=CAMERA_NAME, pos=[0, 0, 1], **self.camera.mujoco_intrinsics())
 

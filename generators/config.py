@@ -19,7 +19,7 @@ from typing import Any, Literal
 from simtest.errors import ConfigError
 
 __all__ = [
-    "CameraConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
+    "CameraConfig", "OcclusionConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
     "GenerateConfig", "load_config",
 ]
 
@@ -125,6 +125,18 @@ class RenderConfig:
 
 
 @dataclass(frozen=True)
+class OcclusionConfig:
+    """Physical occluders: 3D boxes placed between the camera and a target so its visible fraction lands in
+    the requested level's band (see :mod:`simtest.generators.occlusion`). ``level=None`` adds none."""
+
+    level: Literal["L0", "L1", "L2", "L3", "mixed"] | None = field(
+        default=None, metadata=_bounds(choices=("L0", "L1", "L2", "L3", "mixed")))
+    definition: Literal["pascal3d+", "objectcentric"] = field(
+        default="pascal3d+", metadata=_bounds(choices=("pascal3d+", "objectcentric")))
+    standing_first: bool = True  # try a box standing on the table before a floating plate
+
+
+@dataclass(frozen=True)
 class GenerateConfig:
     """Everything ``simtest generate`` needs. See the module docstring for units."""
 
@@ -144,6 +156,7 @@ class GenerateConfig:
     lights: LightConfig = field(default_factory=LightConfig)
     materials: MaterialConfig = field(default_factory=MaterialConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    occlusion: OcclusionConfig = field(default_factory=OcclusionConfig)
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":

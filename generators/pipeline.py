@@ -149,15 +149,38 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path, r
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, cameras[0][0], depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco)
+    occ_cfg = cfg.occlusion
+    occlusion_log: dict[str, dict] = {}
     with Renderer(scene.model, cfg.camera.width, cfg.camera.height, profile=cfg.render.profile) as renderer:
         for im_id, (cam, arm_q) in enumerate(cameras):
             if arm_q is not None:
                 scene.set_arm(arm_q)
             scene.set_camera(cam)
+            record = None
+            if occ_cfg.level is not None:
+                from simtest.generators.annotate import amodal_counts
+                from simtest.generators.occlusion import occlude_view
+
+                level = occ_cfg.level
+                if level == "mixed":
+                    level = ("L0", "L1", "L2", "L3")[int(scene.rng.integers(4))]
+                record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
+                                      amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
+                                      occ_cfg.standing_first)
             frame = renderer.render(scene.data, scene.camera_id)
             anns = annotate(scene, frame, cam, objects)
             writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
                        [a.mask_visib for a in anns])
+            if record is not None:
+                from simtest.generators.occlusion import measured_level
+
+                occlusion_log[str(im_id)] = record.to_dict(
+                    {a.instance: j for j, a in enumerate(anns)},
+                    [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
+    if occlusion_log:
+        from simtest.io.files import dump_json_keyed, atomic_write_text
+
+        atomic_write_text(writer.dir / "scene_occlusion.json", dump_json_keyed(occlusion_log))
     report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
                          settled.at_rest, time.perf_counter() - t0)
     atomic_write_json(writer.dir / "scene_info.json", {

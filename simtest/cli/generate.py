@@ -23,6 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, help="image width (pixels)")
     p.add_argument("--height", type=int, help="image height (pixels)")
     p.add_argument("--profile", choices=["fast", "quality"], help="render profile (quality: shadows, MSAA)")
+    p.add_argument("--occlusion", choices=["L0", "L1", "L2", "L3", "mixed"],
+                   help="physical occluders so a target per image lands in this level's band")
+    p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
+                   help="level bands used by --occlusion (default pascal3d+)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--workers", type=int, help="worker processes (each owns whole scenes)")
     p.add_argument("--seed", type=int, help="master seed (default 0)")
@@ -42,7 +46,8 @@ def config_from_args(args: argparse.Namespace):
         "objects": args.objects, "units": args.units, "scenes": args.scenes,
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
-        "workers": args.workers, "seed": args.seed,
+        "workers": args.workers, "seed": args.seed, "occlusion.level": args.occlusion,
+        "occlusion.definition": args.occlusion_definition,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
