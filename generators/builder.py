@@ -85,11 +85,15 @@ class SceneBuilder:
     Args:
         objects: The object set (meshes, collision parts, inertia).
         cfg: Generation config (table, timestep, camera intrinsics, render profile).
+        panda_physics: When the Panda is in the scene, also apply its tuned contact physics
+            (:func:`simtest.panda.configure_physics`: 2 ms implicitfast steps, elliptic friction cones,
+            impratio 10), which grasping needs. Off by default: generation keeps its own physics options.
     """
 
-    def __init__(self, objects: ObjectSet, cfg: GenerateConfig) -> None:
+    def __init__(self, objects: ObjectSet, cfg: GenerateConfig, *, panda_physics: bool = False) -> None:
         self.objects = objects
         self.cfg = cfg
+        self.panda_physics = bool(panda_physics)
         self.camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
 
     # ------------------------------------------------------------------------------------------------------
@@ -167,7 +171,7 @@ class SceneBuilder:
 
             panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-cfg.scene.table_size[0] / 2 - 0.1, 0.0,
                                                                cfg.scene.table_height]),
-                                 wrist_camera=self.camera, physics=False)
+                                 wrist_camera=self.camera, physics=self.panda_physics)
 
         model = ms.compile()
         data = mujoco.MjData(model)
