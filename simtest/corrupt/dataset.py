@@ -34,6 +34,7 @@ from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
 from simtest.rng import child_rng
+from simtest.io.files import atomic_write_bytes as _atomic_write
 
 __all__ = ["corrupt_dataset", "depth_png_to_m", "depth_m_to_png", "find_scenes"]
 
@@ -41,30 +42,19 @@ _SCENE_RE = re.compile(r"^\d{6}$")
 _JPEG_QUALITY = 95
 
 
-# The project's BOP reader and writer will live in simtest/io/bop.py (the one place meant to know
-# millimetres and depth_scale); until then these two functions are the only mm <-> m conversion here.
 def depth_png_to_m(png: np.ndarray, depth_scale: float) -> np.ndarray:
-    """BOP depth PNG values -> metres: ``value * depth_scale`` mm / 1000 (0 stays 0). float32."""
-    return png.astype(np.float32) * np.float32(depth_scale / 1000.0)
+    """BOP depth PNG values -> metres (0 stays 0), float32; see :func:`simtest.io.bop.decode_depth`."""
+    from simtest.io.bop import decode_depth
+
+    return decode_depth(png, depth_scale)
 
 
 def depth_m_to_png(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
-    """Metres -> BOP depth PNG values ``round(z_mm / depth_scale)`` as uint16.
+    """Metres -> BOP depth PNG values (uint16; missing and out-of-range become 0); see
+    :func:`simtest.io.bop.encode_depth`."""
+    from simtest.io.bop import encode_depth
 
-    Missing (``<= 0``, non-finite) and out-of-range (``> 65535`` steps) values are written as 0 ("no
-    measurement") rather than clipped to a false depth.
-    """
-    v = np.rint(np.asarray(depth_m, dtype=np.float64) * (1000.0 / depth_scale))
-    bad = ~np.isfinite(v) | (v <= 0) | (v > 65535)
-    return np.where(bad, 0, v).astype(np.uint16)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
+    return encode_depth(depth_m, depth_scale)
 
 
 def _atomic_copy(src: Path, dst: Path) -> None:

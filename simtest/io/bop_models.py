@@ -29,28 +29,15 @@ import numpy as np
 import trimesh
 
 from simtest.errors import AssetError
+from simtest.io.bop import MM_PER_M
+from simtest.io.files import atomic_write_bytes as _atomic_write
 
 __all__ = ["MM_PER_M", "write_bop_models", "read_bop_models", "models_info_entry", "INFO_FILE", "META_FILE"]
 
-#: Millimetres per metre: BOP files are in mm, simtest is in m.
-MM_PER_M = 1000.0
 INFO_FILE = "models_info.json"
 META_FILE = "simtest_objects.json"
 #: A BOP model whose bbox centre is farther than this from its origin (metres) triggers a warning.
 CENTER_TOLERANCE = 1e-3
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray | None,
