@@ -127,3 +127,56 @@ def test_cli_generate_refuses_non_empty_folder(tmp_path, capsys):
     assert code == 2
     assert "not empty" in capsys.readouterr().err
     assert (tmp_path / "x" / "keep.txt").read_text() == "user data"
+
+
+def test_unplaceable_scene_is_retried_and_reported(tiny_config):
+    """Objects that cannot fit are re-sampled with new sub-seeds; after max_attempts the error says why."""
+    import simtest.objects as objs
+
+    objects = objs.load_object_set(tiny_config.objects)
+    cfg = tiny_config.replace(**{"scene.table_size": [0.1, 0.1], "scene.objects_per_scene": [40, 40],
+                                 "scene.max_attempts": 2})
+    with pytest.raises(DatasetError, match=r"no usable scene in 2 attempts.*do not fit"):
+        prepare_scene(cfg, objects, 0)
+
+
+def test_rigs_wrist_and_sequence(tmp_path, tiny_config):
+    """The wrist rig's frames come from reachable arm poses; a sequence moves the camera smoothly."""
+    import json
+
+    from simtest.io.bop import read_scene
+
+    cfg = tiny_config.replace(scenes=1, frames_per_scene=4)
+    generate(cfg.replace(rig="wrist"), tmp_path / "wrist", progress=False)
+    info = json.loads((tmp_path / "wrist" / "train_pbr" / "000000" / "scene_info.json").read_text())
+    assert info["at_rest"] is True
+    ims = read_scene(tmp_path / "wrist" / "train_pbr" / "000000")
+    dists = [np.linalg.norm(im["T_cam_world"].inverse().t - np.array([-0.5, 0.0, 0.4])) for im in ims.values()]
+    assert all(d < 1.0 for d in dists)  # within the arm's reach of its base at the table edge
+    generate(cfg.replace(rig="sequence", frames_per_scene=8), tmp_path / "seq", progress=False)
+    ims = read_scene(tmp_path / "seq" / "train_pbr" / "000000")
+    centres = np.array([ims[i]["T_cam_world"].inverse().t for i in sorted(ims)])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    # Eased motion: no jumps (the fastest step is at most pi/2 x the mean one, plus slack) and no stops.
+    assert steps.min() > 0.0 and steps.max() < 1.8 * steps.mean()
+
+
+def test_coco_annotations_decode_to_visible_masks(tmp_path, tiny_config):
+    import json
+
+    from pycocotools import mask as mask_utils
+
+    from simtest.io.bop import read_mask
+
+    generate(tiny_config.replace(scenes=1, **{"render.coco": True}), tmp_path / "c", progress=False)
+    scene = tmp_path / "c" / "train_pbr" / "000000"
+    coco = json.loads((scene / "scene_gt_coco.json").read_text())
+    gt = json.loads((scene / "scene_gt.json").read_text())
+    assert coco["images"] and coco["annotations"]
+    for ann in coco["annotations"]:
+        im = str(ann["image_id"])
+        decoded = mask_utils.decode({"size": ann["segmentation"]["size"],
+                                     "counts": ann["segmentation"]["counts"].encode()}).astype(bool)
+        matches = [j for j, g in enumerate(gt[im]) if g["obj_id"] == ann["category_id"]
+                   and (read_mask(scene, int(im), j) == decoded).all()]
+        assert matches and decoded.sum() == ann["area"]
