@@ -84,23 +84,70 @@ class Renderer:
 
     def render(self, data: mujoco.MjData, camera: int | str, rgb: bool = True, depth: bool = True,
                seg: bool = True) -> Frame:
-        """Render the requested channels from fixed camera ``camera`` (id or name) at ``data``'s state."""
+        """Render the requested channels from fixed camera ``camera`` (id or name) at ``data``'s state.
+
+        Depth and segmentation come from one pass (the segmentation pass also fills the depth buffer), so a
+        full frame costs two GL passes instead of the three of ``mujoco.Renderer``'s separate calls.
+        """
         r = self._r
         r.update_scene(data, camera=camera, scene_option=self.option)
         out_rgb = out_depth = out_seg = None
         if rgb:
             out_rgb = r.render().copy()
-        if depth:
-            r.enable_depth_rendering()
-            d = r.render()
-            r.disable_depth_rendering()
-            out_depth = np.where(d < self.zfar * 0.999, d, 0.0).astype(np.float32)
-        if seg:
-            r.enable_segmentation_rendering()
-            s = r.render()
-            r.disable_segmentation_rendering()
-            out_seg = np.where(s[..., 1] == _GEOM, s[..., 0], -1).astype(np.int32)
+        if depth and seg and self._fused:
+            out_seg, raw_depth = self._seg_and_depth()
+            out_depth = self._linear_depth(raw_depth)
+        else:
+            if depth:
+                r.enable_depth_rendering()
+                d = r.render()
+                r.disable_depth_rendering()
+                out_depth = np.where(d < self.zfar * 0.999, d, 0.0).astype(np.float32)
+            if seg:
+                r.enable_segmentation_rendering()
+                s = r.render()
+                r.disable_segmentation_rendering()
+                out_seg = np.where(s[..., 1] == _GEOM, s[..., 0], -1).astype(np.int32)
         return Frame(out_rgb, out_depth, out_seg)
+
+    # --- one pass for segmentation + depth (uses mujoco.Renderer's context, checked at construction) --------
+    @property
+    def _fused(self) -> bool:
+        r = self._r
+        return all(hasattr(r, a) for a in ("_rect", "_mjr_context", "_gl_context")) and r._gl_context is not None
+
+    def _seg_and_depth(self) -> tuple[np.ndarray, np.ndarray]:
+        r = self._r
+        scene = r.scene
+        saved = scene.flags.copy()
+        try:
+            scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+            scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+            r._gl_context.make_current()
+            mujoco.mjr_render(r._rect, scene, r._mjr_context)
+            colour = np.empty((self.height, self.width, 3), dtype=np.uint8)
+            zbuf = np.empty((self.height, self.width), dtype=np.float32)
+            mujoco.mjr_readPixels(colour, zbuf, r._rect, r._mjr_context)
+        finally:
+            np.copyto(scene.flags, saved)
+        code = colour.astype(np.int32)
+        segid = code[..., 0] + (code[..., 1] << 8) + (code[..., 2] << 16)  # 0 = background, else segid + 1
+        lut = np.full(scene.ngeom + 1, -1, dtype=np.int32)
+        for g in scene.geoms[:scene.ngeom]:
+            if g.segid != -1 and g.objtype == _GEOM:
+                lut[g.segid + 1] = g.objid
+        seg = lut[np.clip(segid, 0, scene.ngeom)]
+        return np.ascontiguousarray(seg[::-1]), np.ascontiguousarray(zbuf[::-1])
+
+    def _linear_depth(self, zbuf: np.ndarray) -> np.ndarray:
+        """Reversed-Z depth buffer values -> planar depth in metres (0 beyond the far plane)."""
+        far, near = np.float32(self.zfar), np.float32(self.znear)
+        c = -(far + near) / (far - near)
+        d = -(np.float32(2) * far * near) / (far - near)
+        c = np.float32(-0.5) * c - np.float32(0.5)
+        d = np.float32(-0.5) * d
+        z = (d / (zbuf.astype(np.float64) + c)).astype(np.float32)
+        return np.where(z < self.zfar * 0.999, z, 0.0).astype(np.float32)
 
     def render_raw(self, data: mujoco.MjData, camera: int | str) -> None:
         """The same three passes with no post-processing (the benchmark's raw MuJoCo reference)."""
