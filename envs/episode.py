@@ -1,0 +1,380 @@
+"""The scripted closed loop: observe -> estimate -> plan -> grasp -> lift -> hold, scored end to end.
+
+:func:`run_episode` resets a :class:`~simtest.envs.grasp_env.PandaGraspEnv`, moves the arm to the observation
+configuration (the wrist camera looking at the target from the robot's side), captures one RGB-D observation
+(corrupted as the episode asks), runs the estimator, plans a grasp from the *estimated* pose
+(:class:`~simtest.envs.planner.GraspPlanner`) and executes it on the env's physics: joint-space motion to the
+pre-grasp pose, a slow straight approach, closing, a straight lift by 0.15 m and a 1 s hold.
+
+Success: the target is at least 0.10 m above its resting height and touches both fingers at every control
+period of the 1.0 s hold. Otherwise exactly one failure reason is recorded (:data:`FAILURE_REASONS`):
+
+* ``estimator_error``: the estimator raised, or returned a malformed pose (not a rotation);
+* ``no_estimate``: no estimate for the target, or one with NaN / inf values;
+* ``no_feasible_grasp``: no grasp candidate passes the approach, table and collision checks;
+* ``ik_failure``: candidates pass the geometric checks but IK reaches none (or a motion became unreachable);
+* ``collision``: the arm pushed against the table or another object (contact force above
+  :data:`COLLISION_FORCE`) on its way to the grasp, or touched the target before the straight approach;
+* ``missed``: after closing, the target does not touch both fingers;
+* ``slipped``: grasped, but not at least 0.10 m up and held for the whole hold.
+
+Pose errors of the estimate actually used (ADD(-S), re, te, MSSD) are computed against the ground truth at
+the moment of the observation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+import simtest  # noqa: F401
+import mujoco
+
+from simtest import panda
+from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
+from simtest.envs.planner import GraspPlan, GraspPlanner
+from simtest.estimators.base import Observation, PoseEstimate, load_estimator
+from simtest.geometry import Pose
+
+__all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
+           "pose_errors"]
+
+#: Every failure reason an episode can end with ("none" = success).
+FAILURE_REASONS = ("none", "no_estimate", "no_feasible_grasp", "ik_failure", "missed", "slipped", "collision",
+                   "estimator_error")
+#: Contact force (N) between the robot and the table / another object that counts as a collision.
+COLLISION_FORCE = 15.0
+
+_SYMMETRY_CACHE: dict[str, np.ndarray] = {}
+
+
+@dataclass
+class EpisodeResult:
+    """Outcome of one closed-loop episode.
+
+    Attributes:
+        seed: The env seed of the episode.
+        target_obj_id, target_name: The target object.
+        success: Lifted >= 0.10 m and held >= 1.0 s.
+        reason: ``"none"`` on success, else one of :data:`FAILURE_REASONS`.
+        add_s: ADD(-S) of the estimate used, m (ADD-S for symmetric objects); NaN without an estimate.
+        re_deg: Rotation error, degrees; NaN without an estimate.
+        te: Translation error, m; NaN without an estimate.
+        mssd: Maximum symmetry-aware surface distance, m; NaN without an estimate.
+        estimate_s: Wall time of the estimator call, s.
+        wall_s: Wall time of the whole episode (reset included), s.
+        sim_s: Simulated time, s.
+        lift_height: Final height of the target above its resting height, m.
+        occlusion: Requested occlusion level (``"L0".."L3"``).
+        occluded_fraction: Measured occluded fraction of the target at the observation view (NaN at L0).
+        visible_pixels: Target pixels visible in the observation.
+        grasp_index: Index of the executed grasp candidate (-1 if none).
+        approach_tilt_deg: Angle of the executed approach from straight down, degrees (NaN if none).
+        error: The estimator's exception text, if it raised.
+        frames: Video frames (third-person | wrist), only when recording.
+    """
+
+    seed: int | None
+    target_obj_id: int
+    target_name: str
+    success: bool
+    reason: str
+    add_s: float = float("nan")
+    re_deg: float = float("nan")
+    te: float = float("nan")
+    mssd: float = float("nan")
+    estimate_s: float = 0.0
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+    lift_height: float = 0.0
+    occlusion: str = "L0"
+    occluded_fraction: float = float("nan")
+    visible_pixels: int = 0
+    grasp_index: int = -1
+    approach_tilt_deg: float = float("nan")
+    error: str = ""
+    frames: list = field(default=None, repr=False)  # type: ignore[assignment]
+
+    def to_row(self) -> dict[str, Any]:
+        """The scalar fields, for a CSV row."""
+        row = asdict(self)
+        row.pop("frames")
+        return row
+
+
+class _Collision(Exception):
+    pass
+
+
+class _Recorder:
+    """Collects third-person | wrist frames every ``every`` control periods."""
+
+    def __init__(self, env, every: int = 2) -> None:
+        self.env = env
+        self.every = max(1, int(every))
+        self.frames: list[np.ndarray] = []
+        self._k = 0
+
+    def __call__(self, force: bool = False) -> None:
+        self._k += 1
+        if not force and (self._k - 1) % self.every:
+            return
+        env = self.env
+        tp = env.render_third_person()
+        wrist = env._renderer.render(env.data, env.ids.camera, rgb=True, depth=False, seg=False).rgb
+        if wrist.shape[0] != tp.shape[0]:
+            import cv2
+
+            scale = tp.shape[0] / wrist.shape[0]
+            wrist = cv2.resize(wrist, (int(round(wrist.shape[1] * scale)), tp.shape[0]))
+        self.frames.append(np.concatenate([tp, wrist], axis=1))
+
+
+class _Monitor:
+    """Per control period: collision checks for the current phase and the optional recorder."""
+
+    def __init__(self, env, recorder: _Recorder | None) -> None:
+        self.env = env
+        self.recorder = recorder
+        self.phase = "free"
+        self._force = np.zeros(6)
+        ids = env.ids
+        self._robot = ids.robot_geoms
+
+    def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        if self.recorder is not None:
+            self.recorder()
+        if self.phase in ("free", "approach"):
+            self._check(model, data)
+
+    def _check(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        n = data.ncon
+        if n == 0:
+            return
+        geoms = np.asarray(data.contact.geom[:n])
+        robot = np.isin(geoms, self._robot)
+        cand = robot[:, 0] ^ robot[:, 1]
+        if self.phase == "approach":
+            cand &= ~np.isin(geoms, self.env._target_geoms).any(axis=1)
+        for i in np.flatnonzero(cand):
+            mujoco.mj_contactForce(model, data, int(i), self._force)
+            if abs(self._force[0]) > COLLISION_FORCE or self.phase == "free" and np.isin(
+                    geoms[i], self.env._target_geoms).any():
+                raise _Collision()
+
+
+def _move_joints(env, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
+                 settle: float = 0.5) -> None:
+    """Minimum-jerk joint-space motion of the arm to ``q_goal`` (rad), then hold until at rest."""
+    m, d, ids = env.model, env.data, env.ids
+    q0 = d.ctrl[ids.arm_actuators].copy()
+    duration = max(0.5, float(np.abs(q_goal - q0).max()) / joint_speed * 1.875)  # peak speed of min-jerk
+    n = max(1, int(round(duration / CONTROL_DT)))
+    lead = env._lead
+    q_prev = q0
+    for k in range(1, n + 1):
+        s = k / n
+        s = s ** 3 * (10 - 15 * s + 6 * s * s)
+        q = q0 + s * (q_goal - q0)
+        d.ctrl[ids.arm_actuators] = q + lead * (q - q_prev) / CONTROL_DT
+        q_prev = q
+        env.advance(CONTROL_DT)
+        monitor(m, d)
+    d.ctrl[ids.arm_actuators] = q_goal
+    for _ in range(int(round(settle / CONTROL_DT))):
+        if np.abs(d.qvel[ids.arm_dof]).max() < 0.01 and np.abs(d.qpos[ids.arm_qpos] - q_goal).max() < 2e-3:
+            break
+        env.advance(CONTROL_DT)
+        monitor(m, d)
+
+
+def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, approach_speed: float = 0.08,
+                  close_time: float = 0.6, hold: float = HOLD_TIME) -> str:
+    """Execute a planned grasp on ``env``'s physics: pre-grasp, approach, close, lift, hold.
+
+    Args:
+        env: The (unwrapped) env, its arm at rest.
+        plan: From :meth:`GraspPlanner.plan`.
+        monitor: Collision monitor / recorder (a fresh one if None).
+        approach_speed: Mean TCP speed of the straight approach and lift, m/s.
+        close_time: Time given to the gripper to close, s.
+        hold: Hold time at the top, s.
+
+    Returns:
+        ``"none"`` on success, else ``"collision"``, ``"ik_failure"``, ``"missed"`` or ``"slipped"``.
+    """
+    m, d, ids = env.model, env.data, env.ids
+    monitor = monitor or _Monitor(env, None)
+    try:
+        monitor.phase = "free"
+        panda.open_gripper(d, ids)
+        _move_joints(env, plan.q_pregrasp, monitor)
+        monitor.phase = "approach"
+        dist = float(np.linalg.norm(plan.grasp.t - plan.pregrasp.t))
+        q = panda.move_to(m, d, ids, plan.grasp, max(1.0, dist / approach_speed), q_ref=plan.q_pregrasp,
+                          settle=0.5, callback=monitor)
+        monitor.phase = "grasp"
+        panda.close_gripper(d, ids)
+        for _ in range(int(round(close_time / CONTROL_DT))):
+            env.advance(CONTROL_DT)
+            monitor(m, d)
+        if not env.is_grasped() or panda.gripper_width(d, ids) < 0.002:
+            return "missed"
+        lift = float(np.linalg.norm(plan.lift.t - plan.grasp.t))
+        panda.move_to(m, d, ids, plan.lift, max(1.0, lift / approach_speed), q_ref=q, settle=0.0,
+                      callback=monitor)
+        mujoco.mj_kinematics(m, d)
+        for _ in range(int(round(hold / CONTROL_DT))):
+            if not (env.is_grasped() and env.lift_height() >= SUCCESS_HEIGHT):
+                return "slipped"
+            env.advance(CONTROL_DT)
+            monitor(m, d)
+        if not (env.is_grasped() and env.lift_height() >= SUCCESS_HEIGHT):
+            return "slipped"
+        return "none"
+    except _Collision:
+        return "collision"
+    except panda.UnreachableError:
+        return "ik_failure"
+    finally:
+        env.sync_command()
+
+
+def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray) -> dict[str, float]:
+    """ADD(-S) (m), re (deg), te (m) and MSSD (m) of one estimate against the ground truth (camera frame)."""
+    from simtest.metrics.pose import add_s_or_add, mssd, re, te
+
+    key = obj.mesh_hash
+    if key not in _SYMMETRY_CACHE:
+        _SYMMETRY_CACHE[key] = obj.symmetry_transforms()
+    pts = np.asarray(obj.vertices)
+    return {"add_s": add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": re(R_e, R_g), "te": te(t_e, t_g),
+            "mssd": mssd(R_e, t_e, R_g, t_g, pts, _SYMMETRY_CACHE[key])}
+
+
+def _pick_estimate(estimates: list, obj_id: int) -> PoseEstimate | None:
+    best = None
+    for e in estimates:
+        if int(getattr(e, "obj_id", -1)) != obj_id or getattr(e, "target_index", None) not in (None, 0):
+            continue
+        score = float(getattr(e, "score", 1.0))
+        if best is None or (np.isfinite(score) and score > float(best.score)):
+            best = e
+    return best
+
+
+def _as_rotation(R: np.ndarray) -> np.ndarray | None:
+    """``R`` if it is (numerically) a rotation, re-orthonormalised; ``None`` otherwise."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) <= 0:
+        return None
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
+
+
+def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int | None = None,
+                options: dict | None = None, *, record: bool = False, record_every: int = 2) -> EpisodeResult:
+    """Run one closed-loop episode (see the module docstring).
+
+    Args:
+        env: A :class:`PandaGraspEnv` (wrappers are looked through).
+        estimator: An estimator instance, a callable, a registered name or ``module:attr``. Estimators with a
+            true ``needs_gt`` attribute (the ``oracle``) get the ground-truth pose in
+            ``Observation.gt_poses``; every estimator gets the target's ground-truth visible mask and box
+            (the "GT detections" protocol).
+        planner: The grasp planner (default :class:`GraspPlanner`).
+        seed: Env seed of the episode (scene, corruption and, through ``Observation.scene_id``, oracle noise).
+        options: ``reset`` options (objects, target, n_distractors, occlusion, corruption, depth_noise, ...).
+        record: Keep video frames (third-person | wrist) in ``EpisodeResult.frames``.
+        record_every: Record every n-th control period (2 -> 10 frames per simulated second).
+
+    Returns:
+        An :class:`EpisodeResult`; estimator failures are recorded, never raised.
+    """
+    t_start = time.perf_counter()
+    u = env.unwrapped
+    est = load_estimator(estimator)
+    planner = planner or GraspPlanner()
+    u.reset(seed=seed, options=options)
+    obj = u.target_obj
+    tid = int(obj.obj_id)
+    t_sim0 = float(u.data.time)
+    occ = u.occlusion
+    result = EpisodeResult(seed=seed, target_obj_id=tid, target_name=obj.name, success=False, reason="none",
+                           occlusion=f"L{u.config.occlusion}",
+                           occluded_fraction=float("nan") if occ is None or occ.occluded_fraction is None
+                           else occ.occluded_fraction)
+    recorder = _Recorder(u, record_every) if record else None
+    monitor = _Monitor(u, recorder)
+
+    def finish(reason: str) -> EpisodeResult:
+        u.sync_command()
+        result.reason = reason
+        result.success = reason == "none"
+        result.lift_height = u.lift_height()
+        result.sim_s = float(u.data.time) - t_sim0
+        result.wall_s = time.perf_counter() - t_start
+        if recorder is not None:
+            recorder(force=True)
+            result.frames = recorder.frames
+        return result
+
+    # 1. Observe from the observation configuration.
+    try:
+        _move_joints(u, u.q_observe, monitor)
+    except _Collision:
+        return finish("collision")
+    obs = u.capture()
+    info = u._info()
+    mask = u.target_mask()
+    result.visible_pixels = int(mask.sum())
+    T_cam_obj_gt = info["T_cam_obj"][u.task.target_instance]
+    R_g, t_g = T_cam_obj_gt[:3, :3], T_cam_obj_gt[:3, 3]
+    ys, xs = np.nonzero(mask)
+    box = ((int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+           if len(xs) else (0, 0, 0, 0))
+    needs_gt = bool(getattr(est, "needs_gt", False))
+    observation = Observation(
+        rgb=obs["rgb"], depth=obs["depth"], K=obs["K"], width=u.width, height=u.height, objects=u.objects,
+        target_obj_ids=(tid,), masks=(mask,), boxes=(box,),
+        gt_poses=((R_g.copy(), t_g.copy()),) if needs_gt else None,
+        scene_id=int(seed) if seed is not None else 0, im_id=0)
+
+    # 2. Estimate.
+    t0 = time.perf_counter()
+    try:
+        estimates = list(est.estimate(observation) or [])
+    except Exception as exc:  # any estimator failure is a recorded outcome
+        result.estimate_s = time.perf_counter() - t0
+        result.error = f"{type(exc).__name__}: {exc}"
+        return finish("estimator_error")
+    result.estimate_s = time.perf_counter() - t0
+    chosen = _pick_estimate(estimates, tid)
+    if chosen is None:
+        return finish("no_estimate")
+    R_e = np.asarray(chosen.R, dtype=np.float64)
+    t_e = np.asarray(chosen.t, dtype=np.float64).reshape(-1)
+    if R_e.shape != (3, 3) or t_e.shape != (3,) or not (np.all(np.isfinite(R_e)) and np.all(np.isfinite(t_e))):
+        return finish("no_estimate")
+    R_e = _as_rotation(R_e)
+    if R_e is None:
+        result.error = "the estimated R is not a rotation matrix"
+        return finish("estimator_error")
+    errs = pose_errors(obj, R_e, t_e, R_g, t_g)
+    result.add_s, result.re_deg, result.te, result.mssd = (errs["add_s"], errs["re_deg"], errs["te"],
+                                                           errs["mssd"])
+
+    # 3. Plan from the estimated pose, camera -> base -> world.
+    T_world_obj = (Pose.from_matrix(info["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])
+                   @ Pose(R_e, t_e))
+    planned = planner.plan(u, obj, T_world_obj)
+    if planned.plan is None:
+        return finish(planned.reason)
+    result.grasp_index = planned.plan.index
+    result.approach_tilt_deg = float(np.degrees(planned.plan.approach_tilt))
+
+    # 4. Execute.
+    return finish(execute_grasp(u, planned.plan, monitor))

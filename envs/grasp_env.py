@@ -1,0 +1,499 @@
+"""``PandaGraspEnv``: a Franka Panda with a wrist RGB-D camera, grasping an object from a table.
+
+A gymnasium environment (registered as ``simtest/PandaGrasp-v0``) on the generator's table scenes
+(:mod:`simtest.envs.scene`) with the real Panda model of :mod:`simtest.panda`.
+
+Observation (a dict):
+
+* ``rgb``: (H, W, 3) uint8 wrist-camera image (corrupted as asked);
+* ``depth``: (H, W) float32 planar depth, metres, 0 = missing (with sensor noise as asked);
+* ``K``: (3, 3) float64 intrinsics, pixels (D435-like: fx = fy = 615 px at 640 px width);
+* ``T_base_cam``: (4, 4) pose of the wrist camera (OpenCV frame) in the robot base frame, metres;
+* ``joint_pos``, ``joint_vel``: (7,) arm joint angles (rad) and velocities (rad/s);
+* ``gripper_width``: (1,) gap between the finger pads, metres (0 closed .. 0.08 open).
+
+Action: ``Box(7)`` float32, ``[dx, dy, dz, rx, ry, rz, g]``: a TCP displacement in the world frame (metres,
+at most :data:`MAX_STEP_TRANSLATION` per axis), a rotation vector applied in the world frame about the TCP
+(radians, at most :data:`MAX_STEP_ROTATION` per axis), and the gripper command ``g`` from -1 (closed) to
++1 (fully open, 0.08 m), linear in the pad gap. Each step runs differential IK (:func:`simtest.panda.ik_step`)
+once at 20 Hz and 25 physics steps of 2 ms (500 Hz). The commanded TCP pose integrates from the previous
+*command*, so IK lag does not accumulate; the target is kept inside a workspace box above the table.
+
+Reward: 1 for every step with the target grasped and lifted at least :data:`SUCCESS_HEIGHT` above where it
+rested; the episode terminates once that has held for :data:`HOLD_TIME` seconds.
+
+``reset(seed=, options=)`` options (each overrides the constructor's default for that episode):
+``objects`` (object set name or path), ``target`` (obj_id or name; default a random graspable object),
+``n_distractors``, ``occlusion`` (``"L0".."L3"``), ``corruption`` (a dict of
+:class:`simtest.corrupt.CorruptionSpec` fields, e.g. ``{"weather": "fog", "severity": 4}``),
+``depth_noise`` (a preset name of :data:`simtest.corrupt.DEPTH_PRESETS`), ``placement``
+(``"upright"`` | ``"random"``) and ``start`` (``"home"`` | ``"observe"``: the arm's initial configuration).
+Corruption and depth noise change observations only, never ``info``; they draw from the episode's own
+generator, so the same seed gives the same corrupted images.
+
+``info`` (ground truth, for oracles and scoring): ``target_obj_id``, ``target_name``, ``target_instance``,
+``obj_ids`` (per instance), ``T_world_obj`` and ``T_cam_obj`` ((N, 4, 4) per instance, metres),
+``T_world_cam``, ``T_world_base``, ``is_grasped`` (the target touches both fingers), ``lift_height`` (target
+rise above its resting height, m), ``rest_height`` (m), ``occlusion`` (the occluder's measured effect),
+``q_observe`` (the observation configuration) and ``sim_time`` (s).
+
+Images are rendered only when an observation is produced (each :meth:`step` and :meth:`reset`, or on
+:meth:`capture` when ``observe_every_step=False``), never per physics step. ``render_mode="rgb_array"``
+renders a third-person view.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from scipy.spatial.transform import Rotation
+
+import simtest  # noqa: F401  (GL backend before mujoco)
+import mujoco
+
+from simtest import panda
+from simtest.camera import CameraModel, look_at_pose
+from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
+from simtest.corrupt.occlusion import parse_occlusion_level
+from simtest.errors import AssetError, ConfigError
+from simtest.geometry import Pose
+from simtest.render import Frame, Renderer
+
+__all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
+           "SUCCESS_HEIGHT", "HOLD_TIME", "load_objects"]
+
+#: Control period, s (20 Hz).
+CONTROL_DT = 0.05
+#: Largest TCP displacement per step and axis, m (0.4 m/s).
+MAX_STEP_TRANSLATION = 0.02
+#: Largest rotation-vector component per step, rad (2 rad/s).
+MAX_STEP_ROTATION = 0.1
+#: Success: the target at least this high above its resting height (m) ...
+SUCCESS_HEIGHT = 0.10
+#: ... for at least this long (s), held in the gripper.
+HOLD_TIME = 1.0
+
+_RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption", "depth_noise", "placement",
+                  "start")
+
+_OBJECT_SETS: dict[str, Any] = {}
+
+
+def load_objects(name: str):
+    """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path), loaded once per process."""
+    from simtest.objects import load_object_set
+
+    if name not in _OBJECT_SETS:
+        _OBJECT_SETS[name] = load_object_set(name)
+    return _OBJECT_SETS[name]
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    """The validated settings of one episode (constructor defaults merged with ``reset`` options)."""
+
+    objects: str = "builtin"
+    target: int | str | None = None
+    n_distractors: int = 2
+    occlusion: int = 0
+    corruption: CorruptionSpec | None = None
+    placement: str = "upright"
+    start: str = "home"
+
+    @staticmethod
+    def build(base: "EpisodeConfig", options: dict | None) -> "EpisodeConfig":
+        """``base`` with ``options`` applied and validated.
+
+        Raises:
+            ConfigError: Unknown option names or bad values (the message names the allowed ones).
+        """
+        opts = dict(options or {})
+        unknown = sorted(set(opts) - set(_RESET_OPTIONS))
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {unknown}; allowed: {', '.join(_RESET_OPTIONS)}")
+        objects = opts.get("objects", base.objects)
+        if not isinstance(objects, str) or not objects:
+            raise ConfigError(f"objects must be an object set name or path, got {objects!r}")
+        target = opts.get("target", base.target)
+        if target is not None and not isinstance(target, (str, int, np.integer)) or isinstance(target, bool):
+            raise ConfigError(f"target must be an obj_id, an object name or None, got {target!r}")
+        n_dis = opts.get("n_distractors", base.n_distractors)
+        if isinstance(n_dis, bool) or not isinstance(n_dis, (int, np.integer)) or not 0 <= n_dis <= 10:
+            raise ConfigError(f"n_distractors must be an integer in [0, 10], got {n_dis!r}")
+        occlusion = parse_occlusion_level(opts.get("occlusion", base.occlusion))
+        corruption = base.corruption
+        if "corruption" in opts or "depth_noise" in opts:
+            c = opts.get("corruption", None if base.corruption is None else base.corruption.to_dict())
+            if isinstance(c, CorruptionSpec):
+                c = c.to_dict()
+            if c is not None and not isinstance(c, dict):
+                raise ConfigError(f"corruption must be a dict of CorruptionSpec fields (e.g. "
+                                  f"{{'weather': 'fog', 'severity': 4}}) or None, got {c!r}")
+            c = dict(c or {})
+            if "occlusion" in c and c["occlusion"] not in (None, 0, "L0"):
+                raise ConfigError("corruption.occlusion (2D paste) is not used by the grasp env; use the "
+                                  "'occlusion' option for physical occluders")
+            c.pop("occlusion", None)
+            if "depth_noise" in opts:
+                dn = opts["depth_noise"]
+                if dn is not None and dn not in DEPTH_PRESETS:
+                    raise ConfigError(f"unknown depth_noise preset {dn!r}; valid: {', '.join(DEPTH_PRESETS)}")
+                c["depth_noise"] = dn
+            spec = CorruptionSpec.from_dict(c)
+            corruption = None if spec.is_identity else spec
+        placement = opts.get("placement", base.placement)
+        if placement not in ("upright", "random"):
+            raise ConfigError(f"placement must be 'upright' or 'random', got {placement!r}")
+        start = opts.get("start", base.start)
+        if start not in ("home", "observe"):
+            raise ConfigError(f"start must be 'home' or 'observe', got {start!r}")
+        return EpisodeConfig(objects, target, int(n_dis), occlusion, corruption, placement, start)
+
+
+class PandaGraspEnv(gym.Env):
+    """Grasp a target object from a table with a Panda and its wrist RGB-D camera (see the module docstring).
+
+    Args:
+        render_mode: ``None`` or ``"rgb_array"`` (third-person view of ``render_width`` x ``render_height``).
+        width, height: Wrist camera image size, pixels (D435-like intrinsics scaled to ``width``).
+        objects: Default object set (``"builtin"``, ``"builtin-small"`` or a path).
+        target: Default target (obj_id or name); ``None`` picks a random graspable object per episode.
+        n_distractors: Default number of distractor objects.
+        occlusion: Default occlusion level, ``"L0".."L3"``.
+        corruption: Default observation corruption: a dict of :class:`CorruptionSpec` fields, or None.
+        depth_noise: Default depth-noise preset, or None.
+        placement: ``"upright"`` or ``"random"``.
+        start: ``"home"`` (the arm starts at :data:`simtest.panda.HOME_QPOS`) or ``"observe"`` (at the
+            observation configuration looking at the target).
+        observe_every_step: Render a new observation on every :meth:`step` (default). With False, steps
+            return the last captured images (call :meth:`capture` to take new ones): physics-only stepping.
+        render_width, render_height: Third-person view size (default: the wrist camera size).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
+
+    def __init__(self, render_mode: str | None = None, *, width: int = 320, height: int = 240,
+                 objects: str = "builtin", target: int | str | None = None, n_distractors: int = 2,
+                 occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
+                 placement: str = "upright", start: str = "home", observe_every_step: bool = True,
+                 render_width: int | None = None, render_height: int | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
+                raise ConfigError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
+        self.render_mode = render_mode
+        self.width, self.height = int(width), int(height)
+        self.render_width = int(render_width or width)
+        self.render_height = int(render_height or height)
+        self.observe_every_step = bool(observe_every_step)
+        self._defaults = EpisodeConfig.build(EpisodeConfig(), {
+            "objects": objects, "target": target, "n_distractors": n_distractors, "occlusion": occlusion,
+            "corruption": corruption, "depth_noise": depth_noise, "placement": placement, "start": start})
+        self.camera = CameraModel.default(self.width, self.height)
+        h, w = self.height, self.width
+        self.observation_space = spaces.Dict({
+            "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
+            "depth": spaces.Box(0.0, np.inf, (h, w), np.float32),
+            "K": spaces.Box(-np.inf, np.inf, (3, 3), np.float64),
+            "T_base_cam": spaces.Box(-np.inf, np.inf, (4, 4), np.float64),
+            "joint_pos": spaces.Box(-np.inf, np.inf, (7,), np.float64),
+            "joint_vel": spaces.Box(-np.inf, np.inf, (7,), np.float64),
+            "gripper_width": spaces.Box(-0.01, 0.1, (1,), np.float64),
+        })
+        lim = np.array([MAX_STEP_TRANSLATION] * 3 + [MAX_STEP_ROTATION] * 3 + [1.0], dtype=np.float32)
+        self.action_space = spaces.Box(-lim, lim, dtype=np.float32)
+        self._builders: dict[str, Any] = {}
+        self._renderer: Renderer | None = None
+        self.task = None
+        self.model: mujoco.MjModel | None = None
+        self.data: mujoco.MjData | None = None
+        self.ids: panda.PandaIds | None = None
+        self.config = self._defaults
+        self._frame: Frame | None = None
+        self._obs: dict | None = None
+
+    # --- episode setup -------------------------------------------------------------------------------------
+    def _builder(self, objects_name: str):
+        from simtest.envs.scene import scene_config
+        from simtest.generators.builder import SceneBuilder
+
+        if objects_name not in self._builders:
+            cfg = scene_config(self.width, self.height)
+            self._builders[objects_name] = SceneBuilder(load_objects(objects_name), cfg, panda_physics=True)
+        return self._builders[objects_name]
+
+    def _pick_target(self, objects, target, rng: np.random.Generator) -> int:
+        if target is None:
+            ids = [o.obj_id for o in objects if o.graspable]
+            if not ids:
+                raise ConfigError(f"object set {objects.name!r} has no graspable object")
+            return int(ids[int(rng.integers(len(ids)))])
+        if isinstance(target, str) and not target.lstrip("-").isdigit():
+            try:
+                return int(objects.by_name(target).obj_id)
+            except AssetError as exc:
+                names = ", ".join(o.name for o in objects)
+                raise ConfigError(f"unknown target {target!r} in object set {objects.name!r}; names: {names}"
+                                  ) from exc
+        oid = int(target)
+        if oid not in objects.ids:
+            raise ConfigError(f"unknown target obj_id {oid} in object set {objects.name!r}; ids: {objects.ids}")
+        return oid
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Build and settle a new scene and return the first observation (see the module docstring)."""
+        super().reset(seed=seed)
+        from simtest.envs.scene import build_task_scene, observation_camera_pose, tune_occluder
+
+        cfg = EpisodeConfig.build(self._defaults, options)
+        self.config = cfg
+        # Independent streams: scene layout, occluder, observation corruption.
+        scene_rng, occ_rng, self._corrupt_rng = self.np_random.spawn(3)
+        objects = load_objects(cfg.objects)
+        self.objects = objects
+        target_id = self._pick_target(objects, cfg.target, scene_rng)
+        builder = self._builder(cfg.objects)
+        self.task = build_task_scene(builder, objects, target_id, scene_rng, n_distractors=cfg.n_distractors,
+                                     occlusion=cfg.occlusion, placement=cfg.placement)
+        sim = self.task.sim
+        self.model, self.data, self.ids = sim.model, sim.data, sim.panda
+        self.target_obj = objects.get(target_id)
+        if self._renderer is not None:
+            self._renderer.close()
+        self._renderer = Renderer(self.model, self.width, self.height)
+        self._scratch = mujoco.MjData(self.model)
+        self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
+            self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
+        self._target_body = sim.instance_bodies[self.task.target_instance]
+        self._target_geoms = np.flatnonzero(sim.geom_instance == self.task.target_instance)
+        fb = self.model.geom_bodyid[self.ids.finger_geoms]
+        bodies = sorted(set(fb.tolist()))
+        self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
+        self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
+        self.T_world_base = Pose(self.data.xmat[self.ids.base_body].reshape(3, 3),
+                                 self.data.xpos[self.ids.base_body])
+        self.rest_height = float(self.data.xpos[self._target_body][2])
+
+        # Observation configuration: the wrist camera looking at the target from the robot's side.
+        self.q_observe = self._observation_q()
+        self.occlusion = tune_occluder(self.task, self._renderer, self.ids.camera, self.q_observe,
+                                       cfg.occlusion, occ_rng) if cfg.occlusion > 0 else None
+        if self.occlusion is not None:
+            mujoco.mj_step(self.model, self.data, 50)  # the box comes to rest on the table
+        panda.reset_arm(self.model, self.data, self.ids, self.q_observe if cfg.start == "observe" else None)
+        self.rest_height = float(self.data.xpos[self._target_body][2])
+        self._q_cmd = self.ids.arm_q(self.data)
+        self._hold_steps = 0
+        self._frame = None
+        self._obs = None
+        obs = self._observe(render=True)
+        return obs, self._info()
+
+    def _observation_q(self) -> np.ndarray:
+        from simtest.envs.scene import OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose
+
+        p = self.data.xpos[self._target_body].copy()
+        p[2] = self.task.table_height + 0.5 * (p[2] - self.task.table_height)
+        best = None
+        for dist, el in ((OBSERVATION_DISTANCE, OBSERVATION_ELEVATION), (0.38, np.deg2rad(65.0)),
+                         (0.46, np.deg2rad(50.0)), (0.34, np.deg2rad(75.0))):
+            T = observation_camera_pose(p, self.T_world_base.t[:2], dist, el)
+            res = panda.solve_ik(self.model, self.data, self.ids, T, panda.HOME_QPOS, frame="camera")
+            if res.success:
+                return res.q
+            if best is None or res.pos_err < best.pos_err:
+                best = res
+        return best.q  # the nearest reachable view (within a few mm of the requested one)
+
+    # --- stepping ------------------------------------------------------------------------------------------
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        """Apply one 20 Hz control step (see the module docstring for the action)."""
+        if self.data is None:
+            raise ConfigError("call reset() before step()")
+        a = np.clip(np.asarray(action, dtype=np.float64).reshape(7), self.action_space.low,
+                    self.action_space.high)
+        m, d, ids = self.model, self.data, self.ids
+        current = self._command_pose()
+        t = current.t + a[:3]
+        lo, hi = self._workspace()
+        t = np.clip(t, lo, hi)
+        R = Rotation.from_rotvec(a[3:6]).as_matrix() @ current.R
+        q_prev = self._q_cmd
+        q_new = panda.ik_step(m, d, ids, Pose(R, t), CONTROL_DT, q_ref=q_prev,
+                              max_lin_speed=np.sqrt(3) * MAX_STEP_TRANSLATION / CONTROL_DT,
+                              max_ang_speed=np.sqrt(3) * MAX_STEP_ROTATION / CONTROL_DT)
+        d.ctrl[ids.arm_actuators] = q_new + self._lead * (q_new - q_prev) / CONTROL_DT
+        panda.set_gripper(d, ids, 0.5 * (a[6] + 1.0) * panda.GRIPPER_OPEN)
+        self._q_cmd = q_new
+        self.advance(CONTROL_DT)
+        obs = self._observe(render=self.observe_every_step)
+        info = self._info()
+        lifted = info["is_grasped"] and info["lift_height"] >= SUCCESS_HEIGHT
+        self._hold_steps = self._hold_steps + 1 if lifted else 0
+        terminated = self._hold_steps * CONTROL_DT >= HOLD_TIME - 1e-9
+        return obs, float(lifted), bool(terminated), False, info
+
+    def advance(self, duration: float) -> None:
+        """Run the physics for ``duration`` seconds with the current controls (whole 2 ms steps), then update
+        the kinematics so poses, contacts and camera frames describe the final state."""
+        n = max(0, int(round(duration / self.model.opt.timestep)))
+        mujoco.mj_step(self.model, self.data, n)
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+
+    def sync_command(self) -> None:
+        """Take the current arm servo targets as the command to integrate from (after scripted motion)."""
+        self._q_cmd = self.data.ctrl[self.ids.arm_actuators].copy()
+
+    def _command_pose(self) -> Pose:
+        s = self._scratch
+        s.qpos[self.ids.arm_qpos] = self._q_cmd
+        mujoco.mj_kinematics(self.model, s)
+        return panda.tcp_pose(s, self.ids)
+
+    def _workspace(self) -> tuple[np.ndarray, np.ndarray]:
+        sc = self._builders[self.config.objects].cfg.scene
+        z0 = float(sc.table_height)
+        lo = np.array([-sc.table_size[0] / 2, -sc.table_size[1] / 2, z0 + 0.005])
+        hi = np.array([sc.table_size[0] / 2, sc.table_size[1] / 2, z0 + 0.7])
+        return lo, hi
+
+    # --- observations --------------------------------------------------------------------------------------
+    def camera_model(self) -> CameraModel:
+        """The wrist camera (intrinsics and ``T_world_cam``) at the current state."""
+        return panda.wrist_camera_model(self.data, self.ids)
+
+    def capture(self) -> dict:
+        """Render a new (corrupted) observation at the current state and return it."""
+        return self._observe(render=True)
+
+    def _observe(self, render: bool) -> dict:
+        d, ids = self.data, self.ids
+        cam = self.camera_model()
+        if render or self._obs is None:
+            frame = self._renderer.render(d, ids.camera, rgb=True, depth=True, seg=True)
+            self._frame = frame
+            rgb, depth = frame.rgb, frame.depth
+            if self.config.corruption is not None:
+                rgb, depth, _ = self.config.corruption.apply(rgb, depth, None, self._corrupt_rng, cam.K)
+            self._images = (np.ascontiguousarray(rgb, dtype=np.uint8),
+                            np.ascontiguousarray(depth, dtype=np.float32))
+            self._T_base_cam_at_capture = (self.T_world_base.inverse() @ cam.T_world_cam).matrix()
+        obs = {
+            "rgb": self._images[0],
+            "depth": self._images[1],
+            "K": np.array(cam.K, dtype=np.float64),
+            "T_base_cam": self._T_base_cam_at_capture.copy(),
+            "joint_pos": d.qpos[ids.arm_qpos].copy(),
+            "joint_vel": d.qvel[ids.arm_dof].copy(),
+            "gripper_width": np.array([panda.gripper_width(d, ids)], dtype=np.float64),
+        }
+        self._obs = obs
+        return obs
+
+    @property
+    def last_frame(self) -> Frame | None:
+        """The clean render (rgb, depth, segmentation) behind the last captured observation."""
+        return self._frame
+
+    def target_mask(self) -> np.ndarray:
+        """Visible mask (H, W) bool of the target in the last captured observation (ground truth)."""
+        if self._frame is None:
+            raise ConfigError("no observation captured yet")
+        return np.isin(self._frame.seg, self._target_geoms)
+
+    # --- ground truth ----------------------------------------------------------------------------------------
+    def is_grasped(self) -> bool:
+        """Whether the target touches a pad of each finger (contacts of the last physics step)."""
+        d = self.data
+        n = d.ncon
+        if n == 0:
+            return False
+        g = np.asarray(d.contact.geom[:n])
+        tgt = np.isin(g, self._target_geoms)
+        left = np.isin(g, self._left_geoms)
+        right = np.isin(g, self._right_geoms)
+        touch_l = np.any((tgt[:, 0] & left[:, 1]) | (tgt[:, 1] & left[:, 0]))
+        touch_r = np.any((tgt[:, 0] & right[:, 1]) | (tgt[:, 1] & right[:, 0]))
+        return bool(touch_l and touch_r)
+
+    def lift_height(self) -> float:
+        """Height of the target above its resting height, m."""
+        return float(self.data.xpos[self._target_body][2] - self.rest_height)
+
+    def object_poses_world(self) -> np.ndarray:
+        """(N, 4, 4) ``T_world_obj`` of every instance (target first), metres."""
+        sim = self.task.sim
+        out = np.tile(np.eye(4), (len(sim.instance_bodies), 1, 1))
+        for i, b in enumerate(sim.instance_bodies):
+            out[i, :3, :3] = self.data.xmat[b].reshape(3, 3)
+            out[i, :3, 3] = self.data.xpos[b]
+        return out
+
+    def _info(self) -> dict:
+        T_world_obj = self.object_poses_world()
+        T_world_cam = self.camera_model().T_world_cam.matrix()
+        T_cam_world = np.linalg.inv(T_world_cam)
+        return {
+            "target_obj_id": int(self.target_obj.obj_id),
+            "target_name": self.target_obj.name,
+            "target_instance": int(self.task.target_instance),
+            "obj_ids": list(self.task.sim.instance_obj_ids),
+            "T_world_obj": T_world_obj,
+            "T_cam_obj": T_cam_world[None] @ T_world_obj,
+            "T_world_cam": T_world_cam,
+            "T_world_base": self.T_world_base.matrix(),
+            "is_grasped": self.is_grasped(),
+            "lift_height": self.lift_height(),
+            "rest_height": self.rest_height,
+            "occlusion": None if self.occlusion is None else self.occlusion.to_dict(),
+            "q_observe": self.q_observe.copy(),
+            "sim_time": float(self.data.time),
+        }
+
+    # --- rendering -------------------------------------------------------------------------------------------
+    def third_person_camera(self) -> CameraModel:
+        """A fixed view of the table and the robot from the front right (OpenCV ``T_world_cam``)."""
+        z0 = self.task.table_height
+        cam = CameraModel.default(self.render_width, self.render_height)
+        return cam.with_pose(look_at_pose(np.array([0.75, -0.75, z0 + 0.55]), np.array([-0.1, 0.0, z0 + 0.12])))
+
+    def render(self) -> np.ndarray | None:
+        """The third-person view (H, W, 3) uint8 in ``rgb_array`` mode; None otherwise."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self.data is None:
+            raise ConfigError("call reset() before render()")
+        return self.render_third_person()
+
+    def render_third_person(self) -> np.ndarray:
+        """Render the third-person view now, whatever the render mode."""
+        renderer = self._third_person_renderer()
+        sim = self.task.sim
+        sim.set_camera(self.third_person_camera())
+        return renderer.render(self.data, sim.camera_id, rgb=True, depth=False, seg=False).rgb
+
+    def _third_person_renderer(self) -> Renderer:
+        if (self.render_width, self.render_height) == (self.width, self.height):
+            return self._renderer
+        r = getattr(self, "_tp_renderer", None)
+        if r is None or r.model is not self.model:
+            if r is not None:
+                r.close()
+            self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, self.render_width)
+            self.model.vis.global_.offheight = max(self.model.vis.global_.offheight, self.render_height)
+            r = Renderer(self.model, self.render_width, self.render_height)
+            self._tp_renderer = r
+        return r
+
+    def close(self) -> None:
+        for r in (self._renderer, getattr(self, "_tp_renderer", None)):
+            if r is not None:
+                r.close()
+        self._renderer = None
+        self._tp_renderer = None

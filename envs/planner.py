@@ -1,0 +1,259 @@
+"""Grasp planning from an *estimated* object pose.
+
+The object's grasp candidates (:attr:`simtest.objects.ObjectModel.grasps`, ``T_obj_grasp`` in the gripper
+convention of :mod:`simtest.panda`: origin at the TCP, z = approach, y = closing axis) are mapped into the
+world through the estimated pose ``T_world_obj = T_world_base @ T_base_cam @ T_cam_obj``. A candidate is
+kept when
+
+1. its approach points downward: at most ``max_tilt`` from straight down (a gripper coming from below the
+   horizon would have to pass through the table);
+2. the open gripper (both fingers at the full 0.08 m opening and the palm, as boxes) stays at least
+   ``table_clearance`` above the table top at the grasp pose (the pre-grasp pose is higher still); a
+   candidate that would reach into the table is backed off along its approach axis while its contacts stay
+   on the finger pads (flat objects are held near the fingertips);
+3. IK reaches the pre-grasp, grasp and lift poses (within 0.5 mm / 0.3 deg);
+4. with ``check_collisions``, the arm at the pre-grasp and grasp configurations (gripper open) does not
+   penetrate the table, the distractors or the occluders. Obstacles are taken from the simulator's geometry,
+   as a depth-based occupancy map would give them; the target itself is known only through its estimate
+   (the candidates already keep the fingers out of its estimated surface).
+
+Candidates are ranked by ``top_down_weight * (-approach_z) + score`` (top-down grasps preferred, then the
+sampler's antipodal quality) and checked in that order; for each, the grasp and its twin rotated by pi
+about the approach axis (:func:`simtest.panda.symmetric_grasp`) are tried and the one needing the smaller
+joint motion is taken. The first feasible candidate wins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import simtest  # noqa: F401
+import mujoco
+
+from simtest import panda
+from simtest.errors import ConfigError
+from simtest.geometry import Pose
+from simtest.objects.grasps import PANDA, gripper_boxes
+
+__all__ = ["GraspPlan", "PlanResult", "GraspPlanner"]
+
+
+@dataclass(frozen=True)
+class GraspPlan:
+    """A feasible grasp, ready to execute.
+
+    Attributes:
+        grasp: ``T_world_tcp`` at the grasp (m).
+        pregrasp: ``T_world_tcp`` ``pregrasp`` metres back along the approach axis.
+        lift: ``T_world_tcp`` after lifting straight up.
+        q_pregrasp, q_grasp, q_lift: IK solutions (7,), rad.
+        width: Contact width of the candidate, m.
+        index: Index of the candidate in the object's grasp set.
+        flipped: Whether the twin rotated by pi about the approach axis was taken.
+        approach_tilt: Angle between the approach axis and straight down, rad.
+        score: The candidate's grasp quality in [0, 1].
+    """
+
+    grasp: Pose
+    pregrasp: Pose
+    lift: Pose
+    q_pregrasp: np.ndarray
+    q_grasp: np.ndarray
+    q_lift: np.ndarray
+    width: float
+    index: int
+    flipped: bool
+    approach_tilt: float
+    score: float
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of :meth:`GraspPlanner.plan`.
+
+    Attributes:
+        plan: The chosen grasp, or ``None``.
+        reason: ``"ok"``, ``"no_feasible_grasp"`` (no candidate passes the approach and table checks, or all
+            that reach collide) or ``"ik_failure"`` (candidates pass the geometric checks but IK reaches none).
+        n_candidates: Candidates of the object.
+        n_geometric: Candidates passing the approach-direction and table checks.
+        n_tried: Candidates whose IK was tried.
+    """
+
+    plan: GraspPlan | None
+    reason: str
+    n_candidates: int
+    n_geometric: int
+    n_tried: int
+
+
+def _box_corners(boxes: np.ndarray) -> np.ndarray:
+    """(B, 2, 3) [lo, hi] boxes -> (B * 8, 3) corners."""
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    out = []
+    for sx in (0, 1):
+        for sy in (0, 1):
+            for sz in (0, 1):
+                out.append(np.stack([np.where(sx, hi[:, 0], lo[:, 0]), np.where(sy, hi[:, 1], lo[:, 1]),
+                                     np.where(sz, hi[:, 2], lo[:, 2])], axis=1))
+    return np.concatenate(out, axis=0)
+
+
+class GraspPlanner:
+    """Chooses a feasible grasp of an object from its estimated pose (see the module docstring).
+
+    Args:
+        max_tilt: Largest angle between the approach axis and straight down, rad.
+        table_clearance: Smallest height of the open gripper above the table top, m.
+        pregrasp: Stand-off along the approach axis before the straight approach, m.
+        lift: Lift height (TCP straight up), m.
+        top_down_weight: Weight of ``-approach_z`` against the candidate score in the ranking.
+        max_candidates: Candidates tried with IK before giving up.
+        check_collisions: Reject candidates whose pre-grasp or grasp configuration penetrates obstacles.
+        max_contact_z: How far beyond the TCP (toward the fingertips, which are 0.022 m beyond it) the
+            contacts may end up when a candidate is backed off to clear the table, m.
+    """
+
+    def __init__(self, max_tilt: float = np.deg2rad(60.0), table_clearance: float = 0.004,
+                 pregrasp: float = 0.10, lift: float = 0.15, top_down_weight: float = 1.0,
+                 max_candidates: int = 30, check_collisions: bool = True, max_contact_z: float = 0.016) -> None:
+        if not 0 < max_tilt <= np.pi / 2:
+            raise ConfigError(f"max_tilt must be in (0, pi/2] rad, got {max_tilt!r}")
+        if not pregrasp > 0 or not lift > 0:
+            raise ConfigError(f"pregrasp and lift must be > 0 m, got {pregrasp!r} and {lift!r}")
+        if max_candidates < 1:
+            raise ConfigError(f"max_candidates must be >= 1, got {max_candidates!r}")
+        self.max_tilt = float(max_tilt)
+        self.table_clearance = float(table_clearance)
+        self.pregrasp = float(pregrasp)
+        self.lift = float(lift)
+        self.top_down_weight = float(top_down_weight)
+        self.max_candidates = int(max_candidates)
+        self.check_collisions = bool(check_collisions)
+        self.max_contact_z = float(max_contact_z)
+        self._open_corners = _box_corners(gripper_boxes(PANDA.max_width, PANDA))
+
+    def candidates_world(self, obj, T_world_obj: Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """All candidates in the world: ``(poses (N, 4, 4), widths (N,), scores (N,), contact_z (N,))``.
+
+        ``contact_z`` is how far the contacts sit beyond the TCP along the approach axis (m; 0 for most
+        candidates, up to 0.012 for rim grasps).
+        """
+        gs = obj.grasps
+        poses = np.asarray(gs.poses)
+        contacts = np.asarray(gs.contacts)
+        if len(poses):
+            rel = contacts.mean(axis=1) - poses[:, :3, 3]
+            contact_z = np.einsum("ni,ni->n", rel, poses[:, :3, 2])
+            contact_z = np.where(np.isfinite(contact_z), contact_z, 0.0)
+        else:
+            contact_z = np.zeros(0)
+        return (T_world_obj.matrix()[None] @ poses, np.asarray(gs.widths), np.asarray(gs.scores), contact_z)
+
+    def geometric_filter(self, poses: np.ndarray, table_height: float,
+                         contact_z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Approach-direction and table-clearance checks.
+
+        A candidate whose open fingers would reach into the table is backed off along its approach axis
+        until they clear it, as long as the contacts stay on the pads (at most ``max_contact_z`` beyond the
+        TCP): flat objects are then held by the fingertip ends of the pads.
+
+        Returns:
+            ``(ok (N,) bool, backoff (N,) m)``: which candidates pass, and how far each must back off.
+        """
+        n = len(poses)
+        if n == 0:
+            return np.zeros(0, bool), np.zeros(0)
+        contact_z = np.zeros(n) if contact_z is None else np.asarray(contact_z)
+        az = poses[:, 2, 2]  # world z of the approach axis
+        ok = az <= -np.cos(self.max_tilt)
+        corners = np.einsum("nij,kj->nki", poses[:, :3, :3], self._open_corners) + poses[:, None, :3, 3]
+        deficit = table_height + self.table_clearance - corners[:, :, 2].min(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            backoff = np.where(deficit > 0, deficit / np.maximum(-az, 1e-6), 0.0)
+        ok &= contact_z + backoff <= self.max_contact_z
+        return ok, np.where(ok, backoff, 0.0)
+
+    def plan(self, env, obj, T_world_obj: Pose) -> PlanResult:
+        """Choose a grasp for ``obj`` at the estimated ``T_world_obj`` in ``env``'s current state.
+
+        Args:
+            env: A reset :class:`simtest.envs.grasp_env.PandaGraspEnv` (its model, data and Panda ids are read,
+                never stepped).
+            obj: The target's :class:`simtest.objects.ObjectModel`.
+            T_world_obj: The *estimated* object pose in the world (m).
+        """
+        model, data, ids = env.model, env.data, env.ids
+        poses, widths, scores, contact_z = self.candidates_world(obj, T_world_obj)
+        n = len(poses)
+        ok, backoff = self.geometric_filter(poses, env.task.table_height, contact_z)
+        poses = poses.copy()
+        poses[:, :3, 3] -= backoff[:, None] * poses[:, :3, 2]
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            return PlanResult(None, "no_feasible_grasp", n, 0, 0)
+        rank = self.top_down_weight * (-poses[idx, 2, 2]) + scores[idx]
+        order = idx[np.argsort(-rank, kind="stable")]
+        q_now = ids.arm_q(data)
+        n_tried = 0
+        any_ik = False
+        for i in order[: self.max_candidates]:
+            n_tried += 1
+            best = None
+            for flipped in (False, True):
+                g = Pose.from_matrix(poses[i])
+                if flipped:
+                    g = panda.symmetric_grasp(g)
+                res = self._check(model, data, ids, env, g, q_now)
+                if res is None:
+                    continue
+                any_ik = True
+                if res == "collision":
+                    continue
+                cost = float(np.abs(res[0] - q_now).max())
+                if best is None or cost < best[0]:
+                    best = (cost, g, res, flipped)
+            if best is not None:
+                _, g, (q_pre, q_grasp, q_lift, pre, lift), flipped = best
+                tilt = float(np.arccos(np.clip(-g.R[2, 2], -1.0, 1.0)))
+                plan = GraspPlan(g, pre, lift, q_pre, q_grasp, q_lift, float(widths[i]), int(i), flipped, tilt,
+                                 float(scores[i]))
+                return PlanResult(plan, "ok", n, len(idx), n_tried)
+        return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried)
+
+    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray):
+        """IK (and collisions) of one grasp: ``None`` if IK fails, ``"collision"``, or the solutions."""
+        pre = Pose(g.R, g.t - self.pregrasp * g.R[:, 2])
+        lift = Pose(g.R, g.t + np.array([0.0, 0.0, self.lift]))
+        r_pre = panda.solve_ik(model, data, ids, pre, q_now)
+        if not r_pre.success:
+            return None
+        r_grasp = panda.solve_ik(model, data, ids, g, r_pre.q)
+        if not r_grasp.success:
+            return None
+        r_lift = panda.solve_ik(model, data, ids, lift, r_grasp.q)
+        if not r_lift.success:
+            return None
+        if self.check_collisions and (self._collides(env, r_pre.q) or self._collides(env, r_grasp.q)):
+            return "collision"
+        return r_pre.q, r_grasp.q, r_lift.q, pre, lift
+
+    def _collides(self, env, q: np.ndarray) -> bool:
+        """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target."""
+        model, ids = env.model, env.ids
+        s = env._scratch
+        s.qpos[:] = env.data.qpos
+        s.qpos[ids.arm_qpos] = q
+        s.qpos[ids.finger_qpos] = panda.GRIPPER_OPEN / 2
+        mujoco.mj_fwdPosition(model, s)
+        n = s.ncon
+        if n == 0:
+            return False
+        geoms = np.asarray(s.contact.geom[:n])
+        dist = np.asarray(s.contact.dist[:n])
+        robot = np.isin(geoms, ids.robot_geoms)
+        target = np.isin(geoms, env._target_geoms)
+        hit = (robot[:, 0] ^ robot[:, 1]) & ~target.any(axis=1) & (dist < -0.001)
+        return bool(hit.any())

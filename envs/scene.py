@@ -1,0 +1,394 @@
+"""The grasping task's table scene: one target, distractor objects and physical occluders.
+
+The scene is a :class:`~simtest.generators.scene_spec.SceneSpec` built by the generator's
+:class:`~simtest.generators.builder.SceneBuilder` (with the Panda and its contact physics), so grasping runs
+on exactly the scenes the datasets are made of. This module only decides *what* goes where:
+
+* the **target** (instance 0) at a random spot of the reachable part of the table, upright with a random
+  yaw (``placement="upright"``) or dropped in a random orientation (``"random"``);
+* ``n_distractors`` other objects of the set around it, never in the strip between the target and the
+  observation camera;
+* for occlusion levels L1..L3, one **standing box** (a free, collidable body) on the line of sight between
+  the observation camera and the target; its height is bisected, with segmentation renders from the
+  observation viewpoint, until the target's occluded fraction is near the middle of the level's band
+  (OccludedPASCAL3D+ bands: L1 20-40 %, L2 40-60 %, L3 60-80 %).
+
+World frame: the table top is at ``z = table_height`` (0.4 m), centred at the origin; the robot base stands at
+the table's -x edge (``x = -0.5`` m). Lengths in metres, angles in radians.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import simtest  # noqa: F401  (GL backend before mujoco)
+import mujoco
+
+from simtest.camera import CameraModel, look_at_pose
+from simtest.corrupt.occlusion import OCCLUSION_BANDS
+from simtest.errors import ConfigError
+from simtest.generators.builder import SceneBuilder, SimScene
+from simtest.generators.config import GenerateConfig
+from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
+from simtest.geometry import Pose
+from simtest.objects import ObjectSet
+
+__all__ = [
+    "TARGET_REGION",
+    "OBSERVATION_DISTANCE",
+    "OBSERVATION_ELEVATION",
+    "OcclusionResult",
+    "TaskScene",
+    "build_task_scene",
+    "observation_camera_pose",
+    "tune_occluder",
+    "scene_config",
+]
+
+#: Where the target is placed: (x_min, x_max), (y_min, y_max) in the world, metres (0.38-0.62 m in front of
+#: the robot base, within 0.15 m of its axis: comfortably inside the Panda's reach for top-down grasps).
+TARGET_REGION = ((-0.12, 0.12), (-0.15, 0.15))
+#: Observation viewpoint: camera distance to the target (m) and elevation above the table plane (rad), seen
+#: from the robot's side.
+OBSERVATION_DISTANCE = 0.42
+OBSERVATION_ELEVATION = np.deg2rad(55.0)
+#: Occluder box thickness along the line of sight (m) and its gap to the target's footprint (m).
+OCCLUDER_THICKNESS = 0.03
+OCCLUDER_GAP = 0.025
+#: Placement of the occluder before it is tuned: a corner of the table, out of the way (x, y in metres).
+_OCCLUDER_PARK_XY = (0.33, 0.24)
+
+
+def scene_config(width: int, height: int) -> GenerateConfig:
+    """The generation config of grasp scenes: the default table, the Panda, a ``width`` x ``height`` wrist
+    camera with D435-like intrinsics (fx = fy = 615 px at 640 px width)."""
+    return GenerateConfig().replace(**{"camera.width": int(width), "camera.height": int(height),
+                                       "scene.panda": True, "scene.settle_max_time": 2.0})
+
+
+@dataclass
+class OcclusionResult:
+    """The occluder of one episode.
+
+    Attributes:
+        level: Requested level, 0..3.
+        occluded_fraction: Fraction of the target's pixels (as seen from the observation pose) the occluder
+            hides, or ``None`` without an occluder.
+        in_band: Whether that fraction lies in the level's band.
+        half_size: Box half extents (m).
+        position: Box centre (m, world).
+    """
+
+    level: int
+    occluded_fraction: float | None = None
+    in_band: bool = False
+    half_size: list[float] = field(default_factory=list)
+    position: list[float] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"level": f"L{self.level}", "occluded_fraction": self.occluded_fraction, "in_band": self.in_band,
+                "half_size": self.half_size, "position": self.position}
+
+
+@dataclass
+class TaskScene:
+    """A built, settled grasp scene.
+
+    Attributes:
+        sim: The generator's scene (model, data, instance maps, Panda ids).
+        target_instance: Instance index of the target (always 0).
+        occluder_body: Body id of the occluder box, -1 if none.
+        table_height: Height of the table top, m.
+    """
+
+    sim: SimScene
+    target_instance: int
+    occluder_body: int
+    table_height: float
+
+
+def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
+    return (float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2)))
+
+
+def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    return tuple(float(v) for v in (q if q[0] >= 0 else -q))
+
+
+def _jitter(rgb, rng: np.random.Generator, amount: float = 0.08) -> tuple[float, float, float]:
+    return tuple(float(np.clip(c + rng.normal(0, amount), 0.02, 0.98)) for c in rgb[:3])
+
+
+def observation_camera_pose(look_at: np.ndarray, base_xy: np.ndarray,
+                            distance: float = OBSERVATION_DISTANCE,
+                            elevation: float = OBSERVATION_ELEVATION) -> Pose:
+    """``T_world_cam`` (OpenCV) of the observation view: looking at ``look_at`` from the robot's side.
+
+    The camera sits ``distance`` m from the point, ``elevation`` rad above the table plane, on the vertical
+    plane through the robot base and the point; image "up" points away from the robot.
+    """
+    p = np.asarray(look_at, dtype=np.float64)
+    u = p[:2] - np.asarray(base_xy, dtype=np.float64)
+    n = float(np.linalg.norm(u))
+    u = u / n if n > 1e-6 else np.array([1.0, 0.0])
+    eye = p + distance * np.array([-np.cos(elevation) * u[0], -np.cos(elevation) * u[1], np.sin(elevation)])
+    return look_at_pose(eye, p)
+
+
+def _footprint_radius(obj, yaw_only: bool) -> float:
+    """Horizontal radius (m) of an object's footprint about its origin (upright: xy extent of the mesh)."""
+    v = np.asarray(obj.vertices)
+    if yaw_only:
+        return float(np.linalg.norm(v[:, :2], axis=1).max())
+    return float(obj.diameter / 2.0)
+
+
+def build_task_scene(
+    builder: SceneBuilder,
+    objects: ObjectSet,
+    target_id: int,
+    rng: np.random.Generator,
+    *,
+    n_distractors: int = 0,
+    occlusion: int = 0,
+    placement: str = "upright",
+    scene_index: int = 0,
+) -> TaskScene:
+    """Sample, build and settle one grasp scene.
+
+    Args:
+        builder: A :class:`SceneBuilder` for ``objects`` with the Panda in the scene (see :func:`scene_config`).
+        objects: The object set.
+        target_id: obj_id of the target.
+        rng: The episode's scene generator; every random choice is drawn from it in a fixed order.
+        n_distractors: Other objects of the set placed around the target (>= 0).
+        occlusion: Occlusion level 0..3; > 0 adds an occluder box (tuned later by :func:`tune_occluder`).
+        placement: ``"upright"`` (model z up, random yaw) or ``"random"`` (random orientation, dropped).
+        scene_index: Recorded in the spec (model name).
+
+    Raises:
+        ConfigError: On a bad ``placement`` or ``n_distractors``, or when the target falls off the table.
+    """
+    if placement not in ("upright", "random"):
+        raise ConfigError(f"placement must be 'upright' or 'random', got {placement!r}")
+    if isinstance(n_distractors, bool) or not isinstance(n_distractors, (int, np.integer)) or n_distractors < 0:
+        raise ConfigError(f"n_distractors must be an integer >= 0, got {n_distractors!r}")
+    sc = builder.cfg.scene
+    table_z = float(sc.table_height)
+    upright = placement == "upright"
+    target = objects.get(int(target_id))
+
+    def pose_for(obj, xy: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        if upright:
+            z = table_z - float(np.asarray(obj.vertices)[:, 2].min()) + 0.002
+            quat = _yaw_quat(float(rng.uniform(-np.pi, np.pi)))
+        else:
+            z = table_z + obj.diameter / 2.0 + 0.01
+            quat = _random_quat(rng)
+        return (float(xy[0]), float(xy[1]), float(z)), quat
+
+    def placement_of(obj, xy: np.ndarray) -> ObjectPlacement:
+        pos, quat = pose_for(obj, xy)
+        return ObjectPlacement(obj_id=int(obj.obj_id), position=pos, quat_wxyz=quat,
+                               rgba=(*_jitter(obj.rgba, rng), 1.0), specular=float(rng.uniform(0.0, 0.4)),
+                               shininess=float(rng.uniform(0.0, 0.5)), reflectance=0.0)
+
+    (x0, x1), (y0, y1) = TARGET_REGION
+    t_xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
+    placements = [placement_of(target, t_xy)]
+    r_t = _footprint_radius(target, upright)
+
+    # The strip toward the observation camera (the robot's side) stays free of distractors.
+    base_xy = np.array([-sc.table_size[0] / 2 - 0.1, 0.0])
+    to_cam = base_xy - t_xy
+    to_cam /= np.linalg.norm(to_cam)
+    hx, hy = sc.table_size[0] / 2 - 0.06, sc.table_size[1] / 2 - 0.06
+    placed: list[tuple[np.ndarray, float]] = [(t_xy, r_t)]
+    others = [i for i in objects.ids if i != int(target_id)] or list(objects.ids)
+    for _ in range(int(n_distractors)):
+        oid = int(others[int(rng.integers(len(others)))])
+        obj = objects.get(oid)
+        r = _footprint_radius(obj, upright)
+        xy = None
+        for _attempt in range(50):
+            ang = rng.uniform(-np.pi, np.pi)
+            dist = r_t + r + rng.uniform(0.04, 0.16)
+            cand = t_xy + dist * np.array([np.cos(ang), np.sin(ang)])
+            if abs(cand[0]) > hx or abs(cand[1]) > hy:
+                continue
+            if np.dot(cand - t_xy, to_cam) / dist > np.cos(np.deg2rad(50.0)):
+                continue  # on the camera's side of the target
+            if all(np.linalg.norm(cand - q) > r + rq + 0.02 for q, rq in placed):
+                xy = cand
+                break
+        if xy is None:
+            continue  # no room: fewer distractors rather than overlapping ones
+        placed.append((xy, r))
+        placements.append(placement_of(obj, xy))
+
+    distractors = []
+    if occlusion > 0:
+        colour = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.3, 0.7), rng.uniform(0.4, 0.8))
+        h = 0.05
+        distractors.append(DistractorSpec(
+            "box", (OCCLUDER_THICKNESS / 2, 0.04, h / 2), (*_OCCLUDER_PARK_XY, table_z + h / 2 + 0.001),
+            (1.0, 0.0, 0.0, 0.0), (*(float(c) for c in colour), 1.0)))
+
+    lights = (
+        LightSpec((0.3, -0.6, table_z + 1.4), tuple(_unit([-0.3, 0.6, -1.4])), tuple([float(rng.uniform(0.5, 0.7))] * 3),
+                  0.2),
+        LightSpec((-0.4, 0.7, table_z + 1.2), tuple(_unit([0.4, -0.7, -1.2])), tuple([float(rng.uniform(0.3, 0.5))] * 3),
+                  0.1),
+    )
+    table_rgb = _jitter((0.62, 0.55, 0.46), rng, 0.05)
+    table = SurfaceSpec("flat", table_rgb, table_rgb, 1.0, 0.0)
+    floor = SurfaceSpec("checker", (0.35, 0.35, 0.37), (0.3, 0.3, 0.32), 2.0, 0.0)
+    walls = SurfaceSpec("flat", (0.7, 0.7, 0.72), (0.7, 0.7, 0.72), 1.0, 0.0)
+    spec = SceneSpec(scene_index=int(scene_index), attempt=0, objects=tuple(placements),
+                     distractors=tuple(distractors), lights=lights, ambient=float(rng.uniform(0.3, 0.4)),
+                     table=table, floor=floor, walls=walls, views=())
+    sim = builder.build(spec)
+    _settle(sim, builder.cfg)
+    if not sim.active[0]:
+        raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")
+    occluder = -1
+    if occlusion > 0:
+        occluder = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "distractor_0")
+    return TaskScene(sim, 0, occluder, table_z)
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _settle(sim: SimScene, cfg: GenerateConfig) -> None:
+    """Settle with the generator's :func:`settle`, then undo its temporary rotational damping of free bodies."""
+    from simtest.generators.settle import settle
+
+    m = sim.model
+    damping = m.dof_damping.copy()
+    settle(sim, cfg.scene)
+    m.dof_damping[:] = damping
+    mujoco.mj_forward(m, sim.data)
+
+
+def _free_joint(model: mujoco.MjModel, body: int) -> tuple[int, int]:
+    j = model.body_jntadr[body]
+    return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+
+
+def _set_box(task: TaskScene, data: mujoco.MjData, half: np.ndarray, pos: np.ndarray, yaw: float) -> None:
+    """Resize the occluder box (model geom size) and put it at ``pos`` with ``yaw`` in ``data``, at rest."""
+    m = task.sim.model
+    g = int(m.body_geomadr[task.occluder_body])
+    m.geom_size[g] = half
+    m.geom_rbound[g] = float(np.linalg.norm(half))
+    m.geom_aabb[g, 3:] = half
+    qadr, vadr = _free_joint(m, task.occluder_body)
+    data.qpos[qadr:qadr + 3] = pos
+    data.qpos[qadr + 3:qadr + 7] = _yaw_quat(yaw)
+    data.qvel[vadr:vadr + 6] = 0.0
+
+
+def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarray, level: int,
+                  rng: np.random.Generator, definition: str = "pascal3d+", steps: int = 8) -> OcclusionResult:
+    """Stand the occluder box between the target and the observation camera and bisect its height until the
+    target's occluded fraction (seen from arm configuration ``q_observe``) is near the level band's middle.
+
+    The box stands ``OCCLUDER_GAP`` m beyond the target's footprint toward the camera, across the line of
+    sight, a little wider than the target. Renders are made on a copy of the state; the box is then left
+    standing in ``task.sim.data`` (at rest).
+
+    Args:
+        task: The settled scene (must have an occluder).
+        renderer: A :class:`simtest.render.Renderer` of the scene's model.
+        camera_id: The wrist camera id.
+        q_observe: Arm configuration (7,) rad of the observation pose.
+        level: 1..3.
+        rng: Generator for the box's lateral offset.
+        definition: Band definition (``pascal3d+`` or ``objectcentric``).
+        steps: Bisection steps.
+    """
+    res = OcclusionResult(level)
+    if level <= 0 or task.occluder_body < 0:
+        return res
+    sim = task.sim
+    m = sim.model
+    lo, hi = OCCLUSION_BANDS[definition][level][0]
+    goal = 0.5 * (lo + hi)
+    scratch = mujoco.MjData(m)
+    scratch.qpos[:] = sim.data.qpos
+    scratch.qpos[sim.panda.arm_qpos] = q_observe
+    mujoco.mj_forward(m, scratch)
+    cam_pos = scratch.cam_xpos[camera_id].copy()
+    body = sim.instance_bodies[task.target_instance]
+    target_geoms = np.flatnonzero(sim.geom_instance == task.target_instance)
+    t_obj = sim.data.xpos[body].copy()
+    # Footprint radius and top of the target as it rests (from its collision/visual geoms' world bounds).
+    verts = _target_world_vertices(task)
+    r = float(np.linalg.norm(verts[:, :2] - t_obj[:2], axis=1).max())
+    u = cam_pos[:2] - t_obj[:2]
+    u /= np.linalg.norm(u)
+    side = np.array([-u[1], u[0]])
+    # Half-width: the target's extent across the line of sight plus 1.5 cm, with a small random offset.
+    across = np.abs((verts[:, :2] - t_obj[:2]) @ side).max()
+    half_w = across + 0.015
+    centre = t_obj[:2] + u * (r + OCCLUDER_GAP + OCCLUDER_THICKNESS / 2) + side * rng.uniform(-0.3, 0.3) * across
+    yaw = float(np.arctan2(u[1], u[0]))
+    table_z = task.table_height
+
+    def visible(h: float | None) -> int:
+        if h is None:
+            _set_box(task, scratch, np.array([0.01, 0.01, 0.01]), np.array([*_OCCLUDER_PARK_XY, -5.0]), 0.0)
+        else:
+            _set_box(task, scratch, np.array([OCCLUDER_THICKNESS / 2, half_w, h / 2]),
+                     np.array([centre[0], centre[1], table_z + h / 2]), yaw)
+        mujoco.mj_kinematics(m, scratch)
+        mujoco.mj_camlight(m, scratch)
+        seg = renderer.render(scratch, camera_id, rgb=False, depth=False, seg=True).seg
+        return int(np.isin(seg, target_geoms).sum())
+
+    n_free = visible(None)
+    if n_free == 0:
+        h_best, f_best = 0.02, 0.0
+    else:
+        a, b = 0.005, float(min(cam_pos[2] - table_z - 0.08, 0.35))
+        h_best, f_best = b, 1.0 - visible(b) / n_free
+        for _ in range(steps):
+            mid = 0.5 * (a + b)
+            f = 1.0 - visible(mid) / n_free
+            if abs(f - goal) < abs(f_best - goal):
+                h_best, f_best = mid, f
+            if abs(f - goal) < 0.03:
+                break
+            if f < goal:
+                a = mid
+            else:
+                b = mid
+    half = np.array([OCCLUDER_THICKNESS / 2, half_w, h_best / 2])
+    pos = np.array([centre[0], centre[1], table_z + h_best / 2 + 0.0005])
+    _set_box(task, sim.data, half, pos, yaw)
+    mujoco.mj_forward(m, sim.data)
+    res.occluded_fraction = float(f_best)
+    res.in_band = bool(lo <= f_best <= hi)
+    res.half_size = [float(v) for v in half]
+    res.position = [float(v) for v in pos]
+    return res
+
+
+def _target_world_vertices(task: TaskScene) -> np.ndarray:
+    sim = task.sim
+    R, t = sim.object_pose_world(task.target_instance)
+    g = int(sim.model.body_geomadr[sim.instance_bodies[task.target_instance]])  # the visual mesh geom
+    mesh = int(sim.model.geom_dataid[g])
+    adr, n = int(sim.model.mesh_vertadr[mesh]), int(sim.model.mesh_vertnum[mesh])
+    v_geom = sim.model.mesh_vert[adr:adr + n]
+    # Mesh vertices are stored in the geom frame; map geom -> world.
+    Rg = sim.data.geom_xmat[g].reshape(3, 3)
+    return v_geom @ Rg.T + sim.data.geom_xpos[g]
