@@ -168,23 +168,30 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
         T, sil, (x0, y0) = _silhouette(scene, i, objects.get(oid), camera, T_cam_world, near)
         px_all = int(sil.sum())
         mask = np.zeros((H, W), dtype=bool)
-        if sil.size:
-            ys0, xs0 = max(0, y0), max(0, x0)
-            ys1, xs1 = min(H, y0 + sil.shape[0]), min(W, x0 + sil.shape[1])
-            if ys1 > ys0 and xs1 > xs0:
-                mask[ys0:ys1, xs0:xs1] = sil[ys0 - y0:ys1 - y0, xs0 - x0:xs1 - x0]
-        visib = seg_inst == i
+        visib = np.zeros((H, W), dtype=bool)
+        # Work inside the silhouette's box grown by 2 px (visible pixels lie inside the silhouette, up to
+        # GL's sub-pixel vertex snapping), clipped to the image.
+        ys0, xs0 = max(0, y0 - 2), max(0, x0 - 2)
+        ys1, xs1 = min(H, y0 + sil.shape[0] + 2), min(W, x0 + sil.shape[1] + 2)
+        if sil.size and ys1 > ys0 and xs1 > xs0:
+            a0, b0 = max(ys0, y0), max(xs0, x0)
+            a1, b1 = min(ys1, y0 + sil.shape[0]), min(xs1, x0 + sil.shape[1])
+            if a1 > a0 and b1 > b0:
+                mask[a0:a1, b0:b1] = sil[a0 - y0:a1 - y0, b0 - x0:b1 - x0]
+            visib[ys0:ys1, xs0:xs1] = seg_inst[ys0:ys1, xs0:xs1] == i
         # The amodal mask contains the visible one by definition; GL's sub-pixel vertex snapping can leave a
         # rare pixel centre that sits within 1/256 px of a vertex covered in the render but not in the fill.
         extra = visib & ~mask
         if extra.any():
             mask |= extra
             px_all += int(extra.sum())
-        px_visib = int(visib.sum())
-        px_valid = int(np.count_nonzero(mask & (frame.depth > 0)))
+        px_visib = int(visib[ys0:ys1, xs0:xs1].sum()) if ys1 > ys0 and xs1 > xs0 else 0
+        px_valid = int(np.count_nonzero(mask[ys0:ys1, xs0:xs1] & (frame.depth[ys0:ys1, xs0:xs1] > 0))) \
+            if ys1 > ys0 and xs1 > xs0 else 0
         out.append(InstanceAnnotation(
             obj_id=oid, T_cam_obj=T, mask=mask, mask_visib=visib, px_count_all=px_all,
             px_count_valid=px_valid, px_count_visib=px_visib,
             visib_fract=float(px_visib / px_all) if px_all > 0 else 0.0,
-            bbox_obj=_bbox(sil, x0, y0), bbox_visib=_bbox(visib), instance=i))
+            bbox_obj=_bbox(sil, x0, y0), bbox_visib=_bbox(visib[ys0:ys1, xs0:xs1], xs0, ys0) if px_visib else
+            [-1, -1, -1, -1], instance=i))
     return out

@@ -42,6 +42,7 @@ class SceneReport:
     settle_time: float
     at_rest: bool
     seconds: float
+    worker: int = 0  # process id of the worker that made it
 
 
 @dataclass
@@ -182,7 +183,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path, r
 
         atomic_write_text(writer.dir / "scene_occlusion.json", dump_json_keyed(occlusion_log))
     report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
-                         settled.at_rest, time.perf_counter() - t0)
+                         settled.at_rest, time.perf_counter() - t0, os.getpid())
     atomic_write_json(writer.dir / "scene_info.json", {
         "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
         "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,

@@ -12,7 +12,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--width", type=int, default=640)
     g.add_argument("--height", type=int, default=480)
     g.add_argument("--objects-per-scene", type=int, default=10)
-    g.add_argument("--scenes", type=int, default=4)
+    g.add_argument("--scenes", type=int, default=8)
     g.add_argument("--frames-per-scene", type=int, default=10)
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")

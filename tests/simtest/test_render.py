@@ -1,24 +1,53 @@
-"""The renderer's fused segmentation+depth pass equals MuJoCo's separate passes exactly."""
+"""simtest's Renderer gives exactly the arrays of mujoco.Renderer's separate RGB, depth and segmentation passes."""
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
+import pytest
 
+from simtest.errors import RenderError
+from simtest.generators.builder import DRAWN_GROUPS
 from simtest.generators.pipeline import prepare_scene, scene_cameras
 from simtest.objects import load_object_set
 from simtest.render import Renderer
 
 
-def test_fused_seg_depth_pass_equals_separate_passes(small_config):
+def test_renderer_equals_mujoco_renderer(small_config):
     objects = load_object_set(small_config.objects)
     scene, _, _, _ = prepare_scene(small_config, objects, 0)
     cam = scene_cameras(small_config, scene)[0][0]
     scene.set_camera(cam)
     with Renderer(scene.model, cam.width, cam.height) as r:
-        assert r._fused
-        fused = r.render(scene.data, scene.camera_id)
-        depth_only = r.render(scene.data, scene.camera_id, rgb=False, seg=False)
-        seg_only = r.render(scene.data, scene.camera_id, rgb=False, depth=False)
-    assert np.array_equal(fused.seg, seg_only.seg)
-    assert np.array_equal(fused.depth, depth_only.depth)
-    assert (fused.seg >= 0).mean() > 0.5 and (fused.depth > 0).all()
+        ours = r.render(scene.data, scene.camera_id)
+        again = r.render(scene.data, scene.camera_id)
+    ref = mujoco.Renderer(scene.model, cam.height, cam.width)
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = 0
+    for g in DRAWN_GROUPS:
+        opt.geomgroup[g] = 1
+    for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION, mujoco.mjtRndFlag.mjRND_SKYBOX):
+        ref.scene.flags[flag] = False
+    ref.update_scene(scene.data, camera=scene.camera_id, scene_option=opt)
+    rgb = ref.render()
+    ref.enable_depth_rendering()
+    depth = ref.render()
+    ref.disable_depth_rendering()
+    ref.enable_segmentation_rendering()
+    seg = ref.render()
+    ref.close()
+    assert np.array_equal(ours.rgb, rgb)
+    assert np.array_equal(ours.depth, np.where(depth < r.zfar * 0.999, depth, 0))
+    assert np.array_equal(ours.seg, np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1))
+    assert np.array_equal(ours.rgb, again.rgb) and np.array_equal(ours.seg, again.seg)
+    assert (ours.seg >= 0).mean() > 0.5 and (ours.depth > 0).all()
+
+
+def test_renderer_errors_name_the_problem(small_config):
+    objects = load_object_set(small_config.objects)
+    scene, _, _, _ = prepare_scene(small_config, objects, 0)
+    with pytest.raises(RenderError, match="exceeds the model's offscreen buffer"):
+        Renderer(scene.model, 100000, 10)
+    with Renderer(scene.model, 32, 24) as r:
+        with pytest.raises(RenderError, match="unknown camera 'nope'"):
+            r.render(scene.data, "nope")
