@@ -166,6 +166,17 @@ class GenerateConfig:
     def to_dict(self) -> dict[str, Any]:
         return _to_plain(dataclasses.asdict(self))
 
+    def to_toml(self) -> str:
+        """The config as TOML text that :func:`load_config` reads back (``None`` values are omitted)."""
+        top, tables = [], []
+        for key, value in self.to_dict().items():
+            if isinstance(value, dict):
+                body = [f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None]
+                tables.append(f"[{key}]\n" + "\n".join(body))
+            elif value is not None:
+                top.append(f"{key} = {_toml_value(value)}")
+        return "\n".join(top) + "\n\n" + "\n\n".join(tables) + "\n"
+
     def replace(self, **overrides: Any) -> "GenerateConfig":
         """A copy with dotted-path overrides, validated: ``cfg.replace(**{"camera.width": 320})``."""
         data = self.to_dict()
@@ -178,6 +189,18 @@ class GenerateConfig:
                 node = node[p]
             node[parts[-1]] = value
         return GenerateConfig.from_dict(data, source="overrides")
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")
 
 
 def _to_plain(obj: Any) -> Any:

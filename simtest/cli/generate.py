@@ -12,7 +12,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate a BOP-format RGB-D dataset of physically settled scenes",
                        description="Generate a BOP-format RGB-D dataset (train_pbr layout) of physically settled "
                                    "MuJoCo scenes with exact ground truth. Command-line values override the "
-                                   "config file; every other value keeps its default (see docs/generate.md).")
+                                   "config file; every other value keeps its default (`simtest generate --print-config` shows them all).")
     p.add_argument("--config", help="TOML or JSON config file")
     p.add_argument("--objects", help="object set: builtin, builtin-small, or a path (mesh folder/file, BOP models/)")
     p.add_argument("--units", choices=["m", "mm", "auto"], help="units of user meshes (default auto)")
@@ -30,7 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--workers", type=int, help="worker processes (each owns whole scenes)")
     p.add_argument("--seed", type=int, help="master seed (default 0)")
-    p.add_argument("--out", required=True, help="dataset folder")
+    p.add_argument("--out", help="dataset folder (required unless --print-config)")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the resolved config as TOML (a starting point for --config) and exit")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
@@ -63,6 +65,11 @@ def run(args: argparse.Namespace) -> int:
     from simtest.generators.pipeline import generate
 
     cfg = config_from_args(args)
+    if args.print_config:
+        print(cfg.to_toml(), end="")
+        return 0
+    if not args.out:
+        raise ConfigError("--out DIR is required (the dataset folder)")
     report = generate(cfg, args.out, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet,
                       command_line=sys.argv)
     print(summary_text(report))

@@ -180,3 +180,12 @@ def test_coco_annotations_decode_to_visible_masks(tmp_path, tiny_config):
         matches = [j for j, g in enumerate(gt[im]) if g["obj_id"] == ann["category_id"]
                    and (read_mask(scene, int(im), j) == decoded).all()]
         assert matches and decoded.sum() == ann["area"]
+
+
+def test_config_toml_round_trip(tmp_path):
+    from simtest.generators.config import load_config
+
+    cfg = GenerateConfig().replace(**{"scenes": 3, "camera.fx": 600.0, "occlusion.level": "L2", "rig": "wrist"})
+    path = tmp_path / "c.toml"
+    path.write_text(cfg.to_toml())
+    assert load_config(path) == cfg
