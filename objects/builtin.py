@@ -97,10 +97,13 @@ def _jitter(params: dict, rng: np.random.Generator) -> dict:
 # --- categories ------------------------------------------------------------------------------------------------
 
 def _can(p: dict, rng: np.random.Generator) -> Shape:
+    """A food can: a cylinder with a rolled rim at both ends, top and bottom alike (as real cans' seams are),
+    so the shape is symmetric under any turn about z and under the half turn about x that swaps the ends."""
     r, h = p["radius"], p["height"]
-    prof = [(0, 0.003), (r - 0.006, 0.003), (r - 0.004, 0.0), (r - 0.0015, 0.0), (r, 0.003),
-            (r, h - 0.004), (r - 0.0015, h), (r - 0.004, h), (r - 0.006, h - 0.003), (0, h - 0.003)]
-    return Shape(shapes.lathe(np.array(prof), SEGMENTS), (), Z_SYMMETRY)
+    bottom = [(0, 0.003), (r - 0.006, 0.003), (r - 0.004, 0.0), (r - 0.0015, 0.0), (r, 0.003)]
+    prof = bottom + [(x, h - z) for x, z in reversed(bottom)]
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # half turn about x through the bbox centre
+    return Shape(shapes.lathe(np.array(prof), SEGMENTS), (flip,), Z_SYMMETRY)
 
 
 def _bottle(p: dict, rng: np.random.Generator) -> Shape:

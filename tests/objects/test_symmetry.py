@@ -48,7 +48,8 @@ def test_symmetry_transforms_include_declared(builtin):
     Ts = box.symmetry_transforms()
     assert len(Ts) == 8 and np.allclose(Ts[0], np.eye(4))
     can = builtin.by_name("can_0")
-    assert len(can.symmetry_transforms()) == int(np.ceil(np.pi / 0.01))
+    # Continuous about z (315 steps) combined with the end-swapping half turn about x.
+    assert len(can.symmetry_transforms()) == 2 * int(np.ceil(np.pi / 0.01))
 
 
 @pytest.mark.parametrize("name,axis,angle", [
@@ -67,7 +68,8 @@ def test_wrong_symmetry_fails(builtin, name, axis, angle):
 
 def test_symmetry_labels(builtin):
     assert builtin.by_name("mug_0").symmetry_label() == "none"
-    assert builtin.by_name("can_0").symmetry_label() == "continuous(z)"
+    assert builtin.by_name("can_0").symmetry_label() == "continuous(z)+discrete(1)"
+    assert builtin.by_name("bottle_0").symmetry_label() == "continuous(z)"
     assert builtin.by_name("box_0").symmetry_label() == "discrete(3)"
     assert builtin.by_name("box_2").symmetry_label() == "discrete(7)"
     for name in ("can_0", "bottle_1", "bowl_2", "cup_0", "marker_2"):
