@@ -50,17 +50,17 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from scipy.spatial.transform import Rotation
 
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest import panda
-from simtest.camera import CameraModel, look_at_pose
+from simtest.camera import R_MJ_CV, CameraModel, look_at_pose
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
 from simtest.errors import AssetError, ConfigError
 from simtest.geometry import Pose
+from simtest.envs.control import rotvec_to_matrix
 from simtest.render import Frame, Renderer
 
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
@@ -172,6 +172,8 @@ class PandaGraspEnv(gym.Env):
         observe_every_step: Render a new observation on every :meth:`step` (default). With False, steps
             return the last captured images (call :meth:`capture` to take new ones): physics-only stepping.
         render_width, render_height: Third-person view size (default: the wrist camera size).
+        ik: ``"fast"`` (one damped least-squares step per control period, :class:`simtest.envs.control.DiffIK`)
+            or ``"panda"`` (:func:`simtest.panda.ik_step`, three iterations; slower).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
@@ -180,12 +182,16 @@ class PandaGraspEnv(gym.Env):
                  objects: str = "builtin", target: int | str | None = None, n_distractors: int = 2,
                  occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
                  placement: str = "upright", start: str = "home", observe_every_step: bool = True,
-                 render_width: int | None = None, render_height: int | None = None) -> None:
+                 render_width: int | None = None, render_height: int | None = None, ik: str = "fast") -> None:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         for name, v in (("width", width), ("height", height)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
                 raise ConfigError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
+        if ik not in ("fast", "panda"):
+            raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.envs.control) or 'panda' "
+                              f"(simtest.panda.ik_step), got {ik!r}")
+        self.ik = ik
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.render_width = int(render_width or width)
@@ -198,15 +204,16 @@ class PandaGraspEnv(gym.Env):
         h, w = self.height, self.width
         self.observation_space = spaces.Dict({
             "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
-            "depth": spaces.Box(0.0, np.inf, (h, w), np.float32),
-            "K": spaces.Box(-np.inf, np.inf, (3, 3), np.float64),
-            "T_base_cam": spaces.Box(-np.inf, np.inf, (4, 4), np.float64),
-            "joint_pos": spaces.Box(-np.inf, np.inf, (7,), np.float64),
-            "joint_vel": spaces.Box(-np.inf, np.inf, (7,), np.float64),
+            "depth": spaces.Box(0.0, 100.0, (h, w), np.float32),
+            "K": spaces.Box(-1e5, 1e5, (3, 3), np.float64),
+            "T_base_cam": spaces.Box(-10.0, 10.0, (4, 4), np.float64),
+            "joint_pos": spaces.Box(-2 * np.pi, 2 * np.pi, (7,), np.float64),
+            "joint_vel": spaces.Box(-100.0, 100.0, (7,), np.float64),
             "gripper_width": spaces.Box(-0.01, 0.1, (1,), np.float64),
         })
         lim = np.array([MAX_STEP_TRANSLATION] * 3 + [MAX_STEP_ROTATION] * 3 + [1.0], dtype=np.float32)
         self.action_space = spaces.Box(-lim, lim, dtype=np.float32)
+        self._act_lo, self._act_hi = -lim.astype(np.float64), lim.astype(np.float64)
         self._builders: dict[str, Any] = {}
         self._renderer: Renderer | None = None
         self.task = None
@@ -229,10 +236,11 @@ class PandaGraspEnv(gym.Env):
 
     def _pick_target(self, objects, target, rng: np.random.Generator) -> int:
         if target is None:
-            ids = [o.obj_id for o in objects if o.graspable]
-            if not ids:
-                raise ConfigError(f"object set {objects.name!r} has no graspable object")
-            return int(ids[int(rng.integers(len(ids)))])
+            # Objects in a random order, the first graspable one (grasp sets are computed only as needed).
+            for i in rng.permutation(len(objects)):
+                if objects[int(i)].graspable:
+                    return int(objects[int(i)].obj_id)
+            raise ConfigError(f"object set {objects.name!r} has no graspable object")
         if isinstance(target, str) and not target.lstrip("-").isdigit():
             try:
                 return int(objects.by_name(target).obj_id)
@@ -270,13 +278,25 @@ class PandaGraspEnv(gym.Env):
         self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
             self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
         self._target_body = sim.instance_bodies[self.task.target_instance]
+        self._instance_bodies = np.asarray(sim.instance_bodies, dtype=np.int64)
         self._target_geoms = np.flatnonzero(sim.geom_instance == self.task.target_instance)
         fb = self.model.geom_bodyid[self.ids.finger_geoms]
         bodies = sorted(set(fb.tolist()))
         self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
         self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
+        # Geom category lookup for contact checks: 1 target, 2 left finger, 4 right finger.
+        self._geom_cat = np.zeros(self.model.ngeom, np.int8)
+        self._geom_cat[self._target_geoms] = 1
+        self._geom_cat[self._left_geoms] = 2
+        self._geom_cat[self._right_geoms] = 4
+        from simtest.envs.control import DiffIK
+
+        self._diffik = DiffIK(self.model, self.ids)
+        self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
+        self._cam_K = np.array(self.camera.K, dtype=np.float64)
         self.T_world_base = Pose(self.data.xmat[self.ids.base_body].reshape(3, 3),
                                  self.data.xpos[self.ids.base_body])
+        self._T_base_world = self.T_world_base.inverse().matrix()
         self.rest_height = float(self.data.xpos[self._target_body][2])
 
         # Observation configuration: the wrist camera looking at the target from the robot's side.
@@ -287,6 +307,8 @@ class PandaGraspEnv(gym.Env):
             mujoco.mj_step(self.model, self.data, 50)  # the box comes to rest on the table
         panda.reset_arm(self.model, self.data, self.ids, self.q_observe if cfg.start == "observe" else None)
         self.rest_height = float(self.data.xpos[self._target_body][2])
+        self._ws_lo, self._ws_hi = self._workspace()
+        self._obj_ids = tuple(int(i) for i in sim.instance_obj_ids)
         self._q_cmd = self.ids.arm_q(self.data)
         self._hold_steps = 0
         self._frame = None
@@ -315,22 +337,25 @@ class PandaGraspEnv(gym.Env):
         """Apply one 20 Hz control step (see the module docstring for the action)."""
         if self.data is None:
             raise ConfigError("call reset() before step()")
-        a = np.clip(np.asarray(action, dtype=np.float64).reshape(7), self.action_space.low,
-                    self.action_space.high)
+        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(7), self._act_lo), self._act_hi)
         m, d, ids = self.model, self.data, self.ids
-        current = self._command_pose()
-        t = current.t + a[:3]
-        lo, hi = self._workspace()
-        t = np.clip(t, lo, hi)
-        R = Rotation.from_rotvec(a[3:6]).as_matrix() @ current.R
         q_prev = self._q_cmd
-        q_new = panda.ik_step(m, d, ids, Pose(R, t), CONTROL_DT, q_ref=q_prev,
-                              max_lin_speed=np.sqrt(3) * MAX_STEP_TRANSLATION / CONTROL_DT,
-                              max_ang_speed=np.sqrt(3) * MAX_STEP_ROTATION / CONTROL_DT)
+        if self.ik == "fast":  # from the commanded TCP pose, one DLS step
+            q_new = self._diffik.step_delta(q_prev, a[:3], a[3:6], self._ws_lo, self._ws_hi)
+        else:
+            pos, R_cur = self._diffik.fk(q_prev)  # the commanded TCP pose
+            t = np.clip(pos + a[:3], self._ws_lo, self._ws_hi)
+            R = rotvec_to_matrix(a[3:6]) @ R_cur
+            max_d = float(np.sqrt(3)) * MAX_STEP_TRANSLATION + 1e-9
+            max_a = float(np.sqrt(3)) * MAX_STEP_ROTATION + 1e-9
+            q_new = panda.ik_step(m, d, ids, Pose(R, t), CONTROL_DT, q_ref=q_prev,
+                                  max_lin_speed=max_d / CONTROL_DT, max_ang_speed=max_a / CONTROL_DT)
         d.ctrl[ids.arm_actuators] = q_new + self._lead * (q_new - q_prev) / CONTROL_DT
-        panda.set_gripper(d, ids, 0.5 * (a[6] + 1.0) * panda.GRIPPER_OPEN)
+        d.ctrl[ids.gripper_actuator] = 0.5 * (a[6] + 1.0) * panda.GRIPPER_OPEN
         self._q_cmd = q_new
-        self.advance(CONTROL_DT)
+        mujoco.mj_step(m, d, self._n_sub)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_camlight(m, d)
         obs = self._observe(render=self.observe_every_step)
         info = self._info()
         lifted = info["is_grasped"] and info["lift_height"] >= SUCCESS_HEIGHT
@@ -350,12 +375,6 @@ class PandaGraspEnv(gym.Env):
         """Take the current arm servo targets as the command to integrate from (after scripted motion)."""
         self._q_cmd = self.data.ctrl[self.ids.arm_actuators].copy()
 
-    def _command_pose(self) -> Pose:
-        s = self._scratch
-        s.qpos[self.ids.arm_qpos] = self._q_cmd
-        mujoco.mj_kinematics(self.model, s)
-        return panda.tcp_pose(s, self.ids)
-
     def _workspace(self) -> tuple[np.ndarray, np.ndarray]:
         sc = self._builders[self.config.objects].cfg.scene
         z0 = float(sc.table_height)
@@ -368,26 +387,33 @@ class PandaGraspEnv(gym.Env):
         """The wrist camera (intrinsics and ``T_world_cam``) at the current state."""
         return panda.wrist_camera_model(self.data, self.ids)
 
+    def _T_world_cam(self) -> np.ndarray:
+        """4x4 ``T_world_cam`` (OpenCV) of the wrist camera at the current state (the MuJoCo->OpenCV flip of
+        :mod:`simtest.camera`, without building a :class:`CameraModel`)."""
+        T = np.eye(4)
+        T[:3, :3] = self.data.cam_xmat[self.ids.camera].reshape(3, 3) @ R_MJ_CV
+        T[:3, 3] = self.data.cam_xpos[self.ids.camera]
+        return T
+
     def capture(self) -> dict:
         """Render a new (corrupted) observation at the current state and return it."""
         return self._observe(render=True)
 
     def _observe(self, render: bool) -> dict:
         d, ids = self.data, self.ids
-        cam = self.camera_model()
         if render or self._obs is None:
             frame = self._renderer.render(d, ids.camera, rgb=True, depth=True, seg=True)
             self._frame = frame
             rgb, depth = frame.rgb, frame.depth
             if self.config.corruption is not None:
-                rgb, depth, _ = self.config.corruption.apply(rgb, depth, None, self._corrupt_rng, cam.K)
+                rgb, depth, _ = self.config.corruption.apply(rgb, depth, None, self._corrupt_rng, self._cam_K)
             self._images = (np.ascontiguousarray(rgb, dtype=np.uint8),
                             np.ascontiguousarray(depth, dtype=np.float32))
-            self._T_base_cam_at_capture = (self.T_world_base.inverse() @ cam.T_world_cam).matrix()
+            self._T_base_cam_at_capture = self._T_base_world @ self._T_world_cam()
         obs = {
             "rgb": self._images[0],
             "depth": self._images[1],
-            "K": np.array(cam.K, dtype=np.float64),
+            "K": self._cam_K.copy(),
             "T_base_cam": self._T_base_cam_at_capture.copy(),
             "joint_pos": d.qpos[ids.arm_qpos].copy(),
             "joint_vel": d.qvel[ids.arm_dof].copy(),
@@ -414,13 +440,8 @@ class PandaGraspEnv(gym.Env):
         n = d.ncon
         if n == 0:
             return False
-        g = np.asarray(d.contact.geom[:n])
-        tgt = np.isin(g, self._target_geoms)
-        left = np.isin(g, self._left_geoms)
-        right = np.isin(g, self._right_geoms)
-        touch_l = np.any((tgt[:, 0] & left[:, 1]) | (tgt[:, 1] & left[:, 0]))
-        touch_r = np.any((tgt[:, 0] & right[:, 1]) | (tgt[:, 1] & right[:, 0]))
-        return bool(touch_l and touch_r)
+        pair = self._geom_cat[d.contact.geom[:n]].sum(axis=1)  # 1 + 2: target-left, 1 + 4: target-right
+        return bool((pair == 3).any() and (pair == 5).any())
 
     def lift_height(self) -> float:
         """Height of the target above its resting height, m."""
@@ -428,22 +449,24 @@ class PandaGraspEnv(gym.Env):
 
     def object_poses_world(self) -> np.ndarray:
         """(N, 4, 4) ``T_world_obj`` of every instance (target first), metres."""
-        sim = self.task.sim
-        out = np.tile(np.eye(4), (len(sim.instance_bodies), 1, 1))
-        for i, b in enumerate(sim.instance_bodies):
-            out[i, :3, :3] = self.data.xmat[b].reshape(3, 3)
-            out[i, :3, 3] = self.data.xpos[b]
+        b = self._instance_bodies
+        out = np.zeros((len(b), 4, 4))
+        out[:, :3, :3] = self.data.xmat[b].reshape(-1, 3, 3)
+        out[:, :3, 3] = self.data.xpos[b]
+        out[:, 3, 3] = 1.0
         return out
 
     def _info(self) -> dict:
         T_world_obj = self.object_poses_world()
-        T_world_cam = self.camera_model().T_world_cam.matrix()
-        T_cam_world = np.linalg.inv(T_world_cam)
+        T_world_cam = self._T_world_cam()
+        T_cam_world = np.eye(4)
+        T_cam_world[:3, :3] = T_world_cam[:3, :3].T
+        T_cam_world[:3, 3] = -T_world_cam[:3, :3].T @ T_world_cam[:3, 3]
         return {
             "target_obj_id": int(self.target_obj.obj_id),
             "target_name": self.target_obj.name,
             "target_instance": int(self.task.target_instance),
-            "obj_ids": list(self.task.sim.instance_obj_ids),
+            "obj_ids": list(self._obj_ids),
             "T_world_obj": T_world_obj,
             "T_cam_obj": T_cam_world[None] @ T_world_obj,
             "T_world_cam": T_world_cam,
@@ -461,7 +484,7 @@ class PandaGraspEnv(gym.Env):
         """A fixed view of the table and the robot from the front right (OpenCV ``T_world_cam``)."""
         z0 = self.task.table_height
         cam = CameraModel.default(self.render_width, self.render_height)
-        return cam.with_pose(look_at_pose(np.array([0.75, -0.75, z0 + 0.55]), np.array([-0.1, 0.0, z0 + 0.12])))
+        return cam.with_pose(look_at_pose(np.array([0.85, -0.95, z0 + 0.75]), np.array([-0.2, 0.0, z0 + 0.2])))
 
     def render(self) -> np.ndarray | None:
         """The third-person view (H, W, 3) uint8 in ``rgb_array`` mode; None otherwise."""
