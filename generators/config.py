@@ -9,28 +9,18 @@ seconds.
 from __future__ import annotations
 
 import dataclasses
-import json
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from simtest.errors import ConfigError
+from simtest.schema import bounds as _bounds
+from simtest.schema import build, pair as _rng_pair, read_config_file, to_plain, to_toml
 
 __all__ = [
     "CameraConfig", "OcclusionConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
     "GenerateConfig", "load_config",
 ]
-
-
-def _rng_pair(lo_min: float, hi_max: float):
-    """Metadata for a [lo, hi] range field whose values must lie in [lo_min, hi_max]."""
-    return {"pair": (lo_min, hi_max)}
-
-
-def _bounds(lo: float | None = None, hi: float | None = None, choices: tuple | None = None):
-    return {"bounds": (lo, hi), "choices": choices}
 
 
 @dataclass(frozen=True)
@@ -161,21 +151,14 @@ class GenerateConfig:
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":
         """Validate ``data`` (nested dicts) into a config; errors name ``source`` and the dotted field."""
-        return _build(GenerateConfig, data, prefix="", source=source)
+        return build(GenerateConfig, data, prefix="", source=source)
 
     def to_dict(self) -> dict[str, Any]:
-        return _to_plain(dataclasses.asdict(self))
+        return to_plain(dataclasses.asdict(self))
 
     def to_toml(self) -> str:
         """The config as TOML text that :func:`load_config` reads back (``None`` values are omitted)."""
-        top, tables = [], []
-        for key, value in self.to_dict().items():
-            if isinstance(value, dict):
-                body = [f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None]
-                tables.append(f"[{key}]\n" + "\n".join(body))
-            elif value is not None:
-                top.append(f"{key} = {_toml_value(value)}")
-        return "\n".join(top) + "\n\n" + "\n\n".join(tables) + "\n"
+        return to_toml(self.to_dict())
 
     def replace(self, **overrides: Any) -> "GenerateConfig":
         """A copy with dotted-path overrides, validated: ``cfg.replace(**{"camera.width": 320})``."""
@@ -191,125 +174,6 @@ class GenerateConfig:
         return GenerateConfig.from_dict(data, source="overrides")
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
-def _to_plain(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _to_plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_to_plain(v) for v in obj]
-    return obj
-
-
-def _build(cls: type, data: Any, prefix: str, source: str):
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: {prefix.rstrip('.') or 'config'} must be a table/object, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ConfigError(f"{source}: unknown field(s) {', '.join(prefix + u for u in unknown)}; "
-                          f"allowed in {prefix.rstrip('.') or 'the top level'}: {', '.join(fields)}")
-    kwargs = {}
-    for name, value in data.items():
-        f = fields[name]
-        kwargs[name] = _check(hints[name], value, f.metadata, prefix + name, source)
-    return cls(**kwargs)
-
-
-def _check(tp: Any, value: Any, meta: Any, path: str, source: str):
-    def bad(allowed: str):
-        return ConfigError(f"{source}: {path} = {value!r} is invalid; allowed: {allowed}")
-
-    if dataclasses.is_dataclass(tp):
-        return _build(tp, value, path + ".", source)
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        tp = next(a for a in args if a is not type(None))
-        return _check(tp, value, meta, path, source)
-    if origin is Literal:
-        if value not in args:
-            raise bad(" | ".join(map(repr, args)))
-        return value
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)) or len(value) != len(args):
-            raise bad(f"a list of {len(args)} numbers")
-        out = tuple(_check(a, v, {}, f"{path}[{i}]", source) for i, (a, v) in enumerate(zip(args, value)))
-        if "each" in meta:
-            lo, hi = meta["each"]
-            if not all(lo <= v <= hi for v in out):
-                raise bad(f"{len(args)} numbers, each in [{lo}, {hi}]")
-        if "pair" in meta:
-            lo, hi = meta["pair"]
-            if not (lo <= out[0] <= out[1] <= hi):
-                raise bad(f"[min, max] with {lo} <= min <= max <= {hi}")
-        return out
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise bad("true or false")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise bad("an integer" + _range_text(meta))
-        _in_bounds(value, meta, bad)
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
-            raise bad("a number" + _range_text(meta))
-        _in_bounds(value, meta, bad)
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str) or not value:
-            raise bad("a non-empty string")
-        return value
-    return value  # pragma: no cover
-
-
-def _range_text(meta: Any) -> str:
-    lo, hi = meta.get("bounds", (None, None)) if meta else (None, None)
-    if lo is None and hi is None:
-        return ""
-    return f" in [{lo}, {hi}]"
-
-
-def _in_bounds(value: float, meta: Any, bad) -> None:
-    lo, hi = meta.get("bounds", (None, None)) if meta else (None, None)
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        raise bad(f"[{lo}, {hi}]")
-
-
 def load_config(path: str | Path) -> GenerateConfig:
     """Read a TOML (``.toml``) or JSON (``.json``) generation config and validate it."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"config file {str(path)!r} does not exist")
-    text = path.read_text(encoding="utf-8")
-    try:
-        if path.suffix.lower() == ".toml":
-            try:
-                import tomllib
-            except ModuleNotFoundError:  # Python 3.10
-                import tomli as tomllib  # type: ignore[no-redef]
-            data = tomllib.loads(text)
-        elif path.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            raise ConfigError(f"config file {str(path)!r}: unsupported extension {path.suffix!r}; use .toml or .json")
-    except (ValueError, json.JSONDecodeError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f"config file {str(path)!r} does not parse: {exc}") from exc
-    return GenerateConfig.from_dict(data, source=str(path))
+    return GenerateConfig.from_dict(read_config_file(path), source=str(path))

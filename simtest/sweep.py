@@ -1,0 +1,383 @@
+"""Robustness sweeps: estimators x conditions (occlusion levels, image corruptions, depth noise) -> pose
+metrics and grasp success, cached per cell so an interrupted sweep resumes without recomputing.
+
+A *condition* changes one factor at a time from the clean data (the classic robustness-table layout):
+``clean``, ``L1``..``L3`` (occlusion), ``<corruption>-<severity>`` (e.g. ``fog-4``), ``depth-<preset>``.
+A *cell* is (estimator, condition, kind) with kind ``pose`` (evaluation on a corrupted copy of the dataset)
+or ``grasp`` (closed-loop episodes with the same condition applied to the wrist observations; occlusion is
+physical there). Each finished cell writes ``cells/<estimator>/<condition>/<kind>/cell.json`` last; a
+resumed sweep skips every cell that has it.
+
+This is an orchestration module: it drives :mod:`simtest.generators`, :mod:`simtest.eval` and
+:mod:`simtest.envs` (imported lazily).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simtest.errors import ConfigError, DatasetError
+from simtest.io.files import atomic_write_json, atomic_write_text
+from simtest.schema import bounds, build, read_config_file, to_plain
+
+__all__ = ["SweepConfig", "EstimatorEntry", "Condition", "SweepReport", "load_sweep_config", "run_sweep",
+           "conditions_of"]
+
+#: Metrics a sweep can tabulate: key in the evaluation's ``overall`` -> (label, unit scale, unit, higher is
+#: better).
+POSE_METRICS: dict[str, tuple[str, float, str, bool]] = {
+    "add_s_or_add_01d": ("ADD(-S)-0.1d", 100.0, "%", True),
+    "auc_add_s_or_add": ("AUC ADD(-S)", 100.0, "%", True),
+    "auc_adds": ("AUC ADD-S", 100.0, "%", True),
+    "adds_lt_2cm": ("ADD-S < 2 cm", 100.0, "%", True),
+    "acc_pi_6": ("Acc@pi/6", 100.0, "%", True),
+    "acc_pi_18": ("Acc@pi/18", 100.0, "%", True),
+    "median_re_deg": ("median re", 1.0, "deg", False),
+    "ar": ("BOP AR", 100.0, "%", True),
+    "ar_mssd": ("AR MSSD", 100.0, "%", True),
+    "ar_mspd": ("AR MSPD", 100.0, "%", True),
+    "ar_vsd": ("AR VSD", 100.0, "%", True),
+}
+
+
+@dataclass(frozen=True)
+class EstimatorEntry:
+    """One estimator of the sweep: a table label, a registered name or ``module:attr``, and options."""
+
+    name: str
+    estimator: str
+    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DatasetSection:
+    """Evaluate on an existing BOP dataset (``path``) or generate one (``generate``: generation-config
+    values, as in ``simtest generate --print-config``)."""
+
+    path: str | None = None
+    generate: dict | None = None
+    split: str = "train_pbr"
+    max_images: int | None = field(default=None, metadata=bounds(1, 10_000_000))
+
+
+@dataclass(frozen=True)
+class FactorsSection:
+    occlusion: tuple[str, ...] = ("L1", "L2", "L3")
+    occlusion_definition: str = field(default="pascal3d+", metadata=bounds(choices=("pascal3d+", "objectcentric")))
+    corruptions: tuple[str, ...] = ("brightness", "frost", "snow", "fog")
+    severities: tuple[int, ...] = (4,)
+    depth_noise: tuple[str, ...] = ("realsense-d435",)
+
+
+@dataclass(frozen=True)
+class GraspSection:
+    """Closed-loop grasping per (estimator, condition); ``episodes = 0`` skips it."""
+
+    episodes: int = field(default=0, metadata=bounds(0, 100_000))
+    objects: str = "builtin-small"
+    targets: tuple[str, ...] = ()
+    width: int = field(default=320, metadata=bounds(32, 4096))
+    height: int = field(default=240, metadata=bounds(24, 4096))
+    n_distractors: int = field(default=0, metadata=bounds(0, 20))
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A whole sweep. ``metrics`` lists :data:`POSE_METRICS` keys shown in the tables and report."""
+
+    estimators: tuple[EstimatorEntry, ...]
+    dataset: DatasetSection = field(default_factory=DatasetSection)
+    factors: FactorsSection = field(default_factory=FactorsSection)
+    grasp: GraspSection = field(default_factory=GraspSection)
+    metrics: tuple[str, ...] = ("add_s_or_add_01d", "ar", "acc_pi_6")
+    vsd: bool = False
+    seed: int = field(default=0, metadata=bounds(0, 2**63 - 1))
+    workers: int = field(default=1, metadata=bounds(1, 64))
+
+    @staticmethod
+    def from_dict(data: dict[str, Any], source: str = "sweep config") -> "SweepConfig":
+        if "estimators" not in data:
+            raise ConfigError(f"{source}: 'estimators' is missing; add at least one [[estimators]] table with "
+                              f"name and estimator (e.g. name = \"icp\", estimator = \"icp\")")
+        cfg = build(SweepConfig, data, prefix="", source=source)
+        cfg.validate(source)
+        return cfg
+
+    def validate(self, source: str) -> None:
+        from simtest.corrupt import CORRUPTIONS, DEPTH_PRESETS
+        from simtest.estimators import ESTIMATORS
+
+        def bad(key: str, value: Any, allowed: Any) -> ConfigError:
+            return ConfigError(f"{source}: {key} = {value!r} is invalid; allowed: {allowed}")
+
+        if not self.estimators:
+            raise bad("estimators", [], "at least one [[estimators]] table")
+        names = [e.name for e in self.estimators]
+        if len(set(names)) != len(names):
+            raise bad("estimators[].name", names, "unique names")
+        for i, e in enumerate(self.estimators):
+            if e.estimator not in ESTIMATORS and ":" not in e.estimator:
+                raise bad(f"estimators[{i}].estimator", e.estimator,
+                          f"{' | '.join(sorted(ESTIMATORS))} or 'module:attr'")
+            if not e.name or "/" in e.name:
+                raise bad(f"estimators[{i}].name", e.name, "a non-empty label without '/'")
+        if (self.dataset.path is None) == (self.dataset.generate is None):
+            raise ConfigError(f"{source}: [dataset] needs exactly one of path = \"DIR\" or a [dataset.generate] "
+                              f"table")
+        for lv in self.factors.occlusion:
+            if lv not in ("L1", "L2", "L3"):
+                raise bad("factors.occlusion", lv, "'L1' | 'L2' | 'L3' (L0 is the clean condition)")
+        for c in self.factors.corruptions:
+            if c not in CORRUPTIONS:
+                raise bad("factors.corruptions", c, " | ".join(CORRUPTIONS))
+        for s in self.factors.severities:
+            if s not in (1, 2, 3, 4, 5):
+                raise bad("factors.severities", s, "1 | 2 | 3 | 4 | 5")
+        for d in self.factors.depth_noise:
+            if d not in DEPTH_PRESETS:
+                raise bad("factors.depth_noise", d, " | ".join(DEPTH_PRESETS))
+        for m in self.metrics:
+            if m not in POSE_METRICS:
+                raise bad("metrics", m, " | ".join(POSE_METRICS))
+
+    def to_dict(self) -> dict[str, Any]:
+        import dataclasses
+
+        return to_plain(dataclasses.asdict(self))
+
+
+#: The sweep ``simtest demo`` runs (also in the repository as configs/sweep-demo.toml).
+DEMO_SWEEP: dict[str, Any] = {
+    "seed": 0,
+    "metrics": ["add_s_or_add_01d", "ar", "acc_pi_6"],
+    "estimators": [
+        {"name": "oracle-5deg-5mm", "estimator": "oracle", "options": {"rot_noise_deg": 5.0, "trans_noise_mm": 5.0}},
+        {"name": "icp", "estimator": "icp"},
+    ],
+    "dataset": {"generate": {"objects": "builtin-small", "scenes": 3, "frames_per_scene": 3,
+                             "camera": {"width": 320, "height": 240}}},
+    "factors": {"occlusion": ["L1", "L2", "L3"], "corruptions": ["brightness", "frost", "snow", "fog"],
+                "severities": [4], "depth_noise": ["realsense-d435"]},
+    "grasp": {"episodes": 2, "objects": "builtin-small", "width": 160, "height": 120},
+}
+
+
+def load_sweep_config(path: str | Path) -> SweepConfig:
+    """Read and validate a TOML or JSON sweep config."""
+    return SweepConfig.from_dict(read_config_file(path), source=str(path))
+
+
+# ---------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Condition:
+    """One column of the robustness table."""
+
+    name: str
+    factor: str  # "clean" | "occlusion" | "corruption" | "depth"
+    level: str  # "L2", "fog", "realsense-d435", ...
+    severity: int | None = None
+
+    def corruption_spec(self, definition: str):
+        from simtest.corrupt import CorruptionSpec
+
+        if self.factor == "occlusion":
+            return CorruptionSpec(occlusion=self.level, occlusion_definition=definition)
+        if self.factor == "corruption":
+            return CorruptionSpec(weather=self.level, severity=self.severity)
+        if self.factor == "depth":
+            return CorruptionSpec(depth_noise=self.level)
+        return None
+
+    def grasp_settings(self) -> dict[str, Any]:
+        if self.factor == "occlusion":
+            return {"occlusion": self.level}
+        if self.factor == "corruption":
+            return {"weather": self.level, "severity": self.severity}
+        if self.factor == "depth":
+            return {"depth_noise": self.level}
+        return {}
+
+
+def conditions_of(cfg: SweepConfig) -> list[Condition]:
+    """The clean condition, then occlusion levels, corruption x severity, depth presets (table order)."""
+    out = [Condition("clean", "clean", "L0")]
+    out += [Condition(lv, "occlusion", lv) for lv in cfg.factors.occlusion]
+    out += [Condition(f"{c}-{s}", "corruption", c, s) for c in cfg.factors.corruptions for s in cfg.factors.severities]
+    out += [Condition(f"depth-{d}", "depth", d) for d in cfg.factors.depth_noise]
+    return out
+
+
+@dataclass
+class SweepReport:
+    out_dir: Path
+    cells_run: list[str] = field(default_factory=list)
+    cells_skipped: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    paths: dict[str, Path] = field(default_factory=dict)
+
+
+def _cell_dir(out: Path, est: str, cond: str, kind: str) -> Path:
+    return out / "cells" / est / cond / kind
+
+
+def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
+    if cfg.dataset.path is not None:
+        path = Path(cfg.dataset.path)
+        if not (path / cfg.dataset.split).is_dir():
+            raise DatasetError(f"sweep dataset {str(path)!r} has no split folder {cfg.dataset.split!r}")
+        return path
+    from simtest.generators.config import GenerateConfig
+    from simtest.generators.pipeline import generate
+
+    gen = GenerateConfig.from_dict({"seed": cfg.seed, **cfg.dataset.generate}, source="[dataset.generate]")
+    path = out / "data" / "clean"
+    done = path / "manifest.json"
+    if done.exists():
+        generate(gen, path, resume=True, progress=progress)
+    else:
+        generate(gen, path, overwrite=True, progress=progress)
+    return path
+
+
+def _condition_dataset(cfg: SweepConfig, clean: Path, cond: Condition, out: Path, progress: bool) -> Path:
+    if cond.factor == "clean":
+        return clean
+    from simtest.corrupt import corrupt_dataset
+
+    path = out / "data" / cond.name
+    if (path / "corruption.json").exists():
+        return path
+    corrupt_dataset(clean, path, cond.corruption_spec(cfg.factors.occlusion_definition), seed=cfg.seed,
+                    overwrite=True, progress=progress)
+    return path
+
+
+def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, overwrite: bool = False,
+              progress: bool = True) -> SweepReport:
+    """Run every cell of the sweep and write ``results.csv``, ``summary.csv``, ``tables.md``, ``report.html``.
+
+    Args:
+        cfg: Validated sweep config.
+        out_dir: Output folder; must be empty/absent unless ``resume`` or ``overwrite``.
+        resume: Keep finished cells (those with ``cell.json``) and compute the rest.
+        overwrite: Delete ``out_dir`` first.
+        progress: Progress bar over the whole grid.
+
+    Raises:
+        DatasetError: Non-empty ``out_dir`` without ``resume``/``overwrite``, or a resume with another config.
+    """
+    import shutil
+
+    from tqdm import tqdm
+
+    out = Path(out_dir)
+    if resume and overwrite:
+        raise ConfigError("--resume and --overwrite exclude each other; choose one")
+    if out.exists() and any(out.iterdir()):
+        if overwrite:
+            shutil.rmtree(out)
+        elif not resume:
+            raise DatasetError(f"sweep folder {str(out)!r} is not empty; pass --resume to continue it or "
+                               f"--overwrite to replace it")
+        else:
+            old = out / "sweep_config.json"
+            if old.exists() and json.loads(old.read_text()) != cfg.to_dict():
+                raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
+                                   f"(see {old}); use the same config or --overwrite")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "sweep_config.json", cfg.to_dict())
+    t0 = time.perf_counter()
+    report = SweepReport(out)
+    conds = conditions_of(cfg)
+    kinds = ["pose"] + (["grasp"] if cfg.grasp.episodes > 0 else [])
+    cells = [(e, c, k) for c in conds for e in cfg.estimators for k in kinds]
+    bar = tqdm(total=len(cells), unit="cell", desc="sweep", disable=not progress, dynamic_ncols=True)
+    clean = None
+    try:
+        for est, cond, kind in cells:
+            key = f"{est.name}/{cond.name}/{kind}"
+            cdir = _cell_dir(out, est.name, cond.name, kind)
+            if (cdir / "cell.json").exists():
+                report.cells_skipped.append(key)
+                bar.update(1)
+                continue
+            bar.set_postfix_str(key)
+            if kind == "pose":
+                if clean is None:
+                    clean = _prepare_dataset(cfg, out, progress=False)
+                data = _condition_dataset(cfg, clean, cond, out, progress=False)
+                _run_pose_cell(cfg, est, data, cdir)
+            else:
+                _run_grasp_cell(cfg, est, cond, cdir, conds.index(cond))
+            report.cells_run.append(key)
+            bar.update(1)
+    finally:
+        bar.close()
+    from simtest.report import write_outputs
+
+    report.paths = write_outputs(cfg, out, conds)
+    report.seconds = time.perf_counter() - t0
+    return report
+
+
+def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path) -> None:
+    from simtest.eval import evaluate
+
+    t0 = time.perf_counter()
+    rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
+                   progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options))
+    atomic_write_json(cdir / "cell.json", {"kind": "pose", "estimator": est.name, "dataset": str(data),
+                                           "overall": rep.to_json()["overall"], "seconds":
+                                               time.perf_counter() - t0, "failures": len(rep.failures)})
+
+
+def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir: Path, cond_index: int) -> None:
+    from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
+
+    t0 = time.perf_counter()
+    g = cfg.grasp
+    run = GraspRunConfig(estimator=est.estimator, estimator_options=dict(est.options), episodes=g.episodes,
+                         seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
+                         width=g.width, height=g.height, workers=cfg.workers, **cond.grasp_settings())
+    rep = run_grasp_episodes(run, cdir, progress=False)
+    atomic_write_json(cdir / "cell.json", {"kind": "grasp", "estimator": est.name, "summary": _clean(rep.summary),
+                                           "seconds": time.perf_counter() - t0})
+
+
+def _clean(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(float(v)) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def csv_text(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(r)
+    return buf.getvalue()
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]], columns: list[str]) -> None:
+    atomic_write_text(path, csv_text(rows, columns))
