@@ -86,6 +86,9 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict) -> None:
     cfg = GenerateConfig.from_dict(cfg_dict)
+    # Mesa's llvmpipe renders with one thread per core by default; with several workers that oversubscribes
+    # the cores, so each worker gets its share (read when the worker creates its GL context).
+    os.environ.setdefault("LP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(1, cfg.workers))))
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
 
