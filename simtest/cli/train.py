@@ -1,0 +1,80 @@
+"""``simtest train keypoints``: train the confidence-based keypoint pose estimator on a BOP dataset."""
+
+from __future__ import annotations
+
+import argparse
+
+from simtest.errors import ConfigError
+
+#: Models this command can train.
+MODELS = ("keypoints",)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "train",
+        help="train a pose estimator (keypoints) on a BOP dataset (needs PyTorch: pip install 'simtest[train]')",
+        description="Train the confidence-based keypoint estimator on a BOP dataset. Writes OUT/last.pt after "
+                    "every epoch (resume with --resume), OUT/best.pt (best validation ADD(-S)-0.1d, with --val), "
+                    "OUT/model.pt (final weights) and OUT/history.json. Evaluate with: simtest eval --estimator "
+                    "keypoints --opt checkpoint=OUT/model.pt --data TEST --out DIR.",
+    )
+    p.add_argument("model", choices=MODELS, help="what to train")
+    p.add_argument("--data", required=True, metavar="DATASET", help="training BOP dataset")
+    p.add_argument("--split", default="train_pbr", help="training split folder (default: train_pbr)")
+    p.add_argument("--val", metavar="DATASET", help="validation BOP dataset (ADD(-S)-0.1d after every epoch)")
+    p.add_argument("--val-split", default="train_pbr", help="validation split folder (default: train_pbr)")
+    p.add_argument("--val-images", type=int, metavar="N", help="validate on the first N images only")
+    p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoints and history)")
+    p.add_argument("--epochs", type=int, default=20, help="epochs (default: 20)")
+    p.add_argument("--batch-size", type=int, default=8, help="images per step (default: 8)")
+    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default: 2e-3)")
+    p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
+                   help="on-the-fly corruptions: occlusion, weather, depth, or none (default: occlusion,weather; "
+                        "weather leaves out brightness/frost/snow/fog, which stay unseen)")
+    p.add_argument("--crop", metavar="HxW", help="train on HxW crops around objects (e.g. 128x128); default full images")
+    p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu)")
+    p.add_argument("--workers", type=int, default=1, help="data-loading worker processes (default: 1)")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--seed", type=int, default=0, help="seed of weights, sample order and corruptions (default: 0)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out after its last finished epoch")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def parse_crop(text: str | None) -> tuple[int, int] | None:
+    """``"HxW"`` (pixels) -> ``(H, W)``; None stays None."""
+    if text is None:
+        return None
+    parts = text.lower().split("x")
+    try:
+        h, w = (int(v) for v in parts)
+    except ValueError:
+        raise ConfigError(f"--crop must be HxW in pixels, e.g. 128x128, got {text!r}") from None
+    return h, w
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise ConfigError("simtest train needs PyTorch; install it with: pip install 'simtest[train]'") from None
+    from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
+
+    augment = tuple(a.strip() for a in args.augment.split(",") if a.strip() and a.strip() != "none")
+    from simtest.data import augmentation
+
+    augmentation(list(augment))  # validates the names
+    cfg = TrainConfig(data=args.data, out=args.out, split=args.split, val=args.val, val_split=args.val_split,
+                      val_images=args.val_images, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+                      augment=augment, device=args.device, seed=args.seed, workers=args.workers,
+                      keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads)
+    res = train_keypoints(cfg, resume=args.resume, progress=not args.no_progress)
+    print(f"trained {len(res.history)} epoch(s) in {res.seconds:.0f} s")
+    print(f"model: {res.model_path}")
+    if res.best_path is not None:
+        best = max(res.history, key=lambda h: h.get("val_add_s_or_add_01d", -1.0))
+        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val ADD(-S)-0.1d "
+              f"{100 * best['val_add_s_or_add_01d']:.1f} %)")
+    return 0
