@@ -4,6 +4,8 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# The CPU build of torch, when it lies on local disk: then the `train` extra (torch) is installed too.
+TORCH_WHEEL := $(wildcard /opt/wheels/torch-2.13.0+cpu-*.whl)
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
@@ -12,7 +14,11 @@ export PYOPENGL_PLATFORM ?= egl
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
+ifneq ($(TORCH_WHEEL),)
+	$(PY) -m pip install -q -e ".[dev,train]" -c constraints/ci.txt
+else
 	$(PY) -m pip install -q -e ".[dev]"
+endif
 	touch $(STAMP)
 
 venv: $(STAMP)
