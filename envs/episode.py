@@ -3,18 +3,20 @@
 :func:`run_episode` resets a :class:`~simtest.envs.grasp_env.PandaGraspEnv`, moves the arm to the observation
 configuration (the wrist camera looking at the target from the robot's side), captures one RGB-D observation
 (corrupted as the episode asks), runs the estimator, plans a grasp from the *estimated* pose
-(:class:`~simtest.envs.planner.GraspPlanner`) and executes it on the env's physics: joint-space motion to the
-pre-grasp pose, a slow straight approach, closing, a straight lift by 0.15 m and a 1 s hold.
+(:class:`~simtest.envs.planner.GraspPlanner`) and executes it on the env's physics: joint-space motion to
+above the pre-grasp pose (clear of the object's estimated top), straight down to the pre-grasp pose, a slow
+straight approach, closing, a straight lift by 0.15 m and a 1 s hold.
 
-Success: the target is at least 0.10 m above its resting height and touches both fingers at every control
-period of the 1.0 s hold. Otherwise exactly one failure reason is recorded (:data:`FAILURE_REASONS`):
+Success: the target is at least 0.10 m above its resting height and in the gripper (touching a finger) at
+every control period of the 1.0 s hold, and held between both fingers at its end. Otherwise exactly one failure reason is recorded (:data:`FAILURE_REASONS`):
 
 * ``estimator_error``: the estimator raised, or returned a malformed pose (not a rotation);
 * ``no_estimate``: no estimate for the target, or one with NaN / inf values;
 * ``no_feasible_grasp``: no grasp candidate passes the approach, table and collision checks;
 * ``ik_failure``: candidates pass the geometric checks but IK reaches none (or a motion became unreachable);
 * ``collision``: the arm pushed against the table or another object (contact force above
-  :data:`COLLISION_FORCE`) on its way to the grasp, or touched the target before the straight approach;
+  :data:`COLLISION_FORCE`) on its way to the grasp, or touched the target before the straight approach
+  (the approach itself is guarded: fingertips meeting the table stop it and the gripper closes there);
 * ``missed``: after closing, the target does not touch both fingers;
 * ``slipped``: grasped, but not at least 0.10 m up and held for the whole hold.
 
@@ -47,6 +49,8 @@ FAILURE_REASONS = ("none", "no_estimate", "no_feasible_grasp", "ik_failure", "mi
                    "estimator_error")
 #: Contact force (N) between the robot and the table / another object that counts as a collision.
 COLLISION_FORCE = 15.0
+#: Fingertip-table contact force (N) at which the approach stops (a guarded move) and the gripper closes.
+GUARD_FORCE = 3.0
 
 _SYMMETRY_CACHE: dict[str, np.ndarray] = {}
 
@@ -73,7 +77,8 @@ class EpisodeResult:
         visible_pixels: Target pixels visible in the observation.
         grasp_index: Index of the executed grasp candidate (-1 if none).
         approach_tilt_deg: Angle of the executed approach from straight down, degrees (NaN if none).
-        error: The estimator's exception text, if it raised.
+        error: The estimator's exception text if it raised; for collisions the phase, the two geoms and the
+            contact force; for IK failures during execution the unreachable pose.
         frames: Video frames (third-person | wrist), only when recording.
     """
 
@@ -109,6 +114,10 @@ class _Collision(Exception):
     pass
 
 
+class _TableTouch(Exception):
+    """The fingertips touched the table during the approach: a guarded approach stops there."""
+
+
 class _Recorder:
     """Collects third-person | wrist frames every ``every`` control periods."""
 
@@ -140,14 +149,18 @@ class _Monitor:
         self.env = env
         self.recorder = recorder
         self.phase = "free"
+        self.note = ""
         self._force = np.zeros(6)
         ids = env.ids
         self._robot = ids.robot_geoms
+        self._fingers = ids.finger_geoms
+        self._table = np.array([g for g in range(env.model.ngeom) if (mujoco.mj_id2name(
+            env.model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith("table")])
 
     def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         if self.recorder is not None:
             self.recorder()
-        if self.phase in ("free", "approach"):
+        if self.phase in ("free", "descent", "approach"):
             self._check(model, data)
 
     def _check(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -161,9 +174,14 @@ class _Monitor:
             cand &= ~np.isin(geoms, self.env._target_geoms).any(axis=1)
         for i in np.flatnonzero(cand):
             mujoco.mj_contactForce(model, data, int(i), self._force)
-            if abs(self._force[0]) > COLLISION_FORCE or self.phase == "free" and np.isin(
+            if (self.phase == "approach" and np.isin(geoms[i], self._fingers).any()
+                    and np.isin(geoms[i], self._table).any() and abs(self._force[0]) > GUARD_FORCE):
+                raise _TableTouch()
+            if abs(self._force[0]) > COLLISION_FORCE or self.phase != "approach" and np.isin(
                     geoms[i], self.env._target_geoms).any():
-                raise _Collision()
+                a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom {int(g)}"
+                        for g in geoms[i])
+                raise _Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
 
 
 def _move_joints(env, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
@@ -210,12 +228,27 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
     monitor = monitor or _Monitor(env, None)
     try:
         monitor.phase = "free"
-        panda.open_gripper(d, ids)
-        _move_joints(env, plan.q_pregrasp, monitor)
+        panda.set_gripper(d, ids, plan.open_width)
+        # A straight line from the observation pose (high above the table) to above the pre-grasp keeps the
+        # hand over the objects; joint-space interpolation could swing it through them.
+        start = panda.tcp_pose(d, ids)
+        dist = float(np.linalg.norm(plan.above.t - start.t))
+        q = panda.move_to(m, d, ids, plan.above, max(1.0, dist / 0.2), q_ref=d.ctrl[ids.arm_actuators].copy(),
+                          settle=0.3, callback=monitor)
+        monitor.phase = "descent"
+        if float(np.linalg.norm(plan.above.t - plan.pregrasp.t)) > 1e-4:
+            dist = float(np.linalg.norm(plan.above.t - plan.pregrasp.t))
+            q = panda.move_to(m, d, ids, plan.pregrasp, max(0.5, dist / 0.15), q_ref=q, settle=0.3,
+                              callback=monitor)
         monitor.phase = "approach"
         dist = float(np.linalg.norm(plan.grasp.t - plan.pregrasp.t))
-        q = panda.move_to(m, d, ids, plan.grasp, max(1.0, dist / approach_speed), q_ref=plan.q_pregrasp,
-                          settle=0.5, callback=monitor)
+        try:
+            q = panda.move_to(m, d, ids, plan.grasp, max(1.0, dist / approach_speed), q_ref=q,
+                              settle=0.5, callback=monitor)
+        except _TableTouch:  # guarded approach: stop where the fingertips met the table
+            q = ids.arm_q(d)
+            d.ctrl[ids.arm_actuators] = q
+            env.advance(0.1)
         monitor.phase = "grasp"
         panda.close_gripper(d, ids)
         for _ in range(int(round(close_time / CONTROL_DT))):
@@ -228,16 +261,18 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
                       callback=monitor)
         mujoco.mj_kinematics(m, d)
         for _ in range(int(round(hold / CONTROL_DT))):
-            if not (env.is_grasped() and env.lift_height() >= SUCCESS_HEIGHT):
+            if not (env.touches_gripper() and env.lift_height() >= SUCCESS_HEIGHT):
                 return "slipped"
             env.advance(CONTROL_DT)
             monitor(m, d)
         if not (env.is_grasped() and env.lift_height() >= SUCCESS_HEIGHT):
             return "slipped"
         return "none"
-    except _Collision:
+    except _Collision as exc:
+        monitor.note = str(exc)
         return "collision"
-    except panda.UnreachableError:
+    except panda.UnreachableError as exc:
+        monitor.note = str(exc)
         return "ik_failure"
     finally:
         env.sync_command()
@@ -325,7 +360,8 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     # 1. Observe from the observation configuration.
     try:
         _move_joints(u, u.q_observe, monitor)
-    except _Collision:
+    except _Collision as exc:
+        result.error = str(exc)
         return finish("collision")
     obs = u.capture()
     info = u._info()
@@ -377,4 +413,6 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     result.approach_tilt_deg = float(np.degrees(planned.plan.approach_tilt))
 
     # 4. Execute.
-    return finish(execute_grasp(u, planned.plan, monitor))
+    reason = execute_grasp(u, planned.plan, monitor)
+    result.error = monitor.note
+    return finish(reason)

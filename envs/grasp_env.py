@@ -443,6 +443,15 @@ class PandaGraspEnv(gym.Env):
         pair = self._geom_cat[d.contact.geom[:n]].sum(axis=1)  # 1 + 2: target-left, 1 + 4: target-right
         return bool((pair == 3).any() and (pair == 5).any())
 
+    def touches_gripper(self) -> bool:
+        """Whether the target touches a pad of either finger (contacts of the last physics step)."""
+        d = self.data
+        n = d.ncon
+        if n == 0:
+            return False
+        pair = self._geom_cat[d.contact.geom[:n]].sum(axis=1)
+        return bool(((pair == 3) | (pair == 5)).any())
+
     def lift_height(self) -> float:
         """Height of the target above its resting height, m."""
         return float(self.data.xpos[self._target_body][2] - self.rest_height)

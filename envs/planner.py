@@ -17,8 +17,9 @@ kept when
    as a depth-based occupancy map would give them; the target itself is known only through its estimate
    (the candidates already keep the fingers out of its estimated surface).
 
-Candidates are ranked by ``top_down_weight * (-approach_z) + score`` (top-down grasps preferred, then the
-sampler's antipodal quality) and checked in that order; for each, the grasp and its twin rotated by pi
+Candidates are ranked by ``top_down_weight * (-approach_z) + score - shift_weight * contact_shift / 12 mm``
+(top-down grasps preferred, then the sampler's antipodal quality, then contacts on the middle of the pads
+rather than near the fingertips) and checked in that order; for each, the grasp and its twin rotated by pi
 about the approach axis (:func:`simtest.panda.symmetric_grasp`) are tried and the one needing the smaller
 joint motion is taken. The first feasible candidate wins.
 """
@@ -47,9 +48,16 @@ class GraspPlan:
     Attributes:
         grasp: ``T_world_tcp`` at the grasp (m).
         pregrasp: ``T_world_tcp`` ``pregrasp`` metres back along the approach axis.
+        above: The pre-grasp pose raised, if needed, until the open gripper is ``clearance`` above the
+            object's estimated top:
+            reached first (joint-space motion), then the pre-grasp straight down from it, so a tilted
+            approach does not swing the fingers through the object.
+        q_above: IK solution of ``above`` (7,), rad.
         lift: ``T_world_tcp`` after lifting straight up.
         q_pregrasp, q_grasp, q_lift: IK solutions (7,), rad.
         width: Contact width of the candidate, m.
+        open_width: Gripper opening for the approach, m: ``width + open_margin``, at most 0.08. Opening
+            wider than the grasp needs would, in a rim grasp, put the inner finger onto the opposite wall.
         index: Index of the candidate in the object's grasp set.
         flipped: Whether the twin rotated by pi about the approach axis was taken.
         approach_tilt: Angle between the approach axis and straight down, rad.
@@ -59,10 +67,13 @@ class GraspPlan:
     grasp: Pose
     pregrasp: Pose
     lift: Pose
+    above: Pose
+    q_above: np.ndarray
     q_pregrasp: np.ndarray
     q_grasp: np.ndarray
     q_lift: np.ndarray
     width: float
+    open_width: float
     index: int
     flipped: bool
     approach_tilt: float
@@ -114,11 +125,17 @@ class GraspPlanner:
         check_collisions: Reject candidates whose pre-grasp or grasp configuration penetrates obstacles.
         max_contact_z: How far beyond the TCP (toward the fingertips, which are 0.022 m beyond it) the
             contacts may end up when a candidate is backed off to clear the table, m.
+        shift_weight: Ranking penalty per 12 mm the contacts sit beyond the TCP (toward the fingertips):
+            grasps held on the middle of the pads hold better than rim grasps on their tips.
+        clearance: Height of the open gripper's lowest point above the object's estimated top before it
+            descends to a pre-grasp pose that is lower than that, m.
+        open_margin: Opening beyond the contact width for the approach (both fingers together), m.
     """
 
-    def __init__(self, max_tilt: float = np.deg2rad(60.0), table_clearance: float = 0.004,
-                 pregrasp: float = 0.10, lift: float = 0.15, top_down_weight: float = 1.0,
-                 max_candidates: int = 30, check_collisions: bool = True, max_contact_z: float = 0.016) -> None:
+    def __init__(self, max_tilt: float = np.deg2rad(60.0), table_clearance: float = 0.002,
+                 pregrasp: float = 0.10, lift: float = 0.15, top_down_weight: float = 2.0,
+                 max_candidates: int = 30, check_collisions: bool = True, max_contact_z: float = 0.020,
+                 shift_weight: float = 0.3, clearance: float = 0.03, open_margin: float = 0.05) -> None:
         if not 0 < max_tilt <= np.pi / 2:
             raise ConfigError(f"max_tilt must be in (0, pi/2] rad, got {max_tilt!r}")
         if not pregrasp > 0 or not lift > 0:
@@ -133,6 +150,9 @@ class GraspPlanner:
         self.max_candidates = int(max_candidates)
         self.check_collisions = bool(check_collisions)
         self.max_contact_z = float(max_contact_z)
+        self.shift_weight = float(shift_weight)
+        self.clearance = float(clearance)
+        self.open_margin = float(open_margin)
         self._open_corners = _box_corners(gripper_boxes(PANDA.max_width, PANDA))
 
     def candidates_world(self, obj, T_world_obj: Pose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -194,9 +214,11 @@ class GraspPlanner:
         idx = np.flatnonzero(ok)
         if len(idx) == 0:
             return PlanResult(None, "no_feasible_grasp", n, 0, 0)
-        rank = self.top_down_weight * (-poses[idx, 2, 2]) + scores[idx]
+        rank = (self.top_down_weight * (-poses[idx, 2, 2]) + scores[idx]
+                - self.shift_weight * (contact_z[idx] + backoff[idx]) / 0.012)
         order = idx[np.argsort(-rank, kind="stable")]
         q_now = ids.arm_q(data)
+        top_z = float((np.asarray(obj.vertices) @ T_world_obj.R.T + T_world_obj.t)[:, 2].max())
         n_tried = 0
         any_ik = False
         for i in order[: self.max_candidates]:
@@ -206,7 +228,7 @@ class GraspPlanner:
                 g = Pose.from_matrix(poses[i])
                 if flipped:
                     g = panda.symmetric_grasp(g)
-                res = self._check(model, data, ids, env, g, q_now)
+                res = self._check(model, data, ids, env, g, q_now, top_z)
                 if res is None:
                     continue
                 any_ik = True
@@ -216,18 +238,25 @@ class GraspPlanner:
                 if best is None or cost < best[0]:
                     best = (cost, g, res, flipped)
             if best is not None:
-                _, g, (q_pre, q_grasp, q_lift, pre, lift), flipped = best
+                _, g, (q_above, q_pre, q_grasp, q_lift, above, pre, lift), flipped = best
                 tilt = float(np.arccos(np.clip(-g.R[2, 2], -1.0, 1.0)))
-                plan = GraspPlan(g, pre, lift, q_pre, q_grasp, q_lift, float(widths[i]), int(i), flipped, tilt,
-                                 float(scores[i]))
+                open_w = float(min(panda.GRIPPER_OPEN, widths[i] + self.open_margin))
+                plan = GraspPlan(g, pre, lift, above, q_above, q_pre, q_grasp, q_lift, float(widths[i]), open_w,
+                                 int(i), flipped, tilt, float(scores[i]))
                 return PlanResult(plan, "ok", n, len(idx), n_tried)
         return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried)
 
-    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray):
+    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray, top_z: float):
         """IK (and collisions) of one grasp: ``None`` if IK fails, ``"collision"``, or the solutions."""
         pre = Pose(g.R, g.t - self.pregrasp * g.R[:, 2])
+        # The lowest point of the open gripper (fingers and palm as boxes) must clear the object's top.
+        drop = float(-(self._open_corners @ g.R.T)[:, 2].min())
+        above = Pose(g.R, [pre.t[0], pre.t[1], max(pre.t[2], top_z + self.clearance + drop)])
         lift = Pose(g.R, g.t + np.array([0.0, 0.0, self.lift]))
-        r_pre = panda.solve_ik(model, data, ids, pre, q_now)
+        r_above = panda.solve_ik(model, data, ids, above, q_now)
+        if not r_above.success:
+            return None
+        r_pre = panda.solve_ik(model, data, ids, pre, r_above.q)
         if not r_pre.success:
             return None
         r_grasp = panda.solve_ik(model, data, ids, g, r_pre.q)
@@ -238,7 +267,7 @@ class GraspPlanner:
             return None
         if self.check_collisions and (self._collides(env, r_pre.q) or self._collides(env, r_grasp.q)):
             return "collision"
-        return r_pre.q, r_grasp.q, r_lift.q, pre, lift
+        return r_above.q, r_pre.q, r_grasp.q, r_lift.q, above, pre, lift
 
     def _collides(self, env, q: np.ndarray) -> bool:
         """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target."""

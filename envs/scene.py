@@ -5,7 +5,8 @@ The scene is a :class:`~simtest.generators.scene_spec.SceneSpec` built by the ge
 on exactly the scenes the datasets are made of. This module only decides *what* goes where:
 
 * the **target** (instance 0) at a random spot of the reachable part of the table, upright with a random
-  yaw (``placement="upright"``) or dropped in a random orientation (``"random"``);
+  yaw (``placement="upright"``; objects that cannot stand on their base lie in their most likely stable
+  pose, see :func:`rest_rotation`) or dropped in a random orientation (``"random"``);
 * ``n_distractors`` other objects of the set around it, never in the strip between the target and the
   observation camera;
 * for occlusion levels L1..L3, one **standing box** (a free, collidable body) on the line of sight between
@@ -43,6 +44,7 @@ __all__ = [
     "OcclusionResult",
     "TaskScene",
     "build_task_scene",
+    "rest_rotation",
     "observation_camera_pose",
     "tune_occluder",
     "scene_config",
@@ -140,9 +142,55 @@ def observation_camera_pose(look_at: np.ndarray, base_xy: np.ndarray,
     return look_at_pose(eye, p)
 
 
+_REST_CACHE: dict[str, np.ndarray] = {}
+
+
+def rest_rotation(obj) -> np.ndarray:
+    """Orientation (3x3, model -> world, before a random yaw) of an object resting "upright".
+
+    Model z up when the object stands firmly on its base (the centre of mass lies at least 6 mm inside the
+    convex hull of the mesh's lowest points), otherwise its most likely stable pose
+    (``trimesh.poses.compute_stable_poses`` about the centre of mass): a marker with a pointed end lies on
+    its side instead of balancing on the tip. Cached per mesh.
+    """
+    key = obj.mesh_hash
+    if key not in _REST_CACHE:
+        import trimesh
+
+        R = np.eye(3)
+        if _support_margin(obj) >= 0.006:
+            _REST_CACHE[key] = R
+            return R
+        try:
+            T, prob = trimesh.poses.compute_stable_poses(obj.mesh, center_mass=np.asarray(obj.center_of_mass),
+                                                         n_samples=1, threshold=0.0)
+        except Exception:  # degenerate hulls: keep model z up
+            T, prob = np.zeros((0, 4, 4)), np.zeros(0)
+        if len(prob):
+            R = np.asarray(T[int(np.argmax(prob)), :3, :3])
+        _REST_CACHE[key] = R
+    return _REST_CACHE[key]
+
+
+def _support_margin(obj, band: float = 0.001) -> float:
+    """How far (m) the centre of mass lies inside the support polygon of the object standing on its model -z
+    end (the 2D convex hull of the vertices within ``band`` of the lowest one); negative if outside."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    v = np.asarray(obj.vertices)
+    base = v[v[:, 2] <= v[:, 2].min() + band][:, :2]
+    com = np.asarray(obj.center_of_mass)[:2]
+    try:
+        hull = ConvexHull(base)
+    except (QhullError, ValueError):
+        return -1.0  # a point or a line: no area to stand on
+    # Facet equations n . x + c <= 0 inside, with unit normals n: the margin is the smallest -(n . com + c).
+    return float(np.min(-(hull.equations[:, :2] @ com + hull.equations[:, 2])))
+
+
 def _footprint_radius(obj, yaw_only: bool) -> float:
     """Horizontal radius (m) of an object's footprint about its origin (upright: xy extent of the mesh)."""
-    v = np.asarray(obj.vertices)
+    v = np.asarray(obj.vertices) @ rest_rotation(obj).T
     if yaw_only:
         return float(np.linalg.norm(v[:, :2], axis=1).max())
     return float(obj.diameter / 2.0)
@@ -168,7 +216,8 @@ def build_task_scene(
         rng: The episode's scene generator; every random choice is drawn from it in a fixed order.
         n_distractors: Other objects of the set placed around the target (>= 0).
         occlusion: Occlusion level 0..3; > 0 adds an occluder box (tuned later by :func:`tune_occluder`).
-        placement: ``"upright"`` (model z up, random yaw) or ``"random"`` (random orientation, dropped).
+        placement: ``"upright"`` (model z up if stable, see :func:`rest_rotation`; random yaw) or ``"random"``
+            (random orientation, dropped).
         scene_index: Recorded in the spec (model name).
 
     Raises:
@@ -185,8 +234,12 @@ def build_task_scene(
 
     def pose_for(obj, xy: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         if upright:
-            z = table_z - float(np.asarray(obj.vertices)[:, 2].min()) + 0.002
-            quat = _yaw_quat(float(rng.uniform(-np.pi, np.pi)))
+            R0 = rest_rotation(obj)
+            yaw = float(rng.uniform(-np.pi, np.pi))
+            Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+            R = Rz @ R0
+            z = table_z - float((np.asarray(obj.vertices) @ R.T)[:, 2].min()) + 0.002
+            quat = tuple(float(v) for v in Pose(R, np.zeros(3)).quat_wxyz())
         else:
             z = table_z + obj.diameter / 2.0 + 0.01
             quat = _random_quat(rng)
