@@ -33,6 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="on-the-fly corruptions: occlusion, weather, depth, or none (default: occlusion,weather; "
                         "weather leaves out brightness/frost/snow/fog, which stay unseen)")
     p.add_argument("--crop", metavar="HxW", help="train on HxW crops around objects (e.g. 128x128); default full images")
+    p.add_argument("--widths", default="16,32,64,96", metavar="A,B,C,D",
+                   help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96)")
+    p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu)")
     p.add_argument("--workers", type=int, default=1, help="data-loading worker processes (default: 1)")
@@ -55,6 +58,17 @@ def parse_crop(text: str | None) -> tuple[int, int] | None:
     return h, w
 
 
+def parse_ints(text: str, n: int, flag: str) -> tuple[int, ...]:
+    """``"16,32"`` -> ``(16, 32)``, exactly ``n`` positive integers."""
+    try:
+        vals = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n or min(vals) < 1:
+        raise ConfigError(f"{flag} must be {n} comma-separated positive integers, got {text!r}")
+    return vals
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         import torch  # noqa: F401
@@ -69,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data=args.data, out=args.out, split=args.split, val=args.val, val_split=args.val_split,
                       val_images=args.val_images, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                       augment=augment, device=args.device, seed=args.seed, workers=args.workers,
-                      keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads)
+                      keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads,
+                      widths=parse_ints(args.widths, 4, "--widths"), decoder=parse_ints(args.decoder, 2, "--decoder"))
     res = train_keypoints(cfg, resume=args.resume, progress=not args.no_progress)
     print(f"trained {len(res.history)} epoch(s) in {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

@@ -37,8 +37,8 @@ class NetConfig:
 
     num_classes: int
     num_keypoints: int = 8
-    widths: tuple[int, int, int, int] = (24, 48, 96, 128)
-    decoder: tuple[int, int] = (96, 64)
+    widths: tuple[int, int, int, int] = (16, 32, 64, 96)
+    decoder: tuple[int, int] = (64, 48)
     offset_scale: float = 32.0
     stride: int = 4
 

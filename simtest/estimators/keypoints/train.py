@@ -69,8 +69,8 @@ class TrainConfig:
     keypoints: str = "bbox"
     crop: tuple[int, int] | None = None
     seg_weight: float = 2.0
-    widths: tuple[int, int, int, int] = (24, 48, 96, 128)
-    decoder: tuple[int, int] = (96, 64)
+    widths: tuple[int, int, int, int] = (16, 32, 64, 96)
+    decoder: tuple[int, int] = (64, 48)
     threads: int | None = None
 
     def __post_init__(self) -> None:
@@ -105,7 +105,7 @@ class TrainResult:
     seconds: float = 0.0
 
 
-def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(24, 48, 96, 128), decoder=(96, 64)):
+def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48)):
     """A freshly initialised :class:`KeypointNet`, deterministic in ``seed`` (the global RNG is left as it was)."""
     import torch
 
