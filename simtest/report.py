@@ -173,7 +173,7 @@ def _plots(cfg, conds, summary: list[dict], results: list[dict]) -> list[tuple[s
     corruptions = sorted({c.level for c in conds if c.factor == "corruption"})
     for m in cfg.metrics:
         label, scale, unit, _ = POSE_METRICS[m]
-        fig, ax = plt.subplots(figsize=(7.5, 3.4))
+        fig, ax = plt.subplots(figsize=(5.8, 3.2))
         if len(severities) > 1:
             for e in cfg.estimators:
                 clean = _value(summary, e.name, "clean", "pose", m) * scale
@@ -198,7 +198,7 @@ def _plots(cfg, conds, summary: list[dict], results: list[dict]) -> list[tuple[s
         plots.append((f"plot-{m}", title, _png(fig)))
     if cfg.grasp.episodes > 0:
         occ = [c for c in conds if c.factor in ("clean", "occlusion")]
-        fig, ax = plt.subplots(figsize=(6, 3.4))
+        fig, ax = plt.subplots(figsize=(5.8, 3.2))
         for e in cfg.estimators:
             v = np.array([_value(summary, e.name, c.name, "grasp", "success_rate") for c in occ]) * 100
             lo = np.array([_value(summary, e.name, c.name, "grasp", "ci95_low") for c in occ]) * 100
@@ -214,7 +214,7 @@ def _plots(cfg, conds, summary: list[dict], results: list[dict]) -> list[tuple[s
         ax.legend(fontsize=8)
         plots.append(("plot-grasp-occlusion", "Grasp success vs occlusion level", _png(fig)))
         eps = [r for r in results if r["kind"] == "grasp" and math.isfinite(_f(r["add_s_or_add_m"]))]
-        fig, ax = plt.subplots(figsize=(6, 3.4))
+        fig, ax = plt.subplots(figsize=(5.8, 3.2))
         if eps:
             x = np.array([_f(r["add_s_or_add_m"]) * 1000 for r in eps])
             y = np.array([1.0 if str(r["success"]).lower() in ("true", "1") else 0.0 for r in eps])
@@ -286,6 +286,29 @@ def _md_to_html_tables(md: str) -> str:
     return "\n".join(out)
 
 
+def _headline(cfg, conds, summary: list[dict]) -> str:
+    """One sentence per estimator: the first metric clean, and the condition that hurts it most."""
+    from simtest.sweep import POSE_METRICS
+
+    m = cfg.metrics[0]
+    label, scale, unit, higher = POSE_METRICS[m]
+    items = []
+    for e in cfg.estimators:
+        clean = _value(summary, e.name, "clean", "pose", m)
+        others = [(c.name, _value(summary, e.name, c.name, "pose", m)) for c in conds if c.factor != "clean"]
+        others = [(n, v) for n, v in others if not math.isnan(v)]
+        text = f"<b>{html.escape(e.name)}</b>: {label} {_fmt(clean * scale)} {unit} clean"
+        if others:
+            worst = min(others, key=lambda nv: nv[1] if higher else -nv[1])
+            text += f", worst under {html.escape(worst[0])} ({_fmt(worst[1] * scale)} {unit})"
+        if cfg.grasp.episodes > 0:
+            g = _value(summary, e.name, "clean", "grasp", "success_rate")
+            if not math.isnan(g):
+                text += f"; grasp success {g * 100:.0f} % clean"
+        items.append(f"<li>{text}</li>")
+    return "<ul class=\"headline\">" + "".join(items) + "</ul>"
+
+
 def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     """Write ``results.csv``, ``summary.csv``, ``tables.md`` and ``report.html`` from the finished cells."""
     from simtest.sweep import write_csv
@@ -299,14 +322,15 @@ def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     examples = _examples(cfg, out, conds)
     est_list = ", ".join(f"{html.escape(e.name)} (<code>{html.escape(e.estimator)}</code>"
                          f"{' ' + html.escape(json.dumps(e.options)) if e.options else ''})" for e in cfg.estimators)
-    body = [f"<h1>simtest robustness report</h1>",
+    body = [f"<h1>simtest robustness report</h1>", _headline(cfg, conds, summary),
             f"<p>Estimators: {est_list}. Conditions: {html.escape(', '.join(c.name for c in conds))}. "
             f"Seed {cfg.seed}. Occlusion definition: {html.escape(cfg.factors.occlusion_definition)} (2D paste for "
             f"pose evaluation, physical occluders in the grasp scene).</p>",
-            _md_to_html_tables(md), "<h2>Plots</h2>"]
+            _md_to_html_tables(md), '<h2>Plots</h2><div class="plots">']
     for pid, title, data in plots:
         body.append(f'<figure id="{pid}"><img alt="{html.escape(title)}" src="data:image/png;base64,{data}">'
                     f"<figcaption>{html.escape(title)}</figcaption></figure>")
+    body.append("</div>")
     if examples:
         body.append('<h2>Example images</h2><div class="grid">')
         for name, data in examples:
@@ -316,7 +340,7 @@ def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;padding:3px 8px;"
              "text-align:right}th:first-child,td:first-child{text-align:left}thead{background:#f3f3f3}"
-             ".grid{display:flex;flex-wrap:wrap;gap:8px}.example img{width:240px}figure{margin:0.5em}"
+             ".grid,.plots{display:flex;flex-wrap:wrap;gap:8px}.headline{font-size:1.05em}.example img{width:240px}figure{margin:0.5em}"
              "figcaption{font-size:0.85em;color:#555}")
     page = ("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>simtest robustness report</title>"
             f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
