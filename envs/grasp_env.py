@@ -216,7 +216,7 @@ class PandaGraspEnv(gym.Env):
         self._act_lo, self._act_hi = -lim.astype(np.float64), lim.astype(np.float64)
         self._builders: dict[str, Any] = {}
         self._renderer: Renderer | None = None
-        self.task = None
+        self.grasp_scene = None
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
         self.ids: panda.PandaIds | None = None
@@ -256,7 +256,7 @@ class PandaGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build and settle a new scene and return the first observation (see the module docstring)."""
         super().reset(seed=seed)
-        from simtest.envs.scene import build_task_scene, observation_camera_pose, tune_occluder
+        from simtest.envs.scene import build_grasp_scene, observation_camera_pose, tune_occluder
 
         cfg = EpisodeConfig.build(self._defaults, options)
         self.config = cfg
@@ -266,9 +266,9 @@ class PandaGraspEnv(gym.Env):
         self.objects = objects
         target_id = self._pick_target(objects, cfg.target, scene_rng)
         builder = self._builder(cfg.objects)
-        self.task = build_task_scene(builder, objects, target_id, scene_rng, n_distractors=cfg.n_distractors,
+        self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng, n_distractors=cfg.n_distractors,
                                      occlusion=cfg.occlusion, placement=cfg.placement)
-        sim = self.task.sim
+        sim = self.grasp_scene.sim
         self.model, self.data, self.ids = sim.model, sim.data, sim.panda
         self.target_obj = objects.get(target_id)
         if self._renderer is not None:
@@ -277,9 +277,9 @@ class PandaGraspEnv(gym.Env):
         self._scratch = mujoco.MjData(self.model)
         self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
             self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
-        self._target_body = sim.instance_bodies[self.task.target_instance]
+        self._target_body = sim.instance_bodies[self.grasp_scene.target_instance]
         self._instance_bodies = np.asarray(sim.instance_bodies, dtype=np.int64)
-        self._target_geoms = np.flatnonzero(sim.geom_instance == self.task.target_instance)
+        self._target_geoms = np.flatnonzero(sim.geom_instance == self.grasp_scene.target_instance)
         fb = self.model.geom_bodyid[self.ids.finger_geoms]
         bodies = sorted(set(fb.tolist()))
         self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
@@ -297,11 +297,12 @@ class PandaGraspEnv(gym.Env):
         self.T_world_base = Pose(self.data.xmat[self.ids.base_body].reshape(3, 3),
                                  self.data.xpos[self.ids.base_body])
         self._T_base_world = self.T_world_base.inverse().matrix()
+        self._T_world_base_m = self.T_world_base.matrix()
         self.rest_height = float(self.data.xpos[self._target_body][2])
 
         # Observation configuration: the wrist camera looking at the target from the robot's side.
         self.q_observe = self._observation_q()
-        self.occlusion = tune_occluder(self.task, self._renderer, self.ids.camera, self.q_observe,
+        self.occlusion = tune_occluder(self.grasp_scene, self._renderer, self.ids.camera, self.q_observe,
                                        cfg.occlusion, occ_rng) if cfg.occlusion > 0 else None
         if self.occlusion is not None:
             mujoco.mj_step(self.model, self.data, 50)  # the box comes to rest on the table
@@ -320,7 +321,7 @@ class PandaGraspEnv(gym.Env):
         from simtest.envs.scene import OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose
 
         p = self.data.xpos[self._target_body].copy()
-        p[2] = self.task.table_height + 0.5 * (p[2] - self.task.table_height)
+        p[2] = self.grasp_scene.table_height + 0.5 * (p[2] - self.grasp_scene.table_height)
         best = None
         for dist, el in ((OBSERVATION_DISTANCE, OBSERVATION_ELEVATION), (0.38, np.deg2rad(65.0)),
                          (0.46, np.deg2rad(50.0)), (0.34, np.deg2rad(75.0))):
@@ -390,9 +391,11 @@ class PandaGraspEnv(gym.Env):
     def _T_world_cam(self) -> np.ndarray:
         """4x4 ``T_world_cam`` (OpenCV) of the wrist camera at the current state (the MuJoCo->OpenCV flip of
         :mod:`simtest.camera`, without building a :class:`CameraModel`)."""
-        T = np.eye(4)
-        T[:3, :3] = self.data.cam_xmat[self.ids.camera].reshape(3, 3) @ R_MJ_CV
+        T = np.zeros((4, 4))
+        x = self.data.cam_xmat[self.ids.camera]
+        T[:3, 0], T[:3, 1], T[:3, 2] = x[0::3], -x[1::3], -x[2::3]  # xmat @ diag(1, -1, -1)
         T[:3, 3] = self.data.cam_xpos[self.ids.camera]
+        T[3, 3] = 1.0
         return T
 
     def capture(self) -> dict:
@@ -468,18 +471,20 @@ class PandaGraspEnv(gym.Env):
     def _info(self) -> dict:
         T_world_obj = self.object_poses_world()
         T_world_cam = self._T_world_cam()
-        T_cam_world = np.eye(4)
-        T_cam_world[:3, :3] = T_world_cam[:3, :3].T
-        T_cam_world[:3, 3] = -T_world_cam[:3, :3].T @ T_world_cam[:3, 3]
+        T_cam_world = np.zeros((4, 4))
+        Rt = T_world_cam[:3, :3].T
+        T_cam_world[:3, :3] = Rt
+        T_cam_world[:3, 3] = -Rt @ T_world_cam[:3, 3]
+        T_cam_world[3, 3] = 1.0
         return {
             "target_obj_id": int(self.target_obj.obj_id),
             "target_name": self.target_obj.name,
-            "target_instance": int(self.task.target_instance),
+            "target_instance": int(self.grasp_scene.target_instance),
             "obj_ids": list(self._obj_ids),
             "T_world_obj": T_world_obj,
             "T_cam_obj": T_cam_world[None] @ T_world_obj,
             "T_world_cam": T_world_cam,
-            "T_world_base": self.T_world_base.matrix(),
+            "T_world_base": self._T_world_base_m.copy(),
             "is_grasped": self.is_grasped(),
             "lift_height": self.lift_height(),
             "rest_height": self.rest_height,
@@ -491,7 +496,7 @@ class PandaGraspEnv(gym.Env):
     # --- rendering -------------------------------------------------------------------------------------------
     def third_person_camera(self) -> CameraModel:
         """A fixed view of the table and the robot from the front right (OpenCV ``T_world_cam``)."""
-        z0 = self.task.table_height
+        z0 = self.grasp_scene.table_height
         cam = CameraModel.default(self.render_width, self.render_height)
         return cam.with_pose(look_at_pose(np.array([0.85, -0.95, z0 + 0.75]), np.array([-0.2, 0.0, z0 + 0.2])))
 
@@ -506,7 +511,7 @@ class PandaGraspEnv(gym.Env):
     def render_third_person(self) -> np.ndarray:
         """Render the third-person view now, whatever the render mode."""
         renderer = self._third_person_renderer()
-        sim = self.task.sim
+        sim = self.grasp_scene.sim
         sim.set_camera(self.third_person_camera())
         return renderer.render(self.data, sim.camera_id, rgb=True, depth=False, seg=False).rgb
 

@@ -208,7 +208,7 @@ class GraspPlanner:
         model, data, ids = env.model, env.data, env.ids
         poses, widths, scores, contact_z = self.candidates_world(obj, T_world_obj)
         n = len(poses)
-        ok, backoff = self.geometric_filter(poses, env.task.table_height, contact_z)
+        ok, backoff = self.geometric_filter(poses, env.grasp_scene.table_height, contact_z)
         poses = poses.copy()
         poses[:, :3, 3] -= backoff[:, None] * poses[:, :3, 2]
         idx = np.flatnonzero(ok)

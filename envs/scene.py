@@ -1,4 +1,4 @@
-"""The grasping task's table scene: one target, distractor objects and physical occluders.
+"""The grasping table scene: one target, distractor objects and physical occluders.
 
 The scene is a :class:`~simtest.generators.scene_spec.SceneSpec` built by the generator's
 :class:`~simtest.generators.builder.SceneBuilder` (with the Panda and its contact physics), so grasping runs
@@ -42,8 +42,8 @@ __all__ = [
     "OBSERVATION_DISTANCE",
     "OBSERVATION_ELEVATION",
     "OcclusionResult",
-    "TaskScene",
-    "build_task_scene",
+    "GraspScene",
+    "build_grasp_scene",
     "rest_rotation",
     "observation_camera_pose",
     "tune_occluder",
@@ -96,7 +96,7 @@ class OcclusionResult:
 
 
 @dataclass
-class TaskScene:
+class GraspScene:
     """A built, settled grasp scene.
 
     Attributes:
@@ -196,7 +196,7 @@ def _footprint_radius(obj, yaw_only: bool) -> float:
     return float(obj.diameter / 2.0)
 
 
-def build_task_scene(
+def build_grasp_scene(
     builder: SceneBuilder,
     objects: ObjectSet,
     target_id: int,
@@ -206,7 +206,7 @@ def build_task_scene(
     occlusion: int = 0,
     placement: str = "upright",
     scene_index: int = 0,
-) -> TaskScene:
+) -> GraspScene:
     """Sample, build and settle one grasp scene.
 
     Args:
@@ -312,7 +312,7 @@ def build_task_scene(
     occluder = -1
     if occlusion > 0:
         occluder = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "distractor_0")
-    return TaskScene(sim, 0, occluder, table_z)
+    return GraspScene(sim, 0, occluder, table_z)
 
 
 def _unit(v) -> np.ndarray:
@@ -336,30 +336,30 @@ def _free_joint(model: mujoco.MjModel, body: int) -> tuple[int, int]:
     return int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
 
 
-def _set_box(task: TaskScene, data: mujoco.MjData, half: np.ndarray, pos: np.ndarray, yaw: float) -> None:
+def _set_box(scene: GraspScene, data: mujoco.MjData, half: np.ndarray, pos: np.ndarray, yaw: float) -> None:
     """Resize the occluder box (model geom size) and put it at ``pos`` with ``yaw`` in ``data``, at rest."""
-    m = task.sim.model
-    g = int(m.body_geomadr[task.occluder_body])
+    m = scene.sim.model
+    g = int(m.body_geomadr[scene.occluder_body])
     m.geom_size[g] = half
     m.geom_rbound[g] = float(np.linalg.norm(half))
     m.geom_aabb[g, 3:] = half
-    qadr, vadr = _free_joint(m, task.occluder_body)
+    qadr, vadr = _free_joint(m, scene.occluder_body)
     data.qpos[qadr:qadr + 3] = pos
     data.qpos[qadr + 3:qadr + 7] = _yaw_quat(yaw)
     data.qvel[vadr:vadr + 6] = 0.0
 
 
-def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarray, level: int,
+def tune_occluder(scene: GraspScene, renderer, camera_id: int, q_observe: np.ndarray, level: int,
                   rng: np.random.Generator, definition: str = "pascal3d+", steps: int = 8) -> OcclusionResult:
     """Stand the occluder box between the target and the observation camera and bisect its height until the
     target's occluded fraction (seen from arm configuration ``q_observe``) is near the level band's middle.
 
     The box stands ``OCCLUDER_GAP`` m beyond the target's footprint toward the camera, across the line of
     sight, a little wider than the target. Renders are made on a copy of the state; the box is then left
-    standing in ``task.sim.data`` (at rest).
+    standing in ``scene.sim.data`` (at rest).
 
     Args:
-        task: The settled scene (must have an occluder).
+        scene: The settled scene (must have an occluder).
         renderer: A :class:`simtest.render.Renderer` of the scene's model.
         camera_id: The wrist camera id.
         q_observe: Arm configuration (7,) rad of the observation pose.
@@ -369,9 +369,9 @@ def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarr
         steps: Bisection steps.
     """
     res = OcclusionResult(level)
-    if level <= 0 or task.occluder_body < 0:
+    if level <= 0 or scene.occluder_body < 0:
         return res
-    sim = task.sim
+    sim = scene.sim
     m = sim.model
     lo, hi = OCCLUSION_BANDS[definition][level][0]
     goal = 0.5 * (lo + hi)
@@ -380,11 +380,11 @@ def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarr
     scratch.qpos[sim.panda.arm_qpos] = q_observe
     mujoco.mj_forward(m, scratch)
     cam_pos = scratch.cam_xpos[camera_id].copy()
-    body = sim.instance_bodies[task.target_instance]
-    target_geoms = np.flatnonzero(sim.geom_instance == task.target_instance)
+    body = sim.instance_bodies[scene.target_instance]
+    target_geoms = np.flatnonzero(sim.geom_instance == scene.target_instance)
     t_obj = sim.data.xpos[body].copy()
     # Footprint radius and top of the target as it rests (from its collision/visual geoms' world bounds).
-    verts = _target_world_vertices(task)
+    verts = _target_world_vertices(scene)
     r = float(np.linalg.norm(verts[:, :2] - t_obj[:2], axis=1).max())
     u = cam_pos[:2] - t_obj[:2]
     u /= np.linalg.norm(u)
@@ -394,13 +394,13 @@ def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarr
     half_w = across + 0.015
     centre = t_obj[:2] + u * (r + OCCLUDER_GAP + OCCLUDER_THICKNESS / 2) + side * rng.uniform(-0.3, 0.3) * across
     yaw = float(np.arctan2(u[1], u[0]))
-    table_z = task.table_height
+    table_z = scene.table_height
 
     def visible(h: float | None) -> int:
         if h is None:
-            _set_box(task, scratch, np.array([0.01, 0.01, 0.01]), np.array([*_OCCLUDER_PARK_XY, -5.0]), 0.0)
+            _set_box(scene, scratch, np.array([0.01, 0.01, 0.01]), np.array([*_OCCLUDER_PARK_XY, -5.0]), 0.0)
         else:
-            _set_box(task, scratch, np.array([OCCLUDER_THICKNESS / 2, half_w, h / 2]),
+            _set_box(scene, scratch, np.array([OCCLUDER_THICKNESS / 2, half_w, h / 2]),
                      np.array([centre[0], centre[1], table_z + h / 2]), yaw)
         mujoco.mj_kinematics(m, scratch)
         mujoco.mj_camlight(m, scratch)
@@ -426,7 +426,7 @@ def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarr
                 b = mid
     half = np.array([OCCLUDER_THICKNESS / 2, half_w, h_best / 2])
     pos = np.array([centre[0], centre[1], table_z + h_best / 2 + 0.0005])
-    _set_box(task, sim.data, half, pos, yaw)
+    _set_box(scene, sim.data, half, pos, yaw)
     mujoco.mj_forward(m, sim.data)
     res.occluded_fraction = float(f_best)
     res.in_band = bool(lo <= f_best <= hi)
@@ -435,10 +435,10 @@ def tune_occluder(task: TaskScene, renderer, camera_id: int, q_observe: np.ndarr
     return res
 
 
-def _target_world_vertices(task: TaskScene) -> np.ndarray:
-    sim = task.sim
-    R, t = sim.object_pose_world(task.target_instance)
-    g = int(sim.model.body_geomadr[sim.instance_bodies[task.target_instance]])  # the visual mesh geom
+def _target_world_vertices(scene: GraspScene) -> np.ndarray:
+    sim = scene.sim
+    R, t = sim.object_pose_world(scene.target_instance)
+    g = int(sim.model.body_geomadr[sim.instance_bodies[scene.target_instance]])  # the visual mesh geom
     mesh = int(sim.model.geom_dataid[g])
     adr, n = int(sim.model.mesh_vertadr[mesh]), int(sim.model.mesh_vertnum[mesh])
     v_geom = sim.model.mesh_vert[adr:adr + n]
