@@ -6,8 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # The CPU build of torch, when it lies on local disk: then the `train` extra (torch) is installed too.
 TORCH_WHEEL := $(wildcard /opt/wheels/torch-2.13.0+cpu-*.whl)
-export MUJOCO_GL ?= egl
-export PYOPENGL_PLATFORM ?= egl
+# The GL backend (EGL, else OSMesa) is chosen by simtest itself; set MUJOCO_GL to override it.
 
 .PHONY: venv demo test clean
 
