@@ -55,7 +55,7 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest import panda
-from simtest.camera import R_MJ_CV, CameraModel, look_at_pose
+from simtest.camera import CameraModel, look_at_pose
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
 from simtest.errors import AssetError, ConfigError

@@ -9,9 +9,9 @@ own whole episodes, each with its own env, renderer and estimator.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import multiprocessing as mp
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -128,6 +128,9 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
+    # Mesa's llvmpipe renders with one thread per core; with several workers each gets its share of cores
+    # (read when the worker creates its GL context).
+    os.environ.setdefault("LP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(1, cfg.workers))))
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 

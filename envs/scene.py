@@ -28,7 +28,7 @@ import numpy as np
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
-from simtest.camera import CameraModel, look_at_pose
+from simtest.camera import look_at_pose
 from simtest.corrupt.occlusion import OCCLUSION_BANDS
 from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder, SimScene

@@ -103,3 +103,14 @@ def test_bad_options_name_the_allowed_values(env):
         env.reset(seed=0, options={"target": "teapot"})
     with pytest.raises(ConfigError, match="render_mode"):
         PandaGraspEnv(render_mode="human")
+
+
+def test_panda_ik_step_option_moves_the_same_way():
+    env = PandaGraspEnv(width=96, height=72, n_distractors=0, ik="panda", target="box_1")
+    env.reset(seed=2)
+    p0, _ = env._diffik.fk(env._q_cmd)
+    for _ in range(3):
+        env.step(np.array([0.0, MAX_STEP_TRANSLATION, 0.0, 0, 0, 0, 1], dtype=np.float32))
+    p1, _ = env._diffik.fk(env._q_cmd)
+    np.testing.assert_allclose(p1 - p0, [0.0, 3 * MAX_STEP_TRANSLATION, 0.0], atol=1e-3)
+    env.close()
