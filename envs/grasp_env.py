@@ -256,7 +256,7 @@ class PandaGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build and settle a new scene and return the first observation (see the module docstring)."""
         super().reset(seed=seed)
-        from simtest.envs.scene import build_grasp_scene, observation_camera_pose, tune_occluder
+        from simtest.envs.scene import build_grasp_scene, tune_occluder
 
         cfg = EpisodeConfig.build(self._defaults, options)
         self.config = cfg
@@ -318,14 +318,17 @@ class PandaGraspEnv(gym.Env):
         return obs, self._info()
 
     def _observation_q(self) -> np.ndarray:
-        from simtest.envs.scene import OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose
+        from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose,
+                                        observation_directions)
 
         p = self.data.xpos[self._target_body].copy()
         p[2] = self.grasp_scene.table_height + 0.5 * (p[2] - self.grasp_scene.table_height)
+        side_a, side_b, base_side = observation_directions(p[:2], self.T_world_base.t[:2])
         best = None
-        for dist, el in ((OBSERVATION_DISTANCE, OBSERVATION_ELEVATION), (0.38, np.deg2rad(65.0)),
-                         (0.46, np.deg2rad(50.0)), (0.34, np.deg2rad(75.0))):
-            T = observation_camera_pose(p, self.T_world_base.t[:2], dist, el)
+        for u, dist, el in ((side_a, OBSERVATION_DISTANCE, OBSERVATION_ELEVATION),
+                            (side_b, OBSERVATION_DISTANCE, OBSERVATION_ELEVATION),
+                            (base_side, 0.38, np.deg2rad(65.0)), (base_side, 0.34, np.deg2rad(75.0))):
+            T = observation_camera_pose(p, u, dist, el)
             res = panda.solve_ik(self.model, self.data, self.ids, T, panda.HOME_QPOS, frame="camera")
             if res.success:
                 return res.q

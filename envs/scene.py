@@ -8,7 +8,7 @@ on exactly the scenes the datasets are made of. This module only decides *what* 
   yaw (``placement="upright"``; objects that cannot stand on their base lie in their most likely stable
   pose, see :func:`rest_rotation`) or dropped in a random orientation (``"random"``);
 * ``n_distractors`` other objects of the set around it, never in the strip between the target and the
-  observation camera;
+  observation camera (which looks at the target diagonally, 60 degrees off the direction of the robot base);
 * for occlusion levels L1..L3, one **standing box** (a free, collidable body) on the line of sight between
   the observation camera and the target; its height is bisected, with segmentation renders from the
   observation viewpoint, until the target's occluded fraction is near the middle of the level's band
@@ -41,11 +41,13 @@ __all__ = [
     "TARGET_REGION",
     "OBSERVATION_DISTANCE",
     "OBSERVATION_ELEVATION",
+    "OBSERVATION_AZIMUTH",
     "OcclusionResult",
     "GraspScene",
     "build_grasp_scene",
     "rest_rotation",
     "observation_camera_pose",
+    "observation_directions",
     "tune_occluder",
     "scene_config",
 ]
@@ -57,6 +59,8 @@ TARGET_REGION = ((-0.12, 0.12), (-0.15, 0.15))
 #: from the robot's side.
 OBSERVATION_DISTANCE = 0.42
 OBSERVATION_ELEVATION = np.deg2rad(55.0)
+#: Azimuth of the observation camera away from the direction of the robot base, rad.
+OBSERVATION_AZIMUTH = np.deg2rad(60.0)
 #: Occluder box thickness along the line of sight (m) and its gap to the target's footprint (m).
 OCCLUDER_THICKNESS = 0.03
 OCCLUDER_GAP = 0.025
@@ -126,19 +130,39 @@ def _jitter(rgb, rng: np.random.Generator, amount: float = 0.08) -> tuple[float,
     return tuple(float(np.clip(c + rng.normal(0, amount), 0.02, 0.98)) for c in rgb[:3])
 
 
-def observation_camera_pose(look_at: np.ndarray, base_xy: np.ndarray,
+def observation_directions(target_xy: np.ndarray, base_xy: np.ndarray) -> list[np.ndarray]:
+    """Horizontal unit vectors from the target toward the observation camera, preferred first.
+
+    The camera looks at the target diagonally, :data:`OBSERVATION_AZIMUTH` away from the direction of the
+    robot base (straight from the base side the camera would sit too close to the base to be reached):
+    first from the side nearer the robot's axis, then the other side, then from the base side.
+    """
+    t = np.asarray(target_xy, dtype=np.float64)[:2]
+    u = np.asarray(base_xy, dtype=np.float64)[:2] - t
+    n = float(np.linalg.norm(u))
+    u = u / n if n > 1e-6 else np.array([-1.0, 0.0])
+    out = []
+    for sign in (1.0, -1.0):
+        c, s = np.cos(sign * OBSERVATION_AZIMUTH), np.sin(sign * OBSERVATION_AZIMUTH)
+        out.append(np.array([c * u[0] - s * u[1], s * u[0] + c * u[1]]))
+    # Nearer the robot's axis (y = base y) first: the arm reaches it more comfortably.
+    out.sort(key=lambda v: abs(t[1] + 0.25 * v[1] - float(np.asarray(base_xy)[1])))
+    return out + [u]
+
+
+def observation_camera_pose(look_at: np.ndarray, direction_xy: np.ndarray,
                             distance: float = OBSERVATION_DISTANCE,
                             elevation: float = OBSERVATION_ELEVATION) -> Pose:
-    """``T_world_cam`` (OpenCV) of the observation view: looking at ``look_at`` from the robot's side.
+    """``T_world_cam`` (OpenCV) of an observation view looking at ``look_at``.
 
-    The camera sits ``distance`` m from the point, ``elevation`` rad above the table plane, on the vertical
-    plane through the robot base and the point; image "up" points away from the robot.
+    The camera sits ``distance`` m from the point, ``elevation`` rad above the table plane, in the horizontal
+    direction ``direction_xy`` from it (see :func:`observation_directions`); image "up" points away from
+    the camera's side.
     """
     p = np.asarray(look_at, dtype=np.float64)
-    u = p[:2] - np.asarray(base_xy, dtype=np.float64)
-    n = float(np.linalg.norm(u))
-    u = u / n if n > 1e-6 else np.array([1.0, 0.0])
-    eye = p + distance * np.array([-np.cos(elevation) * u[0], -np.cos(elevation) * u[1], np.sin(elevation)])
+    u = np.asarray(direction_xy, dtype=np.float64)[:2]
+    u = u / np.linalg.norm(u)
+    eye = p + distance * np.array([np.cos(elevation) * u[0], np.cos(elevation) * u[1], np.sin(elevation)])
     return look_at_pose(eye, p)
 
 
@@ -256,10 +280,9 @@ def build_grasp_scene(
     placements = [placement_of(target, t_xy)]
     r_t = _footprint_radius(target, upright)
 
-    # The strip toward the observation camera (the robot's side) stays free of distractors.
+    # The strip toward the observation camera stays free of distractors.
     base_xy = np.array([-sc.table_size[0] / 2 - 0.1, 0.0])
-    to_cam = base_xy - t_xy
-    to_cam /= np.linalg.norm(to_cam)
+    to_cam = observation_directions(t_xy, base_xy)[0]
     hx, hy = sc.table_size[0] / 2 - 0.06, sc.table_size[1] / 2 - 0.06
     placed: list[tuple[np.ndarray, float]] = [(t_xy, r_t)]
     others = [i for i in objects.ids if i != int(target_id)] or list(objects.ids)
