@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
                       keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads,
                       widths=parse_ints(args.widths, 4, "--widths"), decoder=parse_ints(args.decoder, 2, "--decoder"))
     res = train_keypoints(cfg, resume=args.resume, progress=not args.no_progress)
-    print(f"trained {len(res.history)} epoch(s) in {res.seconds:.0f} s")
+    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")
     if res.best_path is not None:
         best = max(res.history, key=lambda h: h.get("val_add_s_or_add_01d", -1.0))

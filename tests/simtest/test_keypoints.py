@@ -94,9 +94,10 @@ def test_fusion_and_pnp_recover_gt_pose_from_exact_offsets(small_dataset):
             angle = np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))
             assert angle < 1e-4  # radians
             # and exactly from float64 keypoints, with RANSAC too
-            R2, t2, _ = solve_pnp(b["keypoints_2d"][k].numpy(), b["keypoints_3d"][k].numpy(), b["K"][0].numpy(),
-                                  method="ransac")
-            assert np.abs(t2 - b["t_sym"][k].numpy()).max() < 1e-7
+            for method in ("ransac", "sqpnp"):
+                R2, t2, _ = solve_pnp(b["keypoints_2d"][k].numpy(), b["keypoints_3d"][k].numpy(),
+                                      b["K"][0].numpy(), method=method)
+                assert np.abs(t2 - b["t_sym"][k].numpy()).max() < 1e-7
             checked += 1
     assert checked >= 5
 
@@ -112,7 +113,7 @@ def test_fuse_keypoints_weights_and_threshold():
     assert np.allclose(kp, [[10.0, 0.0]])
     with pytest.raises(ConfigError, match="shape"):
         fuse_keypoints(np.zeros((0, 8, 2)), np.zeros((0, 8)))
-    with pytest.raises(ConfigError, match="'dlt'.*epnp, ransac"):
+    with pytest.raises(ConfigError, match="'dlt'.*epnp, sqpnp, ransac"):
         solve_pnp(np.zeros((8, 2)), np.zeros((8, 3)), np.eye(3), method="dlt")
 
 

@@ -27,7 +27,7 @@ from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoi
 
 __all__ = ["KeypointEstimator", "fuse_keypoints", "solve_pnp", "mask_cells", "PNP_METHODS", "predict_maps"]
 
-PNP_METHODS = ("epnp", "ransac")
+PNP_METHODS = ("epnp", "sqpnp", "ransac")
 #: Fraction of a cell a visible mask must cover for the cell to join the instance (as in training).
 MIN_COVERAGE = 0.3
 
@@ -70,8 +70,9 @@ def solve_pnp(kp2d: np.ndarray, kp3d: np.ndarray, K: np.ndarray, method: str = "
 
     Args:
         kp2d: (J, 2) pixels. kp3d: (J, 3) model frame, metres. K: 3x3 intrinsics.
-        method: ``"epnp"`` (EPnP then LM refinement on all points) or ``"ransac"`` (RANSAC EPnP with
-            ``ransac_px`` reprojection threshold, then LM on the inliers).
+        method: ``"epnp"`` (EPnP then LM refinement on all points), ``"sqpnp"`` (SQPnP, globally optimal for
+            its algebraic error, then LM) or ``"ransac"`` (RANSAC EPnP with ``ransac_px`` reprojection
+            threshold, then LM on the inliers).
 
     Returns:
         ``(R (3, 3), t (3,) metres, rms reprojection error in pixels)``.
@@ -96,9 +97,10 @@ def solve_pnp(kp2d: np.ndarray, kp3d: np.ndarray, K: np.ndarray, method: str = "
         else:
             ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_EPNP)
     else:
-        ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=cv2.SOLVEPNP_EPNP)
+        flag = cv2.SOLVEPNP_SQPNP if method == "sqpnp" else cv2.SOLVEPNP_EPNP
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, None, flags=flag)
     if not ok:
-        raise ValueError("EPnP failed")
+        raise ValueError(f"PnP ({method}) failed")
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec,
                                       criteria=(cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-12))
     R, _ = cv2.Rodrigues(rvec)
