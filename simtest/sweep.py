@@ -161,13 +161,15 @@ DEMO_SWEEP: dict[str, Any] = {
     "metrics": ["add_s_or_add_01d", "ar", "acc_pi_6"],
     "estimators": [
         {"name": "oracle-5deg-5mm", "estimator": "oracle", "options": {"rot_noise_deg": 5.0, "trans_noise_mm": 5.0}},
+        {"name": "oracle-15deg-25mm", "estimator": "oracle",
+         "options": {"rot_noise_deg": 15.0, "trans_noise_mm": 25.0}},
         {"name": "icp", "estimator": "icp"},
     ],
     "dataset": {"generate": {"objects": "builtin-small", "scenes": 3, "frames_per_scene": 3,
                              "camera": {"width": 320, "height": 240}}},
     "factors": {"occlusion": ["L1", "L2", "L3"], "corruptions": ["brightness", "frost", "snow", "fog"],
                 "severities": [4], "depth_noise": ["realsense-d435"]},
-    "grasp": {"episodes": 2, "objects": "builtin-small", "width": 160, "height": 120},
+    "grasp": {"episodes": 3, "objects": "builtin-small", "width": 160, "height": 120},
 }
 
 

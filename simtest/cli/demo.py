@@ -1,7 +1,7 @@
 """``simtest demo``: the main job end to end on the built-in defaults, a few minutes on 2 cores.
 
-Generates a small BOP dataset of the built-in objects, runs the demo robustness sweep on it (a noisy oracle
-and ICP; clean, occlusion L1-L3, brightness/frost/snow/fog at severity 4, RealSense-like depth noise; a few
+Generates a small BOP dataset of the built-in objects, runs the demo robustness sweep on it (two noisy
+oracles and ICP; clean, occlusion L1-L3, brightness/frost/snow/fog at severity 4, RealSense-like depth noise; a few
 closed-loop grasp episodes per cell) and prints where the dataset and the report are.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="generate a small dataset, run the demo robustness sweep, print the report path")
     p.add_argument("--out", default="demo_out", help="output folder (a previous demo there is resumed)")
-    p.add_argument("--episodes", type=int, default=None, help="grasp episodes per cell (default 2; 0 = none)")
+    p.add_argument("--episodes", type=int, default=None, help="grasp episodes per cell (default 3; 0 = none)")
     p.add_argument("--fresh", action="store_true", help="discard a previous demo in --out")
     p.set_defaults(func=run)
 
