@@ -11,7 +11,7 @@ from simtest.errors import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "grasp", help="closed-loop Panda grasping driven by a pose estimator (success rate with 95% CI)",
+        "grasp", help="closed-loop Panda grasping driven by a pose estimator (success rate with 95%% CI)",
         description="Run closed-loop grasp episodes: the Panda's wrist camera observes the target, the estimator "
                     "estimates its pose, a grasp planned from that estimate is executed, and success (lifted "
                     ">= 0.10 m and held 1 s) is recorded. Writes episodes.csv, summary.json and summary.md "

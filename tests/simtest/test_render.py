@@ -51,3 +51,19 @@ def test_renderer_errors_name_the_problem(small_config):
     with Renderer(scene.model, 32, 24) as r:
         with pytest.raises(RenderError, match="unknown camera 'nope'"):
             r.render(scene.data, "nope")
+
+
+def test_no_gl_backend_error_names_the_system_packages(monkeypatch, small_config):
+    """When no OpenGL context can be made, the error says which packages to install (no silent crash)."""
+    import simtest.render as render
+
+    objects = load_object_set(small_config.objects)
+    scene, _, _, _ = prepare_scene(small_config, objects, 0)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("eglInitialize failed")
+
+    monkeypatch.setattr(render, "_CONTEXT", {})
+    monkeypatch.setattr(render.mujoco, "GLContext", broken)
+    with pytest.raises(RenderError, match=r"eglInitialize failed.*libegl1.*libosmesa6"):
+        Renderer(scene.model, 32, 24)
