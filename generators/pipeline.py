@@ -142,8 +142,7 @@ def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndar
     return [(base.with_pose(view_to_camera_pose(v, poi)), None) for v in scene.spec.views]
 
 
-def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path, renderer_cache: dict | None = None
-                 ) -> SceneReport:
+def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -> SceneReport:
     """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole)."""
     from simtest.generators.annotate import annotate
     from simtest.render import Renderer
@@ -151,7 +150,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path, r
     t0 = time.perf_counter()
     scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
     cameras = scene_cameras(cfg, scene)
-    writer = SceneWriter(split_dir, scene_id, cameras[0][0], depth_scale=cfg.render.depth_scale,
+    writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}

@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.geometry import random_rotation
 from simtest.generators.config import GenerateConfig
 from simtest.objects import ObjectSet
 

@@ -72,7 +72,6 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
     """
     m, d = scene.model, scene.data
     bodies = _free_bodies(m)
-    instance_of = {b: i for i, b in enumerate(scene.instance_bodies)}
     dt = m.opt.timestep
     steps_max = int(np.ceil(cfg.settle_max_time / dt))
     quiet_steps = max(1, int(round(quiet_time / dt)))

@@ -322,7 +322,7 @@ def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     examples = _examples(cfg, out, conds)
     est_list = ", ".join(f"{html.escape(e.name)} (<code>{html.escape(e.estimator)}</code>"
                          f"{' ' + html.escape(json.dumps(e.options)) if e.options else ''})" for e in cfg.estimators)
-    body = [f"<h1>simtest robustness report</h1>", _headline(cfg, conds, summary),
+    body = ["<h1>simtest robustness report</h1>", _headline(cfg, conds, summary),
             f"<p>Estimators: {est_list}. Conditions: {html.escape(', '.join(c.name for c in conds))}. "
             f"Seed {cfg.seed}. Occlusion definition: {html.escape(cfg.factors.occlusion_definition)} (2D paste for "
             f"pose evaluation, physical occluders in the grasp scene).</p>",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["root_sequence", "child_sequence", "child_rng", "make_rng"]
+__all__ = ["root_sequence", "child_sequence", "child_rng"]
 
 
 def root_sequence(seed: int | None) -> np.random.SeedSequence:
@@ -45,10 +45,3 @@ def child_sequence(seed: int | None, *key: int) -> np.random.SeedSequence:
 def child_rng(seed: int | None, *key: int) -> np.random.Generator:
     """A ``numpy.random.Generator`` for the child at ``key`` (see :func:`child_sequence`)."""
     return np.random.default_rng(child_sequence(seed, *key))
-
-
-def make_rng(rng: np.random.Generator | int | None) -> np.random.Generator:
-    """Accept a Generator or an int seed and return a Generator (``None`` means fresh entropy)."""
-    if isinstance(rng, np.random.Generator):
-        return rng
-    return np.random.default_rng(root_sequence(rng))

@@ -185,7 +185,7 @@ def visible_points(cloud: ModelCloud, dirs: np.ndarray, step: int = 1) -> np.nda
     """
     P, Nrm = cloud.points[::step], cloud.normals[::step]
     dirs = np.atleast_2d(dirs)
-    M, N = len(dirs), len(P)
+    M = len(dirs)
     helper = np.where(np.abs(dirs[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
     e1 = np.cross(dirs, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)

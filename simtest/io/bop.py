@@ -25,7 +25,7 @@ import numpy as np
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.geometry import Pose
-from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json, dump_json_keyed
+from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed
 
 __all__ = [
     "MM_PER_M", "ImageGT", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
@@ -124,7 +124,7 @@ class SceneWriter:
     which :meth:`close` of a later run replaces).
     """
 
-    def __init__(self, split_dir: str | Path, scene_id: int, camera: CameraModel, depth_scale: float = 0.1,
+    def __init__(self, split_dir: str | Path, scene_id: int, depth_scale: float = 0.1,
                  rgb_format: str = "png", jpg_quality: int = 95, coco: bool = False) -> None:
         self.final_dir = Path(split_dir) / f"{scene_id:06d}"
         self.dir = Path(split_dir) / f".{scene_id:06d}.partial"
@@ -133,7 +133,6 @@ class SceneWriter:
         for sub in ("rgb", "depth", "mask", "mask_visib"):
             (self.dir / sub).mkdir(parents=True)
         self.scene_id = scene_id
-        self.camera = camera
         self.depth_scale = float(depth_scale)
         self.rgb_format = rgb_format
         self.jpg_quality = int(jpg_quality)
@@ -311,7 +310,3 @@ def read_mask(scene_dir: str | Path, im_id: int, gt_id: int, visible: bool = Tru
     if m is None:
         raise DatasetError(f"{p}: mask is missing or unreadable")
     return m > 127
-
-
-def manifest_text(manifest: dict) -> str:
-    return dump_json(manifest)

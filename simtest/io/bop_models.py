@@ -19,9 +19,7 @@ Every file is written atomically (a temporary file in the same folder, then ``os
 from __future__ import annotations
 
 import json
-import os
 import re
-import tempfile
 import warnings
 from pathlib import Path
 
