@@ -22,6 +22,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.rng import child_sequence
+from simtest.io.files import jsonable
 
 __all__ = ["GraspRunConfig", "GraspRunReport", "episode_seed", "wilson_interval", "run_grasp_episodes",
            "summarize", "noise_sweep", "NoiseSweepResult", "write_video"]
@@ -332,18 +333,6 @@ def summary_markdown(s: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _clean(v: Any) -> Any:
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    if isinstance(v, dict):
-        return {k: _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, np.generic):
-        return _clean(v.item())
-    return v
-
-
 def _write_outputs(report: GraspRunReport, out: Path) -> None:
     from simtest.io.files import atomic_write_json
 
@@ -354,7 +343,7 @@ def _write_outputs(report: GraspRunReport, out: Path) -> None:
         for r in report.rows:
             w.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()})
     tmp.replace(out / "episodes.csv")
-    atomic_write_json(out / "summary.json", _clean(report.summary))
+    atomic_write_json(out / "summary.json", jsonable(report.summary))
     (out / "summary.md").write_text(summary_markdown(report.summary), encoding="utf-8")
 
 

@@ -35,8 +35,6 @@ column headers).
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import logging
 import math
@@ -55,7 +53,7 @@ from simtest.estimators.base import Estimator, Observation, load_estimator
 from simtest.estimators.base import PoseEstimate as EstimatorPose
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
-from simtest.io.files import atomic_write_text
+from simtest.io.files import atomic_write_text, csv_text, jsonable
 from simtest.metrics.auc import ADDS_2CM, YCB_AUC_MAX_THRESHOLD, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, evaluate_bop19
 from simtest.metrics.bop19 import PoseEstimate as ResultRow
@@ -180,8 +178,8 @@ class EvalReport:
         return format_table(self)
 
     def to_json(self) -> dict[str, Any]:
-        return {"settings": self.settings, "num_images": self.num_images, "overall": _jsonable(self.overall),
-                "per_object": {str(k): {"name": self.object_names.get(k, str(k)), **_jsonable(v)}
+        return {"settings": self.settings, "num_images": self.num_images, "overall": jsonable(self.overall),
+                "per_object": {str(k): {"name": self.object_names.get(k, str(k)), **jsonable(v)}
                                for k, v in sorted(self.per_object.items())},
                 "num_failures": len(self.failures),
                 "definitions": METRIC_DEFINITIONS}
@@ -203,18 +201,6 @@ METRIC_DEFINITIONS = {
            "px at 640 px width); ar = mean of the evaluated ones",
     "units": "distances in metres (keys ending _m), angles in degrees (_deg), time in seconds (_s)",
 }
-
-
-def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, (float, np.floating)):
-            out[k] = float(v) if math.isfinite(float(v)) else None
-        elif isinstance(v, (np.integer,)):
-            out[k] = int(v)
-        else:
-            out[k] = v
-    return out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -517,7 +503,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
     settings = {"dataset": str(root), "split": split, "estimator": _describe(estimator, est), "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "estimator_options": _jsonable(estimator_options or {})}
+                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {})}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings)
     if out_dir is not None:
@@ -588,15 +574,6 @@ _ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diamet
 _FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message"]
 
 
-def _csv_text(rows: list[dict[str, Any]], columns: list[str], header_units: dict[str, str] | None = None) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(columns)
-    for r in rows:
-        w.writerow(["" if r.get(c) is None else (int(r[c]) if isinstance(r.get(c), bool) else r[c]) for c in columns])
-    return buf.getvalue()
-
-
 def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
@@ -608,8 +585,8 @@ def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
     paths["table"] = out / "metrics.md"
     report.paths = paths
     atomic_write_text(paths["metrics"], json.dumps(report.to_json(), indent=2) + "\n")
-    atomic_write_text(paths["errors"], _csv_text(report.errors, _ERROR_COLUMNS))
-    atomic_write_text(paths["failures"], _csv_text(report.failures, _FAILURE_COLUMNS))
+    atomic_write_text(paths["errors"], csv_text(report.errors, _ERROR_COLUMNS))
+    atomic_write_text(paths["failures"], csv_text(report.failures, _FAILURE_COLUMNS))
     atomic_write_text(paths["table"], format_table(report))
 
 

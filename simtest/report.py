@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.io.files import atomic_write_text
+from simtest.io.files import atomic_write_text, write_csv
 
 __all__ = ["write_outputs", "fit_logistic"]
 
@@ -37,7 +37,8 @@ def _f(v: Any) -> float:
 
 
 def _collect(cfg, out: Path, conds) -> tuple[list[dict], list[dict]]:
-    from simtest.sweep import _cell_dir, read_csv
+    from simtest.io.files import read_csv
+    from simtest.sweep import _cell_dir
 
     results, summary = [], []
     for cond in conds:
@@ -311,8 +312,6 @@ def _headline(cfg, conds, summary: list[dict]) -> str:
 
 def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     """Write ``results.csv``, ``summary.csv``, ``tables.md`` and ``report.html`` from the finished cells."""
-    from simtest.sweep import write_csv
-
     results, summary = _collect(cfg, out, conds)
     write_csv(out / "results.csv", results, RESULT_COLUMNS)
     write_csv(out / "summary.csv", summary, SUMMARY_COLUMNS)

@@ -14,19 +14,15 @@ This is an orchestration module: it drives :mod:`simtest.generators`, :mod:`simt
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
-from simtest.io.files import atomic_write_json, atomic_write_text
+from simtest.io.files import atomic_write_json, jsonable
 from simtest.schema import bounds, build, read_config_file, to_plain
 
 __all__ = ["SweepConfig", "EstimatorEntry", "Condition", "SweepReport", "load_sweep_config", "run_sweep",
@@ -351,35 +347,5 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
                          seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
                          width=g.width, height=g.height, workers=cfg.workers, **cond.grasp_settings())
     rep = run_grasp_episodes(run, cdir, progress=False)
-    atomic_write_json(cdir / "cell.json", {"kind": "grasp", "estimator": est.name, "summary": _clean(rep.summary),
+    atomic_write_json(cdir / "cell.json", {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
                                            "seconds": time.perf_counter() - t0})
-
-
-def _clean(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (float, np.floating)):
-        return float(v) if math.isfinite(float(v)) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    return v
-
-
-def read_csv(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
-def csv_text(rows: list[dict[str, Any]], columns: list[str]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow(r)
-    return buf.getvalue()
-
-
-def write_csv(path: Path, rows: list[dict[str, Any]], columns: list[str]) -> None:
-    atomic_write_text(path, csv_text(rows, columns))
