@@ -22,38 +22,34 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
 from simtest.rng import child_rng
+from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_json, read_mask,
+                            scene_dirs)
 from simtest.io.files import atomic_write_bytes as _atomic_write
+from simtest.io.files import dump_json_keyed
 
 __all__ = ["corrupt_dataset", "depth_png_to_m", "depth_m_to_png", "find_scenes"]
 
-_SCENE_RE = re.compile(r"^\d{6}$")
 _JPEG_QUALITY = 95
 
 
 def depth_png_to_m(png: np.ndarray, depth_scale: float) -> np.ndarray:
     """BOP depth PNG values -> metres (0 stays 0), float32; see :func:`simtest.io.bop.decode_depth`."""
-    from simtest.io.bop import decode_depth
-
     return decode_depth(png, depth_scale)
 
 
 def depth_m_to_png(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     """Metres -> BOP depth PNG values (uint16; missing and out-of-range become 0); see
     :func:`simtest.io.bop.encode_depth`."""
-    from simtest.io.bop import encode_depth
-
     return encode_depth(depth_m, depth_scale)
 
 
@@ -65,37 +61,10 @@ def _atomic_copy(src: Path, dst: Path) -> None:
     os.replace(tmp, dst)
 
 
-def _encode(image: np.ndarray, suffix: str) -> bytes:
-    params = [cv2.IMWRITE_JPEG_QUALITY, _JPEG_QUALITY] if suffix.lower() in (".jpg", ".jpeg") else []
-    ok, buf = cv2.imencode(suffix, image, params)
-    if not ok:
-        raise DatasetError(f"could not encode an image as {suffix!r}")
-    return buf.tobytes()
-
-
-def _read_json(path: Path) -> Any:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"cannot read {path}: {exc}") from exc
-
-
-def _read_image(path: Path, flags: int) -> np.ndarray:
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise DatasetError(f"cannot read image {path}")
-    return img
-
-
 def find_scenes(dataset: Path) -> list[Path]:
-    """Scene folders ``DATASET/<split>/<6 digits>/`` holding a ``scene_camera.json``, sorted."""
-    scenes = []
-    for split in sorted(p for p in dataset.iterdir() if p.is_dir()):
-        for scene in sorted(p for p in split.iterdir() if p.is_dir() and _SCENE_RE.match(p.name)):
-            if (scene / "scene_camera.json").is_file():
-                scenes.append(scene)
-    return scenes
+    """Complete scene folders ``DATASET/<split>/<6 digits>/`` holding a ``scene_camera.json``, sorted."""
+    return [scene for split in sorted(p for p in dataset.iterdir() if p.is_dir())
+            for scene in scene_dirs(split) if (scene / "scene_camera.json").is_file()]
 
 
 def _prepare_out(in_dir: Path, out_dir: Path, overwrite: bool) -> None:
@@ -167,9 +136,9 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         for scene, rgb_path in work:
             if scene not in cache:
                 cache[scene] = {
-                    "camera": _read_json(scene / "scene_camera.json"),
-                    "gt": _read_json(scene / "scene_gt.json") if (scene / "scene_gt.json").is_file() else {},
-                    "gt_info": (_read_json(scene / "scene_gt_info.json")
+                    "camera": read_json(scene / "scene_camera.json"),
+                    "gt": read_json(scene / "scene_gt.json") if (scene / "scene_gt.json").is_file() else {},
+                    "gt_info": (read_json(scene / "scene_gt_info.json")
                                 if (scene / "scene_gt_info.json").is_file() else None),
                 }
             meta = cache[scene]
@@ -185,8 +154,7 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     for scene in gt_info_dirty:
         info_path = scene / "scene_gt_info.json"
         if cache[scene]["gt_info"] is not None:
-            _atomic_write(dst / info_path.relative_to(src),
-                          json.dumps(cache[scene]["gt_info"], indent=2).encode("utf-8"))
+            _atomic_write(dst / info_path.relative_to(src), dump_json_keyed(cache[scene]["gt_info"]).encode("utf-8"))
             produced.add(info_path)
 
     # everything else byte-identical
@@ -227,8 +195,7 @@ def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: 
     if cam is None:
         raise DatasetError(f"image id {im_id} of {rgb_path} has no entry in {scene / 'scene_camera.json'}")
     K = np.asarray(cam["cam_K"], dtype=np.float64).reshape(3, 3) if "cam_K" in cam else None
-    bgr = _read_image(rgb_path, cv2.IMREAD_COLOR)
-    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    rgb = read_image(scene, im_id)
     h, w = rgb.shape[:2]
 
     depth = None
@@ -237,25 +204,26 @@ def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: 
     if spec.depth_noise is not None:
         if not depth_path.is_file():
             raise DatasetError(f"depth noise asked but {depth_path} is missing")
-        depth = depth_png_to_m(_read_image(depth_path, cv2.IMREAD_UNCHANGED), depth_scale)
+        depth = read_depth(scene, im_id, depth_scale)
 
     visib_paths: list[Path] = []
     masks = None
     if spec.occlusion is not None:
         n_gt = len(meta["gt"].get(str(im_id), []))
         visib_paths = [scene / "mask_visib" / f"{im_id:06d}_{g:06d}.png" for g in range(n_gt)]
-        masks = [(_read_image(p, cv2.IMREAD_GRAYSCALE) > 0) if p.is_file() else np.zeros((h, w), bool)
-                 for p in visib_paths]
+        masks = [read_mask(scene, im_id, g) if p.is_file() else np.zeros((h, w), bool)
+                 for g, p in enumerate(visib_paths)]
 
     rng = child_rng(seed, scene_id, im_id)
     out_rgb, out_depth, occ, info = spec.apply_with_info(rgb, depth, masks if masks is not None else [], rng, K)
 
     if change_rgb:
         _atomic_write(dst / rgb_path.relative_to(src),
-                      _encode(cv2.cvtColor(out_rgb, cv2.COLOR_RGB2BGR), rgb_path.suffix))
+                      encode_image(np.ascontiguousarray(out_rgb[..., ::-1]), rgb_path.suffix,
+                                   jpg_quality=_JPEG_QUALITY))
         produced.add(rgb_path)
     if spec.depth_noise is not None:
-        _atomic_write(dst / depth_path.relative_to(src), _encode(depth_m_to_png(out_depth, depth_scale), ".png"))
+        _atomic_write(dst / depth_path.relative_to(src), encode_image(encode_depth(out_depth, depth_scale)))
         produced.add(depth_path)
     if spec.occlusion is None:
         return None
@@ -264,7 +232,7 @@ def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: 
     infos = meta["gt_info"].get(str(im_id)) if meta["gt_info"] is not None else None
     for g, (p, old, new) in enumerate(zip(visib_paths, masks, new_masks)):
         if p.is_file() and not np.array_equal(old, new):
-            _atomic_write(dst / p.relative_to(src), _encode(new.astype(np.uint8) * 255, ".png"))
+            _atomic_write(dst / p.relative_to(src), encode_image(new.astype(np.uint8) * 255, mask=True))
             produced.add(p)
         if infos is not None and g < len(infos):
             infos[g].update(visibility_stats(new, int(infos[g].get("px_count_all", 0))))

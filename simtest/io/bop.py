@@ -18,6 +18,7 @@ import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,7 +29,7 @@ from simtest.geometry import Pose
 from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed
 
 __all__ = [
-    "MM_PER_M", "ImageGT", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
+    "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
 ]
 
@@ -79,6 +80,18 @@ def _png(img: np.ndarray, mask: bool = False) -> bytes:
     if not ok:  # pragma: no cover
         raise DatasetError("PNG encoding failed")
     return buf.tobytes()
+
+
+def encode_image(img: np.ndarray, suffix: str = ".png", mask: bool = False, jpg_quality: int = 95) -> bytes:
+    """Encode a BGR, grey or 16-bit image as ``.png`` (see :func:`_png`) or ``.jpg`` (``jpg_quality``)."""
+    if suffix.lower() in (".jpg", ".jpeg"):
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(jpg_quality)])
+        if not ok:  # pragma: no cover
+            raise DatasetError("JPEG encoding failed")
+        return buf.tobytes()
+    if suffix.lower() != ".png":
+        raise DatasetError(f"cannot write images as {suffix!r}; use .png or .jpg")
+    return _png(img, mask)
 
 
 def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float) -> None:
@@ -174,8 +187,8 @@ class SceneWriter:
         if self.rgb_format == "jpg":
             path = self.dir / "rgb" / f"{im_id:06d}.jpg"
             q = self.jpg_quality
-            self._pending.append(self._pool.submit(lambda: atomic_write_bytes(
-                path, cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, q])[1].tobytes())))
+            self._pending.append(self._pool.submit(
+                lambda: atomic_write_bytes(path, encode_image(bgr, ".jpg", jpg_quality=q))))
         else:
             self._write_png(self.dir / "rgb" / f"{im_id:06d}.png", bgr)
         self._write_png(self.dir / "depth" / f"{im_id:06d}.png", encode_depth(depth_m, self.depth_scale))
@@ -241,7 +254,9 @@ def scene_dirs(split_dir: str | Path) -> list[Path]:
     return sorted(p for p in split_dir.iterdir() if p.is_dir() and p.name.isdigit() and len(p.name) == 6)
 
 
-def _load_json(path: Path) -> dict:
+def read_json(path: str | Path) -> Any:
+    """Parse a dataset JSON file; :class:`DatasetError` naming the file if it is missing or malformed."""
+    path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: file is missing")
     try:
@@ -257,10 +272,10 @@ def read_scene(scene_dir: str | Path) -> dict[int, dict]:
         ``{im_id: {"K": 3x3, "depth_scale": float, "T_cam_world": Pose | None, "gt": [ImageGT, ...]}}``.
     """
     scene_dir = Path(scene_dir)
-    cams = _load_json(scene_dir / "scene_camera.json")
-    gts = _load_json(scene_dir / "scene_gt.json")
+    cams = read_json(scene_dir / "scene_camera.json")
+    gts = read_json(scene_dir / "scene_gt.json")
     info_path = scene_dir / "scene_gt_info.json"
-    infos = _load_json(info_path) if info_path.exists() else {}
+    infos = read_json(info_path) if info_path.exists() else {}
     out: dict[int, dict] = {}
     for key, cam in cams.items():
         T_cw = pose_from_bop(cam["cam_R_w2c"], cam["cam_t_w2c"]) if "cam_R_w2c" in cam else None
