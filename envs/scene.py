@@ -33,6 +33,7 @@ from simtest.corrupt.occlusion import OCCLUSION_BANDS
 from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder, SimScene
 from simtest.generators.config import GenerateConfig
+from simtest.generators.occlusion import bisect_occlusion
 from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
 from simtest.geometry import Pose
 from simtest.objects import ObjectSet
@@ -397,7 +398,6 @@ def tune_occluder(scene: GraspScene, renderer, camera_id: int, q_observe: np.nda
     sim = scene.sim
     m = sim.model
     lo, hi = OCCLUSION_BANDS[definition][level][0]
-    goal = 0.5 * (lo + hi)
     scratch = mujoco.MjData(m)
     scratch.qpos[:] = sim.data.qpos
     scratch.qpos[sim.panda.arm_qpos] = q_observe
@@ -434,19 +434,9 @@ def tune_occluder(scene: GraspScene, renderer, camera_id: int, q_observe: np.nda
     if n_free == 0:
         h_best, f_best = 0.02, 0.0
     else:
-        a, b = 0.005, float(min(cam_pos[2] - table_z - 0.08, 0.35))
-        h_best, f_best = b, 1.0 - visible(b) / n_free
-        for _ in range(steps):
-            mid = 0.5 * (a + b)
-            f = 1.0 - visible(mid) / n_free
-            if abs(f - goal) < abs(f_best - goal):
-                h_best, f_best = mid, f
-            if abs(f - goal) < 0.03:
-                break
-            if f < goal:
-                a = mid
-            else:
-                b = mid
+        h_best, f_best = bisect_occlusion(lambda h: 1.0 - visible(h) / n_free, 0.005,
+                                          float(min(cam_pos[2] - table_z - 0.08, 0.35)), (lo, hi), steps=steps,
+                                          tol=0.03)
     half = np.array([OCCLUDER_THICKNESS / 2, half_w, h_best / 2])
     pos = np.array([centre[0], centre[1], table_z + h_best / 2 + 0.0005])
     _set_box(scene, sim.data, half, pos, yaw)

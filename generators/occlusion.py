@@ -32,7 +32,7 @@ from simtest.generators.builder import N_OCCLUDERS, SimScene
 from simtest.geometry import Pose
 from simtest.render import Renderer
 
-__all__ = ["OcclusionRecord", "measured_level", "occlude_view", "hide_occluders"]
+__all__ = ["OcclusionRecord", "measured_level", "occlude_view", "hide_occluders", "bisect_occlusion"]
 
 _BISECT_STEPS = 10
 
@@ -69,6 +69,41 @@ def measured_level(occluded_fraction: float, definition: str = "pascal3d+") -> s
         if occluded_fraction < hi or level == 3 and occluded_fraction <= hi:
             return f"L{level}"
     return "L3+"
+
+
+def bisect_occlusion(occluded_at, less: float, more: float, band: tuple[float, float], steps: int = _BISECT_STEPS,
+                     tol: float = 0.05) -> tuple[float, float]:
+    """Bisect an occluder parameter until the occluded fraction is near the middle of ``band``.
+
+    Args:
+        occluded_at: ``x -> occluded fraction`` in [0, 1]; places the occluder at ``x`` and measures (a render).
+        less, more: Parameter values giving less and more occlusion (either order on the number line).
+        band: ``(lo, hi)`` occluded-fraction band; the goal is its middle.
+        steps: Maximum bisection steps.
+        tol: Stop once within ``tol`` of the goal.
+
+    Returns:
+        ``(x, fraction)`` of the evaluated value closest to the goal; when even ``more`` stays below the band,
+        ``(more, its fraction)`` without bisecting.
+    """
+    lo, hi = band
+    goal = 0.5 * (lo + hi)
+    best = (more, occluded_at(more))
+    if best[1] < lo:
+        return best
+    a, b = less, more
+    for _ in range(steps):
+        mid = 0.5 * (a + b)
+        f = occluded_at(mid)
+        if abs(f - goal) < abs(best[1] - goal):
+            best = (mid, f)
+        if abs(f - goal) < tol:
+            break
+        if f < goal:
+            a = mid
+        else:
+            b = mid
+    return best
 
 
 def _geoms(scene: SimScene) -> list[tuple[int, int, int]]:
@@ -127,7 +162,6 @@ def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level
     if level == "L0" or not _geoms(scene):
         return rec
     lo, hi = OCCLUSION_BANDS[definition][int(level[1])][0]
-    goal = 0.5 * (lo + hi)
     visible = _visible_counts(scene, renderer)
     # Target: the most visible instance that is mostly in view (its visible fraction is what we lower).
     cands = [(visible[i] / px_count_all[i], visible[i], i) for i in px_count_all
@@ -146,11 +180,8 @@ def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level
     def occluded() -> float:
         return 1.0 - _visible_counts(scene, renderer)[target] / n_all
 
-    tries = []
-    if standing_first:
-        tries.append("standing")
-    tries.append("floating")
-    for kind in tries:
+    kinds = (["standing"] if standing_first else []) + ["floating"]
+    for kind in kinds:
         if kind == "standing":
             to_cam = eye[:2] - t_obj[:2]
             dist = float(np.linalg.norm(to_cam))
@@ -169,14 +200,11 @@ def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level
             R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
             h_max = max(0.02, min(eye[2] - table_height - 0.05, 0.6))
 
-            def place(s: float) -> None:
+            def place(s: float) -> None:  # s in [0, 1]: the box's height as a fraction of h_max
                 h = max(s * h_max, 1e-3)
                 _place(scene, camera, np.array([thick / 2, width / 2, h / 2]),
                        np.array([centre_xy[0], centre_xy[1], table_height + h / 2]), R)
-            s_lo, s_hi = 0.0, 1.0  # occlusion grows with s
-            place(s_hi)
-            if occluded() < lo:
-                continue
+            less, more = 0.0, 1.0
         else:
             d = float(np.linalg.norm(t_obj - eye))
             alpha = rng.uniform(0.35, 0.65)  # plate position along the line of sight
@@ -190,29 +218,23 @@ def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level
             def place(s: float) -> None:  # s = 0: plate centred on the line of sight; 1: fully aside
                 pos = eye + view * d * alpha + direction * (span * s)
                 _place(scene, camera, np.array([half_w, half_w, 0.003]), pos, R)
-            s_lo, s_hi = 1.0, 0.0  # occlusion grows as s decreases: bisect on reversed ends
-        # Bisection on s between s_lo (less occlusion) and s_hi (more occlusion).
-        best = None
-        a, b = s_lo, s_hi
-        for _ in range(_BISECT_STEPS):
-            mid = 0.5 * (a + b)
-            place(mid)
-            f = occluded()
-            if best is None or abs(f - goal) < abs(best[1] - goal):
-                best = (mid, f)
-            if lo <= f <= hi and abs(f - goal) < 0.05:
-                break
-            if f < goal:
-                a = mid
-            else:
-                b = mid
-        place(best[0])
+            less, more = 1.0, 0.0
+
+        def occluded_at(s: float) -> float:
+            place(s)
+            return occluded()
+
+        s_best, f_best = bisect_occlusion(occluded_at, less, more, (lo, hi))
+        if kind == "standing" and f_best < lo:
+            continue  # too short even at full height: try the floating plate
+        place(s_best)
         rec.kind = kind
-        rec.occluded_fraction = float(best[1])
-        rec.in_band = bool(lo <= best[1] <= hi)
-        mid_, g, body = _geoms(scene)[0]
+        rec.occluded_fraction = float(f_best)
+        rec.in_band = bool(lo <= f_best <= hi)
+        mid_, g, _ = _geoms(scene)[0]
         rec.occluder_size = [float(v) for v in scene.model.geom_size[g]]
         rec.occluder_pos = [float(v) for v in scene.data.mocap_pos[mid_]]
         if rec.in_band:
             return rec
+    return rec
     return rec
