@@ -34,7 +34,8 @@ from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder, SimScene
 from simtest.generators.config import GenerateConfig
 from simtest.generators.occlusion import bisect_occlusion
-from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
+from simtest.generators.scene_spec import (DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec,
+                                          random_quat_wxyz)
 from simtest.geometry import Pose
 from simtest.objects import ObjectSet
 
@@ -119,12 +120,6 @@ class GraspScene:
 
 def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
     return (float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2)))
-
-
-def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    return tuple(float(v) for v in (q if q[0] >= 0 else -q))
 
 
 def _jitter(rgb, rng: np.random.Generator, amount: float = 0.08) -> tuple[float, float, float]:
@@ -267,7 +262,7 @@ def build_grasp_scene(
             quat = tuple(float(v) for v in Pose(R, np.zeros(3)).quat_wxyz())
         else:
             z = table_z + obj.diameter / 2.0 + 0.01
-            quat = _random_quat(rng)
+            quat = random_quat_wxyz(rng)
         return (float(xy[0]), float(xy[1]), float(z)), quat
 
     def placement_of(obj, xy: np.ndarray) -> ObjectPlacement:

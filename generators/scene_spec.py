@@ -17,7 +17,7 @@ from simtest.generators.config import GenerateConfig
 from simtest.objects import ObjectSet
 
 __all__ = [
-    "ObjectPlacement", "DistractorSpec", "LightSpec", "SurfaceSpec", "ViewSpec", "SceneSpec", "PlacementError",
+    "ObjectPlacement", "DistractorSpec", "random_quat_wxyz", "LightSpec", "SurfaceSpec", "ViewSpec", "SceneSpec", "PlacementError",
     "sample_scene_spec",
 ]
 
@@ -119,7 +119,8 @@ def _jitter_colour(rgba, amount: float, rng: np.random.Generator) -> tuple[float
     return (float(rgb[0]), float(rgb[1]), float(rgb[2]), 1.0)
 
 
-def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
+def random_quat_wxyz(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    """A uniformly random unit quaternion (w, x, y, z) with w >= 0, drawn with ``rng``."""
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     if q[0] < 0:
@@ -178,7 +179,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         pos = place(obj.diameter / 2.0)
         rgba = _jitter_colour(obj.rgba, mat.colour_jitter, rng) if mat.randomize_object_colour else obj.rgba
         placements.append(ObjectPlacement(
-            obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=_random_quat(rng), rgba=rgba,
+            obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=random_quat_wxyz(rng), rgba=rgba,
             specular=float(rng.uniform(*mat.specular)), shininess=float(rng.uniform(*mat.shininess)),
             reflectance=float(rng.uniform(*mat.reflectance))))
 
@@ -189,7 +190,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         size = (float(dims[0]), float(dims[1]), float(dims[2]))
         radius = float(np.linalg.norm(dims)) if shape == "box" else float(dims[0] + dims[1])
         pos = place(radius)
-        distractors.append(DistractorSpec(shape, size, tuple(float(v) for v in pos), _random_quat(rng),
+        distractors.append(DistractorSpec(shape, size, tuple(float(v) for v in pos), random_quat_wxyz(rng),
                                           (*_colour(rng), 1.0)))
 
     lc = cfg.lights
