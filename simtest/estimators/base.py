@@ -51,6 +51,16 @@ class Observation:
     scene_id: int = -1
     im_id: int = -1
 
+    def rng(self, seed: int) -> np.random.Generator:
+        """An estimator's generator for this image: seeded by ``(seed, scene_id, im_id)``, so results do not
+        depend on the order images are processed in."""
+        return np.random.default_rng([int(seed), max(self.scene_id, 0), max(self.im_id, 0)])
+
+    def require_targets(self, estimator: str) -> None:
+        """Raise :class:`ConfigError` unless target ids and visible masks were given (``targets='gt-masks'``)."""
+        if self.target_obj_ids is None or self.masks is None:
+            raise ConfigError(f"{estimator}: needs target object ids and masks; evaluate with targets='gt-masks'")
+
 
 @dataclass(frozen=True)
 class PoseEstimate:

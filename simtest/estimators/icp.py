@@ -360,9 +360,8 @@ class ICPEstimator:
         """
         self.last_failures = []
         obs = observation
-        if obs.target_obj_ids is None or obs.masks is None:
-            raise ConfigError("icp: needs target object ids and masks; evaluate with targets='gt-masks'")
-        rng = np.random.default_rng([self.seed, max(obs.scene_id, 0), max(obs.im_id, 0)])
+        obs.require_targets("icp")
+        rng = obs.rng(self.seed)
         K = np.asarray(obs.K, dtype=np.float64)
         depth = np.asarray(obs.depth, dtype=np.float64)
         out = []

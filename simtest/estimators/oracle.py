@@ -91,7 +91,7 @@ class OracleEstimator:
         if observation.gt_poses is None or observation.target_obj_ids is None:
             raise ConfigError("oracle: the observation has no gt_poses / target_obj_ids; evaluate with "
                               "targets='gt-masks' (the oracle needs ground-truth targets)")
-        rng = np.random.default_rng([self.seed, max(observation.scene_id, 0), max(observation.im_id, 0)])
+        rng = observation.rng(self.seed)
         out = []
         for k, (obj_id, (R_g, t_g)) in enumerate(zip(observation.target_obj_ids, observation.gt_poses)):
             # Draw every number whether or not it is used, so options do not shift the stream.

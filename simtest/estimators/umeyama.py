@@ -226,11 +226,10 @@ class UmeyamaEstimator:
         """
         self.last_failures = []
         obs = observation
-        if obs.target_obj_ids is None or obs.masks is None:
-            raise ConfigError("umeyama: needs target object ids and masks; evaluate with targets='gt-masks'")
+        obs.require_targets("umeyama")
         if self.needs_gt and obs.gt_poses is None:
             raise ConfigError("umeyama: correspondences='nocs-oracle' needs ground-truth poses in the observation")
-        rng = np.random.default_rng([self.seed, max(obs.scene_id, 0), max(obs.im_id, 0)])
+        rng = obs.rng(self.seed)
         K = np.asarray(obs.K, dtype=np.float64)
         depth = np.asarray(obs.depth, dtype=np.float64)
         out = []
