@@ -231,7 +231,8 @@ class PoseDataset:
         split: Split folder, e.g. ``"train_pbr"``.
         scenes: Scene ids to use (default all).
         objects: Object set the classes and keypoints come from (default: the dataset's own, via
-            :func:`simtest.eval.load_dataset_objects`); instances of other objects are dropped.
+            :func:`simtest.eval.load_dataset_objects`, and then a ground-truth ``obj_id`` outside it is an
+            error); with a given set, instances of other objects are dropped.
         keypoints: ``"bbox"`` (8 corners) or ``"fps"`` (the model's farthest-point-sampled points).
         transform: ``f(sample, rng) -> sample`` on numpy arrays (e.g. :class:`Corrupt`, :class:`Compose`,
             :func:`augmentation`), seeded by :func:`sample_rng`.
@@ -248,7 +249,8 @@ class PoseDataset:
         max_images: Use only the first N images.
 
     Raises:
-        DatasetError: Missing split or no image.
+        DatasetError: Missing dataset folder or split, no image, or malformed ground truth (see
+            :func:`simtest.io.bop.read_scene_files`).
         ConfigError: Bad keypoint type, crop or seed.
     """
 
@@ -280,10 +282,14 @@ class PoseDataset:
         self.symmetry_canonical = bool(symmetry_canonical)
         self.amodal_masks = bool(amodal_masks)
         self.rgb_dtype = rgb_dtype
+        # With the dataset's own objects an unknown ground-truth obj_id is an error; with a given object set,
+        # instances of other objects are dropped.
+        gt_obj_ids = None
         if objects is None:
             from simtest.eval import load_dataset_objects
 
             objects = load_dataset_objects(self.root)
+            gt_obj_ids = [int(o.obj_id) for o in objects]
         #: Object ids in class order: class ``c`` (1-based) is ``class_ids[c - 1]``.
         self.class_ids: tuple[int, ...] = tuple(sorted(int(o.obj_id) for o in objects))
         by_id = {int(o.obj_id): o for o in objects}
@@ -294,10 +300,7 @@ class PoseDataset:
             i: (np.asarray(by_id[i].symmetry_transforms(), np.float64) if by_id[i].is_symmetric else np.eye(4)[None])
             for i in self.class_ids}
 
-        split_dir = Path(self.root) / split
-        if not split_dir.is_dir():
-            have = sorted(p.name for p in Path(self.root).iterdir() if p.is_dir()) if Path(self.root).is_dir() else []
-            raise DatasetError(f"{split_dir}: split folder not found (dataset folders: {', '.join(have) or 'none'})")
+        split_dir = bop.dataset_split_dir(self.root, split)
         dirs = bop.scene_dirs(split_dir)
         if scenes is not None:
             want = {int(s) for s in scenes}
@@ -307,7 +310,7 @@ class PoseDataset:
             dirs = [d for d in dirs if int(d.name) in want]
         entries: list[_ImageEntry] = []
         for d in dirs:
-            for im_id, info in sorted(bop.read_scene(d).items()):
+            for im_id, info in sorted(bop.read_scene(d, gt_obj_ids).items()):
                 keep = [(j, g) for j, g in enumerate(info["gt"])
                         if g.obj_id in by_id and (g.visib_fract >= min_visib_fract or g.visib_fract < 0)]
                 inst = tuple((j, g.obj_id, tuple(g.T_cam_obj.R.reshape(-1).tolist()), tuple(g.T_cam_obj.t.tolist()))

@@ -78,9 +78,11 @@ def load_dataset_objects(dataset_dir: str | Path):
     ``object_set`` (a built-in name or a path).
 
     Raises:
-        DatasetError: Neither exists.
+        DatasetError: The folder does not exist, or neither models nor an object set is there.
     """
     root = Path(dataset_dir)
+    if not root.is_dir():
+        raise DatasetError(f"dataset folder {root} does not exist")
     models_dir = root / "models"
     if (models_dir / "models_info.json").is_file():
         from simtest.io.bop_models import read_bop_models
@@ -88,7 +90,8 @@ def load_dataset_objects(dataset_dir: str | Path):
         return read_bop_models(models_dir)
     manifest = root / "manifest.json"
     if manifest.is_file():
-        name = json.loads(manifest.read_text()).get("object_set")
+        data = bop.read_json(manifest)
+        name = data.get("object_set") if isinstance(data, dict) else None
         if name:
             from simtest.objects import load_object_set
 
@@ -106,11 +109,11 @@ class _ImageRef:
 
 
 def _iter_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
-                 max_images: int | None) -> list[_ImageRef]:
-    split_dir = dataset_dir / split
-    if not split_dir.is_dir():
-        have = sorted(p.name for p in dataset_dir.iterdir() if p.is_dir()) if dataset_dir.is_dir() else []
-        raise DatasetError(f"{split_dir}: split folder not found (dataset folders: {', '.join(have) or 'none'})")
+                 max_images: int | None, obj_ids: Iterable[int]) -> list[_ImageRef]:
+    """The selected images with their validated ground truth (:func:`simtest.io.bop.read_scene`; a ground-truth
+    ``obj_id`` outside ``obj_ids`` is a :class:`DatasetError`)."""
+    split_dir = bop.dataset_split_dir(dataset_dir, split)
+    obj_ids = sorted(obj_ids)
     if max_images is not None and int(max_images) < 1:
         raise ConfigError(f"max_images must be >= 1 or None, got {max_images!r}")
     dirs = bop.scene_dirs(split_dir)
@@ -123,7 +126,7 @@ def _iter_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
         dirs = [d for d in dirs if int(d.name) in want]
     refs: list[_ImageRef] = []
     for d in dirs:
-        frames = bop.read_scene(d)
+        frames = bop.read_scene(d, obj_ids)
         for im_id in sorted(frames):
             refs.append(_ImageRef(int(d.name), im_id, d, frames[im_id]))
             if max_images is not None and len(refs) >= int(max_images):
@@ -139,9 +142,9 @@ def _image_size(dataset_dir: Path, ref: _ImageRef) -> tuple[int, int]:
 
 
 def _targets(ref: _ImageRef, objects) -> list[tuple[int, bop.ImageGT]]:
-    """(gt_id, gt) of the instances that are scored: visib_fract >= VISIB_GT_MIN and a known model."""
-    known = set(objects.ids)
-    return [(j, g) for j, g in enumerate(ref.info["gt"]) if g.visib_fract >= VISIB_GT_MIN and g.obj_id in known]
+    """(gt_id, gt) of the instances that are scored: visib_fract >= VISIB_GT_MIN (every ground-truth object is
+    one of ``objects``: :func:`_iter_images` checked it)."""
+    return [(j, g) for j, g in enumerate(ref.info["gt"]) if g.visib_fract >= VISIB_GT_MIN]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -282,7 +285,7 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
 
     root = Path(dataset_dir)
     objects = load_dataset_objects(root) if objects is None else objects
-    refs = _refs if _refs is not None else _iter_images(root, split, scenes, max_images)
+    refs = _refs if _refs is not None else _iter_images(root, split, scenes, max_images, objects.ids)
     width, height = _image_size(root, refs[0])
     by_image: dict[tuple[int, int], list[ResultRow]] = defaultdict(list)
     for e in estimates:
@@ -436,7 +439,9 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     Raises:
         ConfigError: Unknown ``targets`` value or estimator, or an estimator needing ground truth with
             ``targets="none"``.
-        DatasetError: Missing split, scenes or models.
+        DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
+            ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
+            runs.
 
     An exception raised by the estimator on an image is recorded in ``failures.csv`` (its targets count as
     misses) and the run goes on. An estimator may also expose ``last_failures``: a list of
@@ -455,7 +460,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                           "targets='gt-masks'")
     objects = load_dataset_objects(root)
     known = set(objects.ids)
-    refs = _iter_images(root, split, scenes, max_images)
+    refs = _iter_images(root, split, scenes, max_images, known)
     width, height = _image_size(root, refs[0])
     results: list[ResultRow] = []
     scales: dict[int, float] = {}
@@ -536,7 +541,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     root = Path(dataset_dir)
     rows = read_bop_results(results_csv)
     objects = load_dataset_objects(root)
-    refs = _iter_images(root, split, scenes, max_images)
+    refs = _iter_images(root, split, scenes, max_images, objects.ids)
     selected = {(r.scene_id, r.im_id) for r in refs}
     known = set(objects.ids)
     failures = []

@@ -32,8 +32,8 @@ from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
 from simtest.rng import child_rng
-from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_json, read_mask,
-                            scene_dirs)
+from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_mask,
+                            read_scene_files, scene_dirs)
 from simtest.io.files import atomic_write_bytes as _atomic_write
 from simtest.io.files import dump_json_keyed
 
@@ -100,7 +100,8 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         The record written to ``out_dir/corruption.json``.
 
     Raises:
-        DatasetError: Missing or malformed input dataset, or a non-empty output without ``overwrite``.
+        DatasetError: Missing or malformed input dataset (scene files are checked by
+            :func:`simtest.io.bop.read_scene_files`), or a non-empty output without ``overwrite``.
         ConfigError: Bad seed or spec.
     """
     from tqdm import tqdm
@@ -118,6 +119,11 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     scenes = find_scenes(src)
     if not scenes:
         raise DatasetError(f"no BOP scene folders (<split>/<6-digit scene>/scene_camera.json) found in {src}")
+    # Every scene's JSON files are read and validated before anything is written; a split may lack ground truth.
+    cache: dict[Path, dict[str, Any]] = {}
+    for scene in scenes:
+        files = read_scene_files(scene, require_gt=False)
+        cache[scene] = {"camera": files.camera, "gt": files.gt or {}, "gt_info": files.gt_info}
     _prepare_out(src, dst, overwrite)
 
     work = []
@@ -129,18 +135,10 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
 
     produced: set[Path] = set()  # source files whose output was written by the corruption
     occlusion_records: list[dict[str, Any]] = []
-    cache: dict[Path, dict[str, Any]] = {}
     gt_info_dirty: set[Path] = set()
     bar = tqdm(total=len(work), desc=f"corrupt {spec.label()}", unit="img", disable=not progress)
     try:
         for scene, rgb_path in work:
-            if scene not in cache:
-                cache[scene] = {
-                    "camera": read_json(scene / "scene_camera.json"),
-                    "gt": read_json(scene / "scene_gt.json") if (scene / "scene_gt.json").is_file() else {},
-                    "gt_info": (read_json(scene / "scene_gt_info.json")
-                                if (scene / "scene_gt_info.json").is_file() else None),
-                }
             meta = cache[scene]
             scene_id, im_id = int(scene.name), int(rgb_path.stem)
             rec = _corrupt_image(src, dst, scene, rgb_path, scene_id, im_id, meta, spec, seed, change_rgb, produced)

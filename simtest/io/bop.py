@@ -14,8 +14,10 @@ Layout written::
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +33,8 @@ from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write
 __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
+    "dataset_split_dir", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
+    "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS",
 ]
 
 #: The only metres <-> millimetres factor in simtest.
@@ -99,20 +103,6 @@ def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float)
     atomic_write_json(path, {"cx": float(K[0, 2]), "cy": float(K[1, 2]), "depth_scale": float(depth_scale),
                              "fx": float(K[0, 0]), "fy": float(K[1, 1]), "height": camera.height,
                              "width": camera.width})
-
-
-def read_camera_json(path: str | Path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: camera.json is missing")
-    try:
-        data = json.loads(path.read_text())
-        for key in ("fx", "fy", "cx", "cy", "width", "height"):
-            if key not in data:
-                raise DatasetError(f"{path}: field {key!r} is missing")
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
-    return data
 
 
 @dataclass(frozen=True)
@@ -246,6 +236,23 @@ class SceneWriter:
 
 # ---------------------------------------------------------------------------------------------------------
 # Reading
+def dataset_split_dir(dataset_dir: str | Path, split: str) -> Path:
+    """The folder of ``split`` in a dataset; :class:`DatasetError` if the dataset or the split is missing.
+
+    The split error lists the splits found (folders holding ``<6-digit scene>`` folders).
+    """
+    root = Path(dataset_dir)
+    if not root.is_dir():
+        raise DatasetError(f"dataset folder {root} does not exist")
+    split_dir = root / split
+    if not split_dir.is_dir():
+        found = sorted(p.name for p in root.iterdir() if p.is_dir() and any(
+            c.is_dir() and c.name.isdigit() and len(c.name) == 6 for c in p.iterdir()))
+        raise DatasetError(f"dataset {root} has no split folder {split!r}; splits found: "
+                           f"{', '.join(found) or 'none (no folder holds 6-digit scene folders)'}")
+    return split_dir
+
+
 def scene_dirs(split_dir: str | Path) -> list[Path]:
     """Complete scene folders of a split (``000000``, ``000001``, ...), sorted; partial folders excluded."""
     split_dir = Path(split_dir)
@@ -255,40 +262,348 @@ def scene_dirs(split_dir: str | Path) -> list[Path]:
 
 
 def read_json(path: str | Path) -> Any:
-    """Parse a dataset JSON file; :class:`DatasetError` naming the file if it is missing or malformed."""
+    """Parse a dataset JSON file; :class:`DatasetError` naming the file (and line and column) if it is
+    missing, unreadable or malformed."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: file is missing")
     try:
-        return json.loads(path.read_text())
+        return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
+        raise DatasetError(f"{path}: not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read ({exc})") from None
 
 
-def read_scene(scene_dir: str | Path) -> dict[int, dict]:
-    """All annotations of one scene, in metres.
+def read_camera_json(path: str | Path) -> dict:
+    """The dataset's ``camera.json``: ``fx, fy > 0``, ``cx, cy`` finite, ``width, height`` positive integers,
+    ``depth_scale > 0`` if present (pixels; depth_scale in mm per depth unit)."""
+    path = Path(path)
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a JSON object with fx, fy, cx, cy, width, height")
+    for key in ("fx", "fy", "cx", "cy", "width", "height"):
+        if key not in data:
+            raise DatasetError(f"{path}: field {key!r} is missing")
+    for key in ("fx", "fy", "cx", "cy", "width", "height", "depth_scale"):
+        if key not in data:
+            continue
+        v = data[key]
+        ok = _is_number(v) and math.isfinite(v)
+        if key in ("width", "height"):
+            ok = ok and float(v).is_integer() and v >= 1
+            allowed = "a positive integer (pixels)"
+        elif key in ("fx", "fy", "depth_scale"):
+            ok = ok and v > 0
+            allowed = "a finite number > 0"
+        else:
+            allowed = "a finite number"
+        if not ok:
+            raise DatasetError(f"{path}: field {key!r} is {v!r}; allowed: {allowed}")
+    return data
+
+
+#: Largest allowed entry of ``|R^T R - I|`` of a stored rotation (BOP files round rotations to ~1e-6).
+ROT_TOL = 1e-3
+#: Fields every ``scene_gt_info.json`` entry has (as the BOP toolkit writes them).
+GT_INFO_FIELDS = ("bbox_obj", "bbox_visib", "px_count_all", "px_count_valid", "px_count_visib", "visib_fract")
+_GT_FIELDS = ("obj_id", "cam_R_m2c", "cam_t_m2c")
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _show(v: Any, limit: int = 120) -> str:
+    text = repr(v)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _image_ids(data: Any, path: Path, what: str) -> dict[int, Any]:
+    """``{im_id: value}`` of a scene file keyed by image id; checks it is an object with integer keys."""
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a JSON object mapping image ids to {what}, got "
+                           f"{type(data).__name__}")
+    out: dict[int, Any] = {}
+    for key, value in data.items():
+        try:
+            im = int(key)
+        except ValueError:
+            im = -1
+        if im < 0:
+            raise DatasetError(f"{path}: key {key!r} is not an image id; allowed: non-negative integers")
+        out[im] = value
+    return out
+
+
+def _array(values: list, empty_shape: tuple[int, ...]) -> np.ndarray | None:
+    """``np.array(values)`` (one C-level conversion), or None when the values are ragged."""
+    if not values:
+        return np.zeros(empty_shape)
+    try:
+        return np.array(values)
+    except (ValueError, TypeError):
+        return None
+
+
+def _rows(values: list, n: int, field: str, path: Path, where: Callable[[int], str]) -> np.ndarray:
+    """``(len(values), n)`` float64 array of lists of ``n`` finite numbers; the first bad entry is named."""
+    for i, v in enumerate(values):
+        if not isinstance(v, list) or len(v) != n:
+            raise DatasetError(f"{path}: {where(i)}: {field} is {_show(v)}; allowed: a list of {n} finite numbers")
+    arr = _array(values, (0, n))
+    if arr is None or arr.ndim != 2 or arr.dtype.kind not in "iuf":
+        i = next((i for i, v in enumerate(values) if not all(_is_number(x) for x in v)), 0)
+        raise DatasetError(f"{path}: {where(i)}: {field} is {_show(values[i])}; allowed: a list of {n} finite "
+                           "numbers")
+    arr = arr.astype(np.float64)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DatasetError(f"{path}: {where(i)}: {field} is {_show(values[i])} (NaN or infinite); allowed: {n} "
+                           "finite numbers")
+    return arr
+
+
+def _column(values: list, field: str, path: Path, where: Callable[[int], str], integer: bool = False) -> np.ndarray:
+    """1-D float64 array of single finite numbers (integers if ``integer``); the first bad entry is named."""
+    arr = _array(values, (0,))
+    kind = "an integer" if integer else "a finite number"
+    if arr is None or arr.ndim != 1 or arr.dtype.kind not in "iuf":
+        i = next((i for i, v in enumerate(values) if not _is_number(v)), 0)
+        raise DatasetError(f"{path}: {where(i)}: {field} is {_show(values[i])}; allowed: {kind}")
+    arr = arr.astype(np.float64)
+    bad = ~np.isfinite(arr) | ((arr != np.round(arr)) if integer else False)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise DatasetError(f"{path}: {where(i)}: {field} is {_show(values[i])}; allowed: {kind}")
+    return arr
+
+
+def _check_rotations(R9: np.ndarray, field: str, path: Path, where: Callable[[int], str]) -> None:
+    """Every row of ``R9`` (row-major 3x3) orthonormal within :data:`ROT_TOL` with determinant +1."""
+    M = R9.reshape(-1, 3, 3)
+    dev = np.abs(np.einsum("nji,njk->nik", M, M) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(M)
+    bad = (dev > ROT_TOL) | (det <= 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DatasetError(
+            f"{path}: {where(i)}: {field} is {_show(R9[i].tolist(), 200)}, not a rotation (max |R^T R - I| = "
+            f"{dev[i]:.3g}, det = {det[i]:.3g}); allowed: a row-major orthonormal 3x3 matrix with det +1 "
+            f"(|R^T R - I| <= {ROT_TOL:g})")
+
+
+def _check_entries(items: list, fields: tuple[str, ...], path: Path, where: Callable[[int], str]) -> None:
+    """Every item is a JSON object holding ``fields``."""
+    need = set(fields)
+    for i, e in enumerate(items):
+        if isinstance(e, dict) and e.keys() >= need:
+            continue
+        if not isinstance(e, dict):
+            raise DatasetError(f"{path}: {where(i)}: entry is {_show(e)}; allowed: an object with fields "
+                               f"{', '.join(fields)}")
+        missing = next(f for f in fields if f not in e)
+        raise DatasetError(f"{path}: {where(i)}: field {missing!r} is missing (required: {', '.join(fields)})")
+
+
+def validate_scene_camera(cams: Any, path: Path) -> dict[int, dict]:
+    """Check a parsed ``scene_camera.json``: ``cam_K`` 9 finite numbers with ``fx, fy > 0``; ``depth_scale``
+    (if present) > 0; ``cam_R_w2c`` / ``cam_t_w2c`` (if present) a rotation and 3 finite numbers (mm).
 
     Returns:
-        ``{im_id: {"K": 3x3, "depth_scale": float, "T_cam_world": Pose | None, "gt": [ImageGT, ...]}}``.
+        ``{im_id: entry}``.
+
+    Raises:
+        DatasetError: Naming the file, image id, field and bad value.
+    """
+    by_im = _image_ids(cams, path, "camera entries")
+    ims = list(by_im)
+    entries = list(by_im.values())
+    _check_entries(entries, ("cam_K",), path, lambda i: f"image {ims[i]}")
+    K = _rows([e["cam_K"] for e in entries], 9, "cam_K", path, lambda i: f"image {ims[i]}")
+    bad = (K[:, 0] <= 0) | (K[:, 4] <= 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DatasetError(f"{path}: image {ims[i]}: cam_K is {K[i].tolist()} with fx = {K[i, 0]:g}, fy = "
+                           f"{K[i, 4]:g}; allowed: fx > 0 and fy > 0 (row-major [fx, 0, cx, 0, fy, cy, 0, 0, 1])")
+    with_ds = [i for i, e in enumerate(entries) if "depth_scale" in e]
+
+    def at_ds(k: int) -> str:
+        return f"image {ims[with_ds[k]]}"
+
+    ds = _column([entries[i]["depth_scale"] for i in with_ds], "depth_scale", path, at_ds)
+    if (ds <= 0).any():
+        k = int(np.argmax(ds <= 0))
+        raise DatasetError(f"{path}: {at_ds(k)}: depth_scale is {ds[k]:g}; allowed: a number > 0 (millimetres "
+                           "per depth unit)")
+    with_pose = [i for i, e in enumerate(entries) if "cam_R_w2c" in e or "cam_t_w2c" in e]
+
+    def at_pose(k: int) -> str:
+        return f"image {ims[with_pose[k]]}"
+
+    posed = [entries[i] for i in with_pose]
+    _check_entries(posed, ("cam_R_w2c", "cam_t_w2c"), path, at_pose)
+    R = _rows([e["cam_R_w2c"] for e in posed], 9, "cam_R_w2c", path, at_pose)
+    _check_rotations(R, "cam_R_w2c", path, at_pose)
+    _rows([e["cam_t_w2c"] for e in posed], 3, "cam_t_w2c", path, at_pose)
+    return by_im
+
+
+def validate_scene_gt(gts: Any, path: Path, obj_ids: Iterable[int] | None = None) -> dict[int, list]:
+    """Check a parsed ``scene_gt.json``: per image a list of ``{obj_id, cam_R_m2c, cam_t_m2c}``; ``obj_id`` an
+    integer (one of ``obj_ids`` if given), ``cam_R_m2c`` a rotation (9 numbers, orthonormal within
+    :data:`ROT_TOL`, det +1), ``cam_t_m2c`` 3 finite numbers (mm). Vectorised over the scene.
+
+    Returns:
+        ``{im_id: [entry, ...]}``.
+
+    Raises:
+        DatasetError: Naming the file, image id, instance index, field and bad value.
+    """
+    by_im = _image_ids(gts, path, "ground truth")
+    locs: list[tuple[int, int]] = []
+    flat: list = []
+    for im, insts in by_im.items():
+        if not isinstance(insts, list):
+            raise DatasetError(f"{path}: image {im}: value is {_show(insts)}; allowed: a list of instances")
+        locs.extend((im, j) for j in range(len(insts)))
+        flat.extend(insts)
+
+    def where(i: int) -> str:
+        return f"image {locs[i][0]}, instance {locs[i][1]}"
+
+    _check_entries(flat, _GT_FIELDS, path, where)
+    R = _rows([g["cam_R_m2c"] for g in flat], 9, "cam_R_m2c", path, where)
+    _check_rotations(R, "cam_R_m2c", path, where)
+    _rows([g["cam_t_m2c"] for g in flat], 3, "cam_t_m2c", path, where)
+    ids = _column([g["obj_id"] for g in flat], "obj_id", path, where, integer=True)
+    if obj_ids is not None:
+        known = sorted({int(o) for o in obj_ids})
+        bad = ~np.isin(ids, known)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise DatasetError(f"{path}: {where(i)}: obj_id {int(ids[i])} is not a dataset object; known obj_ids "
+                               f"(models/models_info.json or the manifest's object set): {known}")
+    return by_im
+
+
+def validate_scene_gt_info(infos: Any, gts: dict[int, list], path: Path) -> dict[int, list]:
+    """Check a parsed ``scene_gt_info.json`` against the validated ``scene_gt`` (``{im_id: [entry]}``): the
+    same images with the same number of instances, every entry with :data:`GT_INFO_FIELDS`, boxes 4 finite
+    numbers, pixel counts non-negative integers, ``visib_fract`` in [0, 1].
+
+    Returns:
+        ``{im_id: [entry, ...]}``.
+    """
+    by_im = _image_ids(infos, path, "ground-truth info")
+    missing = sorted(set(gts) - set(by_im))
+    if missing:
+        raise DatasetError(f"{path}: no entry for image ids {_show(missing)} that scene_gt.json annotates")
+    locs: list[tuple[int, int]] = []
+    flat: list = []
+    for im, insts in gts.items():
+        info = by_im[im]
+        if not isinstance(info, list) or len(info) != len(insts):
+            got = f"{len(info)} entries" if isinstance(info, list) else f"value {_show(info)}"
+            raise DatasetError(f"{path}: image {im}: {got} but scene_gt.json has {len(insts)} instances; "
+                               "allowed: a list with one entry per scene_gt.json instance, in the same order")
+        locs.extend((im, j) for j in range(len(info)))
+        flat.extend(info)
+
+    def where(i: int) -> str:
+        return f"image {locs[i][0]}, instance {locs[i][1]}"
+
+    _check_entries(flat, GT_INFO_FIELDS, path, where)
+    for field in ("bbox_obj", "bbox_visib"):
+        _rows([e[field] for e in flat], 4, field, path, where)
+    for field in ("px_count_all", "px_count_valid", "px_count_visib"):
+        v = _column([e[field] for e in flat], field, path, where, integer=True)
+        if (v < 0).any():
+            i = int(np.argmax(v < 0))
+            raise DatasetError(f"{path}: {where(i)}: {field} is {int(v[i])}; allowed: an integer >= 0")
+    v = _column([e["visib_fract"] for e in flat], "visib_fract", path, where)
+    bad = (v < 0) | (v > 1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DatasetError(f"{path}: {where(i)}: visib_fract is {_show(flat[i]['visib_fract'])}; allowed: a number "
+                           "in [0, 1]")
+    return by_im
+
+
+@dataclass(frozen=True)
+class SceneFiles:
+    """The parsed and validated JSON files of one scene folder, as stored (keys are the files' image-id
+    strings, poses in millimetres). ``gt`` and ``gt_info`` are None only when read with ``require_gt=False``
+    and the files are absent."""
+
+    dir: Path
+    camera: dict[str, dict]
+    gt: dict[str, list] | None
+    gt_info: dict[str, list] | None
+
+
+def read_scene_files(scene_dir: str | Path, obj_ids: Iterable[int] | None = None,
+                     require_gt: bool = True) -> SceneFiles:
+    """Read and validate ``scene_camera.json``, ``scene_gt.json`` and ``scene_gt_info.json`` of a scene.
+
+    Every consumer of a dataset's ground truth reads it through here (see :func:`validate_scene_camera`,
+    :func:`validate_scene_gt`, :func:`validate_scene_gt_info`); every image annotated in ``scene_gt.json``
+    must have a ``scene_camera.json`` entry.
+
+    Args:
+        scene_dir: ``DATASET/<split>/<6-digit scene>``.
+        obj_ids: The dataset's object ids; a ground-truth ``obj_id`` outside them is an error. None: not checked.
+        require_gt: False: a scene without ``scene_gt.json`` (a split without ground truth) is accepted;
+            a ``scene_gt.json`` still needs its ``scene_gt_info.json``.
+
+    Raises:
+        DatasetError: A missing or malformed file, naming the file, image id, instance, field and value.
     """
     scene_dir = Path(scene_dir)
-    cams = read_json(scene_dir / "scene_camera.json")
-    gts = read_json(scene_dir / "scene_gt.json")
-    info_path = scene_dir / "scene_gt_info.json"
-    infos = read_json(info_path) if info_path.exists() else {}
+    cam_path, gt_path, info_path = (scene_dir / n for n in ("scene_camera.json", "scene_gt.json",
+                                                            "scene_gt_info.json"))
+    cams = read_json(cam_path)
+    cam_ims = validate_scene_camera(cams, cam_path)
+    if not require_gt and not gt_path.is_file():
+        return SceneFiles(scene_dir, cams, None, read_json(info_path) if info_path.is_file() else None)
+    gts = read_json(gt_path)
+    gt_ims = validate_scene_gt(gts, gt_path, obj_ids)
+    no_cam = sorted(set(gt_ims) - set(cam_ims))
+    if no_cam:
+        raise DatasetError(f"{gt_path}: image ids {_show(no_cam)} have no entry in {cam_path.name}; every "
+                           "annotated image needs its camera")
+    infos = read_json(info_path)
+    validate_scene_gt_info(infos, gt_ims, info_path)
+    return SceneFiles(scene_dir, cams, gts, infos)
+
+
+def read_scene(scene_dir: str | Path, obj_ids: Iterable[int] | None = None) -> dict[int, dict]:
+    """All annotations of one scene, in metres, validated by :func:`read_scene_files`.
+
+    Args:
+        scene_dir: ``DATASET/<split>/<6-digit scene>``.
+        obj_ids: The dataset's object ids (an unknown ground-truth ``obj_id`` is an error); None: not checked.
+
+    Returns:
+        ``{im_id: {"K": 3x3, "depth_scale": float, "T_cam_world": Pose | None, "gt": [ImageGT, ...]}}`` for
+        every image of ``scene_camera.json``.
+    """
+    files = read_scene_files(scene_dir, obj_ids)
+    gts = {int(k): v for k, v in files.gt.items()}
+    infos = {int(k): v for k, v in files.gt_info.items()}
     out: dict[int, dict] = {}
-    for key, cam in cams.items():
+    for key, cam in files.camera.items():
+        im = int(key)
         T_cw = pose_from_bop(cam["cam_R_w2c"], cam["cam_t_w2c"]) if "cam_R_w2c" in cam else None
-        items = []
-        for j, g in enumerate(gts.get(key, [])):
-            info = infos.get(key, [{}] * (j + 1))[j] if key in infos else {}
-            items.append(ImageGT(
-                obj_id=int(g["obj_id"]), T_cam_obj=pose_from_bop(g["cam_R_m2c"], g["cam_t_m2c"]),
-                bbox_obj=info.get("bbox_obj", [-1] * 4), bbox_visib=info.get("bbox_visib", [-1] * 4),
-                px_count_all=int(info.get("px_count_all", -1)), px_count_valid=int(info.get("px_count_valid", -1)),
-                px_count_visib=int(info.get("px_count_visib", -1)), visib_fract=float(info.get("visib_fract", -1))))
-        out[int(key)] = {"K": np.asarray(cam["cam_K"], dtype=np.float64).reshape(3, 3),
-                         "depth_scale": float(cam.get("depth_scale", 1.0)), "T_cam_world": T_cw, "gt": items}
+        items = [ImageGT(
+            obj_id=int(g["obj_id"]), T_cam_obj=pose_from_bop(g["cam_R_m2c"], g["cam_t_m2c"]),
+            bbox_obj=list(info["bbox_obj"]), bbox_visib=list(info["bbox_visib"]),
+            px_count_all=int(info["px_count_all"]), px_count_valid=int(info["px_count_valid"]),
+            px_count_visib=int(info["px_count_visib"]), visib_fract=float(info["visib_fract"]))
+            for g, info in zip(gts.get(im, []), infos.get(im, []))]
+        out[im] = {"K": np.asarray(cam["cam_K"], dtype=np.float64).reshape(3, 3),
+                   "depth_scale": float(cam.get("depth_scale", 1.0)), "T_cam_world": T_cw, "gt": items}
     return out
 
 
