@@ -7,6 +7,8 @@
   Chamfer distance.
 * :mod:`.viewpoint` — viewpoint protocol: geodesic error, Acc@pi/6, Acc@pi/18, median error, and the
   (azimuth, elevation, theta) parameterisation.
+* :mod:`.registry` — every aggregate metric declared once (key, label, definition, direction, format); tables,
+  sweeps and reports read it.
 """
 
 from simtest.metrics.auc import accuracy_below, auc_mean_rule, ycb_auc
