@@ -83,7 +83,7 @@ def load_dataset_objects(dataset_dir: str | Path):
     root = Path(dataset_dir)
     models_dir = root / "models"
     if (models_dir / "models_info.json").is_file():
-        from simtest.io.bop_models import read_bop_models
+        from simtest.objects.loaders import read_bop_models
 
         return read_bop_models(models_dir)
     manifest = root / "manifest.json"
