@@ -56,7 +56,7 @@ from simtest.io.bop_results import read_bop_results, write_bop_results
 from simtest.io.files import atomic_write_text, csv_text, jsonable
 from simtest.metrics.auc import ADDS_2CM, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, evaluate_bop19
-from simtest.metrics.bop19 import PoseEstimate as ResultRow
+from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, te, vsd
 from simtest.metrics.registry import NDEG_MCM, definitions
 from simtest.tables import format_table, overall_table
@@ -251,7 +251,7 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
 
     Args:
         dataset_dir: BOP dataset root.
-        estimates: Result rows (:class:`simtest.metrics.bop19.PoseEstimate`, metres).
+        estimates: Result rows (:class:`simtest.metrics.bop19.ResultRow`, metres).
         split: Split folder name.
         scenes: Scene ids to evaluate (default all).
         max_images: Evaluate only the first N images (scenes in order, images in order).

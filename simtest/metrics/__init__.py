@@ -16,7 +16,7 @@ from simtest.metrics.bop19 import (
     Bop19Result,
     EvalImage,
     GroundTruthPose,
-    PoseEstimate,
+    ResultRow,
     evaluate_bop19,
     match_greedy,
 )
@@ -64,7 +64,7 @@ __all__ = [
     # auc
     "ycb_auc", "auc_mean_rule", "accuracy_below",
     # bop19
-    "PoseEstimate", "GroundTruthPose", "EvalImage", "Bop19Result", "evaluate_bop19", "match_greedy",
+    "ResultRow", "GroundTruthPose", "EvalImage", "Bop19Result", "evaluate_bop19", "match_greedy",
     # nocs
     "rotation_error", "rotation_error_deg", "translation_error_cm", "n_deg_m_cm", "n_deg_m_cm_accuracy",
     "iou_3d", "iou_3d_legacy", "iou_accuracy", "chamfer_distance",

@@ -35,7 +35,7 @@ from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, as_symmetries, mspd, mssd
 from simtest.raster import render_depth
 
 __all__ = [
-    "PoseEstimate",
+    "ResultRow",
     "GroundTruthPose",
     "EvalImage",
     "Bop19Result",
@@ -81,8 +81,9 @@ def _t(t: Any, what: str) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class PoseEstimate:
-    """One pose estimate, as a row of a BOP results file but in metres.
+class ResultRow:
+    """One scored pose estimate: a row of a BOP results file, in metres (what an estimator returned for one
+    image, with the image's ids; the estimator-side type is :class:`simtest.estimators.PoseEstimate`).
 
     Attributes:
         scene_id: Scene id.
@@ -247,7 +248,7 @@ def _spheres_overlap(radius: float, t1: np.ndarray, t2: np.ndarray) -> bool:
     return bool(d < radius * (1.0 / t1[2] + 1.0 / t2[2]))
 
 
-def evaluate_bop19(estimates: Iterable[PoseEstimate], ground_truth: Iterable[GroundTruthPose],
+def evaluate_bop19(estimates: Iterable[ResultRow], ground_truth: Iterable[GroundTruthPose],
                    models: Mapping[int, Any], images: Mapping[tuple[int, int], EvalImage], *,
                    visib_gt_min: float = VISIB_GT_MIN, n_top: int = -1,
                    error_types: Sequence[str] = ("vsd", "mssd", "mspd"), vsd_delta: float = VSD_DELTA,
@@ -333,7 +334,7 @@ def evaluate_bop19(estimates: Iterable[PoseEstimate], ground_truth: Iterable[Gro
                        num_estimates=num_considered, per_object=per_object)
 
 
-def _group_targets(ground_truth: Iterable[GroundTruthPose], estimates: Iterable[PoseEstimate],
+def _group_targets(ground_truth: Iterable[GroundTruthPose], estimates: Iterable[ResultRow],
                    visib_gt_min: float) -> tuple[dict, dict]:
     """Targets (``visib_fract >= visib_gt_min``) and the estimates of their groups, keyed by
     ``(scene_id, im_id, obj_id)``.
@@ -347,7 +348,7 @@ def _group_targets(ground_truth: Iterable[GroundTruthPose], estimates: Iterable[
             targets[(int(g.scene_id), int(g.im_id), int(g.obj_id))].append(g)
     if not targets:
         raise ConfigError(f"no ground-truth instance has visib_fract >= {visib_gt_min!r}; nothing to evaluate")
-    by_group: dict[tuple[int, int, int], list[PoseEstimate]] = defaultdict(list)
+    by_group: dict[tuple[int, int, int], list[ResultRow]] = defaultdict(list)
     for e in estimates:
         key = (int(e.scene_id), int(e.im_id), int(e.obj_id))
         if key in targets:
