@@ -4,7 +4,7 @@ It has the contract of :func:`simtest.panda.ik_step` (move the TCP from its pose
 a target by at most a given distance and angle; return joint targets within the limits) but does one damped
 least-squares step (and one correcting step) with a null-space pull toward the ready posture, using MuJoCo's own rotation functions
 instead of SciPy. That keeps the env's work per control step a small fraction of its 25 physics steps (see
-:mod:`simtest.envs.bench`); :func:`simtest.panda.ik_step` (three iterations) stays available through
+:mod:`simtest.benchmarks.grasp`); :func:`simtest.panda.ik_step` (three iterations) stays available through
 ``PandaGraspEnv(ik="panda")``.
 """
 

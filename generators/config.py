@@ -35,13 +35,9 @@ class CameraConfig:
     cy: float | None = field(default=None, metadata=_bounds(-1e4, 1e4))
 
     def K(self):
-        from simtest.camera import intrinsics_matrix
+        from simtest.camera import default_intrinsics
 
-        s = self.width / 640.0
-        return intrinsics_matrix(self.fx if self.fx is not None else 615.0 * s,
-                                 self.fy if self.fy is not None else 615.0 * s,
-                                 self.cx if self.cx is not None else (self.width - 1) / 2.0,
-                                 self.cy if self.cy is not None else (self.height - 1) / 2.0)
+        return default_intrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ Typical use::
 
 from simtest.objects.builtin import BUILTIN_SETS, load_builtin
 from simtest.objects.grasps import PANDA, Gripper, GraspSet, sample_grasps
-from simtest.objects.loaders import load_mesh_file, load_mesh_folder, load_object_set
+from simtest.objects.loaders import load_mesh_file, load_mesh_folder, load_object_set, read_bop_models
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
 
 __all__ = [
@@ -26,5 +26,6 @@ __all__ = [
     "load_mesh_file",
     "load_mesh_folder",
     "load_object_set",
+    "read_bop_models",
     "sample_grasps",
 ]

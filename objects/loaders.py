@@ -4,7 +4,7 @@
 
 - ``"builtin"`` / ``"builtin-small"``: the procedural set (:mod:`simtest.objects.builtin`).
 - a folder with ``models_info.json`` (or a dataset root with ``models/models_info.json``): a BOP models
-  folder, read by :func:`simtest.io.bop_models.read_bop_models` (millimetres by default, symmetries read).
+  folder, read by :func:`read_bop_models` (millimetres by default, symmetries read).
 - any other folder: every mesh file in it (``.obj .ply .stl .glb .gltf .off``). Ids come from
   ``obj_000005``-style names when every file is named so, else from the sorted file names (1..N).
 - a single mesh file: one object with id 1 (or the id in an ``obj_000005``-style name).
@@ -26,10 +26,12 @@ import numpy as np
 import trimesh
 
 from simtest.errors import AssetError
-from simtest.objects.model import ObjectModel, ObjectSet, validate_mesh
+from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_models_info,
+                                    read_symmetries)
+from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, validate_mesh
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
-           "MESH_EXTENSIONS", "UNITS", "MIN_SIZE_M", "MAX_SIZE_M"]
+           "read_bop_models", "MESH_EXTENSIONS", "UNITS", "MIN_SIZE_M", "MAX_SIZE_M"]
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 UNITS = ("m", "mm", "auto")
@@ -43,8 +45,6 @@ _BOP_NAME = re.compile(r"obj_(\d+)")
 
 
 def _m_per_unit() -> dict[str, float]:
-    from simtest.io.bop_models import MM_PER_M
-
     return {"m": 1.0, "mm": 1.0 / MM_PER_M}
 
 
@@ -207,8 +207,6 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
         return load_builtin(text, seed)
     path = Path(text).expanduser()
     if path.is_dir():
-        from simtest.io.bop_models import INFO_FILE, read_bop_models
-
         if (path / INFO_FILE).exists() or (path / "models" / INFO_FILE).exists():
             return read_bop_models(path, units="mm" if units == "auto" else units)
         return load_mesh_folder(path, units)
@@ -216,3 +214,60 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
         return ObjectSet([load_mesh_file(path, units=units)], name=str(path))
     raise AssetError(f"object set {text!r} not found: not a built-in set ({', '.join(BUILTIN_SETS)}) and no such "
                      "file or folder")
+
+
+#: A BOP model whose bbox centre is farther than this from its origin (metres) triggers a warning.
+CENTER_TOLERANCE = 1e-3
+
+
+def read_bop_models(models_dir: str | Path, units: str = "mm") -> ObjectSet:
+    """Read a BOP ``models/`` folder into an :class:`~simtest.objects.ObjectSet` (metres).
+
+    The model frame of the files is kept as it is (ground-truth poses of a BOP dataset refer to it); BOP
+    models have their origin at the bbox centre, and a model whose bbox centre is more than 1 mm off
+    its origin triggers a warning (its offset is recorded in ``extra["bbox_center"]``).
+
+    Args:
+        models_dir: Folder with ``models_info.json`` and ``obj_{id:06d}.ply``; a dataset root holding a
+            ``models/`` folder is accepted too.
+        units: Units of the files: ``"mm"`` (the BOP standard), ``"m"`` or ``"auto"`` (by size).
+
+    Raises:
+        AssetError: Missing folder, ``models_info.json`` or model file, malformed entries (naming the file,
+            object and field), absurd sizes for the units, or broken meshes.
+    """
+    root = find_models_dir(models_dir)
+    info_path = root / INFO_FILE
+    info, meta = read_models_info(root)
+    objects = []
+    for obj_id, entry in info.items():
+        where = f"{info_path} (obj_id {obj_id})"
+        ply = root / f"obj_{obj_id:06d}.ply"
+        if not ply.exists():
+            raise AssetError(f"{ply}: model file of obj_id {obj_id} listed in {info_path} not found")
+        mesh, raw_rgba = load_mesh(ply)
+        scale, unit = unit_scale(mesh, units, ply)
+        mesh = trimesh.Trimesh(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces), process=False)
+        sym_d, sym_c = read_symmetries(entry, where, to_m=scale)
+        sym_c = [ContinuousSymmetry(axis, offset) for axis, offset in sym_c]
+        m = meta.get(str(obj_id), {})
+        center = 0.5 * (mesh.bounds[0] + mesh.bounds[1])
+        extra = {"units": unit, "scale": scale, "path": str(ply)}
+        if np.linalg.norm(center) > CENTER_TOLERANCE:
+            warnings.warn(f"{ply}: bbox centre is {np.round(center * 1000, 2).tolist()} mm off the model origin "
+                          "(BOP models are centred); the file frame is kept so dataset poses stay valid",
+                          stacklevel=2)
+            extra["bbox_center"] = center.tolist()
+        rgba = tuple(m.get("rgba", raw_rgba or (0.7, 0.7, 0.7, 1.0)))
+        objects.append(ObjectModel(
+            obj_id=obj_id, name=str(m.get("name", f"obj_{obj_id:06d}")), category=str(m.get("category", "obj")),
+            instance=int(m.get("instance", 0)), mesh=mesh, density=float(m.get("density", 500.0)), rgba=rgba,
+            symmetries_discrete=tuple(sym_d), symmetries_continuous=tuple(sym_c),
+            source=str(m.get("source", str(ply))), extra=extra))
+    listed = {f"obj_{o.obj_id:06d}.ply" for o in objects}
+    extra_files = sorted(p.name for p in root.glob("obj_*.ply") if p.name not in listed)
+    if extra_files:
+        warnings.warn(f"{root}: model files not listed in {INFO_FILE} are ignored: {', '.join(extra_files)}",
+                      stacklevel=2)
+    objects.sort(key=lambda o: o.obj_id)
+    return ObjectSet(objects, name=str(root))

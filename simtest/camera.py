@@ -15,7 +15,8 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
-__all__ = ["CameraModel", "R_MJ_CV", "intrinsics_matrix", "mujoco_camera_intrinsics"]
+__all__ = ["CameraModel", "R_MJ_CV", "intrinsics_matrix", "default_intrinsics", "D435_FOCAL_PX",
+           "mujoco_camera_intrinsics"]
 
 #: Rotation from the OpenCV camera frame to the MuJoCo camera frame (and back: it is its own inverse).
 R_MJ_CV = np.diag([1.0, -1.0, -1.0])
@@ -24,6 +25,22 @@ R_MJ_CV = np.diag([1.0, -1.0, -1.0])
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     """The 3x3 OpenCV intrinsics matrix (pixels)."""
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+#: Focal length (pixels) of the default RealSense-D435-like colour camera at 640 px width.
+D435_FOCAL_PX = 615.0
+
+
+def default_intrinsics(width: int, height: int, fx: float | None = None, fy: float | None = None,
+                       cx: float | None = None, cy: float | None = None) -> np.ndarray:
+    """The default D435-like intrinsics for a ``width`` x ``height`` image (pixels), with any given value kept.
+
+    Focal lengths default to :data:`D435_FOCAL_PX` scaled by ``width / 640``; the principal point to the image
+    centre in OpenCV's convention (pixel centres at integers: ``((width - 1) / 2, (height - 1) / 2)``).
+    """
+    s = width / 640.0
+    return intrinsics_matrix(D435_FOCAL_PX * s if fx is None else fx, D435_FOCAL_PX * s if fy is None else fy,
+                             (width - 1) / 2.0 if cx is None else cx, (height - 1) / 2.0 if cy is None else cy)
 
 
 def mujoco_camera_intrinsics(K: np.ndarray, width: int, height: int) -> dict[str, list[float]]:
@@ -73,9 +90,7 @@ class CameraModel:
     @staticmethod
     def default(width: int = 640, height: int = 480) -> "CameraModel":
         """A RealSense-D435-like colour camera (fx = fy = 615 px at 640x480), scaled to ``width``."""
-        s = width / 640.0
-        K = intrinsics_matrix(615.0 * s, 615.0 * s, (width - 1) / 2.0, (height - 1) / 2.0)
-        return CameraModel(K, width, height)
+        return CameraModel(default_intrinsics(width, height), width, height)
 
     def with_pose(self, T_world_cam: Pose) -> "CameraModel":
         return CameraModel(self.K, self.width, self.height, T_world_cam)

@@ -54,10 +54,12 @@ from simtest.estimators.base import PoseEstimate as EstimatorPose
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
 from simtest.io.files import atomic_write_text, csv_text, jsonable
-from simtest.metrics.auc import ADDS_2CM, YCB_AUC_MAX_THRESHOLD, ycb_auc
+from simtest.metrics.auc import ADDS_2CM, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, evaluate_bop19
-from simtest.metrics.bop19 import PoseEstimate as ResultRow
+from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, te, vsd
+from simtest.metrics.registry import NDEG_MCM, definitions
+from simtest.tables import format_table, overall_table
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
            "NDEG_MCM"]
@@ -66,8 +68,6 @@ log = logging.getLogger(__name__)
 
 #: How targets are given to the estimator.
 TARGET_MODES = ("gt-masks", "none")
-#: (degrees, centimetres) pairs of the n deg m cm accuracies.
-NDEG_MCM: tuple[tuple[float, float], ...] = ((5, 2), (5, 5), (10, 2), (10, 5))
 _ROT_TOL = 1e-3
 
 
@@ -85,7 +85,7 @@ def load_dataset_objects(dataset_dir: str | Path):
         raise DatasetError(f"dataset folder {root} does not exist")
     models_dir = root / "models"
     if (models_dir / "models_info.json").is_file():
-        from simtest.io.bop_models import read_bop_models
+        from simtest.objects.loaders import read_bop_models
 
         return read_bop_models(models_dir)
     manifest = root / "manifest.json"
@@ -188,22 +188,8 @@ class EvalReport:
                 "definitions": METRIC_DEFINITIONS}
 
 
-METRIC_DEFINITIONS = {
-    "targets": f"ground-truth instances with visib_fract >= {VISIB_GT_MIN}; a target without a matched "
-               "estimate is a miss (distance inf, rotation error pi)",
-    "matching": "per image and object, estimates by decreasing score take the unassigned target with the "
-                "nearest translation",
-    "add_s_or_add_01d": "fraction of targets with ADD(-S) < 0.1 x diameter (ADD-S for symmetric objects)",
-    "auc_adds / auc_add_s_or_add": f"YCB-Video VOC-style AUC of ADD-S / ADD(-S), thresholds 0 to "
-                                   f"{YCB_AUC_MAX_THRESHOLD} m",
-    "adds_lt_2cm": f"fraction of targets with ADD-S < {ADDS_2CM} m",
-    "acc_pi_6 / acc_pi_18 / median_re_deg": "viewpoint protocol on re_sym (smallest geodesic error over the "
-                                            "symmetry set), misses = pi",
-    "NdegMcm": "fraction with re_sym <= N degrees and te <= M cm",
-    "ar*": "BOP19 Average Recall (VSD delta 15 mm, taus/thetas 0.05..0.5, MSSD 0.05..0.5 x diameter, MSPD 5..50 "
-           "px at 640 px width); ar = mean of the evaluated ones",
-    "units": "distances in metres (keys ending _m), angles in degrees (_deg), time in seconds (_s)",
-}
+#: Definitions written into ``metrics.json`` (from :mod:`simtest.metrics.registry`).
+METRIC_DEFINITIONS = definitions()
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -268,7 +254,7 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
 
     Args:
         dataset_dir: BOP dataset root.
-        estimates: Result rows (:class:`simtest.metrics.bop19.PoseEstimate`, metres).
+        estimates: Result rows (:class:`simtest.metrics.bop19.ResultRow`, metres).
         split: Split folder name.
         scenes: Scene ids to evaluate (default all).
         max_images: Evaluate only the first N images (scenes in order, images in order).
@@ -593,60 +579,3 @@ def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
     atomic_write_text(paths["errors"], csv_text(report.errors, _ERROR_COLUMNS))
     atomic_write_text(paths["failures"], csv_text(report.failures, _FAILURE_COLUMNS))
     atomic_write_text(paths["table"], format_table(report))
-
-
-def _pct(v: float) -> str:
-    return "–" if not math.isfinite(v) else f"{100.0 * v:.1f}"
-
-
-def _num(v: float, scale: float = 1.0, digits: int = 1) -> str:
-    return "inf" if v == float("inf") else ("–" if not math.isfinite(v) else f"{v * scale:.{digits}f}")
-
-
-def format_table(report: EvalReport) -> str:
-    """Markdown tables: per object and overall; units in the headers (percent, degrees, centimetres)."""
-    vsd_on = bool(report.settings.get("vsd", True))
-    ar_label = "AR [%]" if vsd_on else "AR (MSSD, MSPD) [%]"
-    cols = ["Object", "N", "ADD(-S)-0.1d [%]", "AUC ADD-S [%]", "AUC ADD(-S) [%]", "ADD-S<2cm [%]",
-            "Acc@π/6 [%]", "Acc@π/18 [%]", "MedErr [deg]", "Med te [cm]", "5°5cm [%]", "10°5cm [%]",
-            ar_label] + (["AR_VSD [%]"] if vsd_on else []) + ["AR_MSSD [%]", "AR_MSPD [%]"]
-
-    def line(name: str, m: dict[str, Any]) -> str:
-        cells = [name, str(m["num_targets"]), _pct(m["add_s_or_add_01d"]), _pct(m["auc_adds"]),
-                 _pct(m["auc_add_s_or_add"]), _pct(m["adds_lt_2cm"]), _pct(m["acc_pi_6"]), _pct(m["acc_pi_18"]),
-                 _num(m["median_re_deg"]), _num(m["median_te_m"], 100.0, 2), _pct(m["5deg5cm"]),
-                 _pct(m["10deg5cm"]), _pct(m["ar"])] + ([_pct(m["ar_vsd"])] if vsd_on else []) + [
-                 _pct(m["ar_mssd"]), _pct(m["ar_mspd"])]
-        return "| " + " | ".join(cells) + " |"
-
-    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
-    body = [line(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
-    body.append(line("**All**", report.overall))
-    s = report.settings
-    o = report.overall
-    title = s.get("estimator") or s.get("results", "")
-    footer = (f"\n{report.num_images} images, {o['num_targets']} targets (visib_fract >= {VISIB_GT_MIN}), "
-              f"{o.get('num_estimates', 0)} estimates, {o.get('num_failures', 0)} failures; "
-              f"time per image: mean {_num(o.get('mean_time_per_image_s', float('nan')), 1.0, 3)} s.\n"
-              "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
-              "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
-    return f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + head + "\n".join(
-        body) + "\n" + footer
-
-
-def overall_table(report: EvalReport) -> str:
-    """A short plain-text summary of the overall scores (for terminals)."""
-    o = report.overall
-    items = [("ADD(-S)-0.1d", _pct(o["add_s_or_add_01d"]) + " %"), ("AUC ADD-S", _pct(o["auc_adds"]) + " %"),
-             ("AUC ADD(-S)", _pct(o["auc_add_s_or_add"]) + " %"), ("ADD-S<2cm", _pct(o["adds_lt_2cm"]) + " %"),
-             ("Acc@pi/6", _pct(o["acc_pi_6"]) + " %"), ("Acc@pi/18", _pct(o["acc_pi_18"]) + " %"),
-             ("median re", _num(o["median_re_deg"], 1.0, 2) + " deg"),
-             ("median te", _num(o["median_te_m"], 100.0, 2) + " cm")]
-    items += [(k, _pct(o[k]) + " %") for k in (f"{n:g}deg{m:g}cm" for n, m in NDEG_MCM)]
-    items += [("AR", _pct(o["ar"]) + " %"), ("AR_VSD", _pct(o["ar_vsd"]) + " %"),
-              ("AR_MSSD", _pct(o["ar_mssd"]) + " %"), ("AR_MSPD", _pct(o["ar_mspd"]) + " %"),
-              ("targets", str(o["num_targets"])), ("estimates", str(o.get("num_estimates", ""))),
-              ("failures", str(o.get("num_failures", ""))),
-              ("time/image", _num(o.get("mean_time_per_image_s", float("nan")), 1.0, 4) + " s")]
-    w = max(len(k) for k, _ in items)
-    return "\n".join(f"{k:<{w}}  {v}" for k, v in items)

@@ -62,6 +62,23 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
     Raises:
         ConfigError: On malformed inputs (the message names the bad value).
     """
+    V, F, K, width, height = _check_mesh_inputs(vertices_cam, faces, K, width, height, max_pairs)
+    tris = _project_triangles(V, F, K, width, height, znear)
+    if tris is None:
+        return np.zeros((height, width), dtype=np.float32)
+    spans = _row_spans(tris, width)
+    zbuf = np.full(height * width, np.inf)
+    _fill_spans(zbuf, width, spans, max_pairs)
+    zbuf[~np.isfinite(zbuf)] = 0.0
+    return zbuf.reshape(height, width).astype(np.float32)
+
+
+def _check_mesh_inputs(vertices_cam, faces, K, width, height, max_pairs):
+    """Validated ``(V float64 (N, 3), F int (M, 3), K, width, height)``.
+
+    Raises:
+        ConfigError: On malformed inputs (the message names the bad value).
+    """
     V = np.asarray(vertices_cam, dtype=np.float64)
     F = np.asarray(faces)
     if V.ndim != 2 or V.shape[1] != 3:
@@ -76,16 +93,23 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
         raise ConfigError(f"image size must be >= 1 pixel, got {width!r}x{height!r}")
     if max_pairs < 1:
         raise ConfigError(f"max_pairs must be >= 1, got {max_pairs!r}")
+    return V, F, K, width, height
 
-    zbuf = np.full(height * width, np.inf)
+
+def _project_triangles(V: np.ndarray, F: np.ndarray, K: np.ndarray, width: int, height: int, znear: float):
+    """Project the triangles in front of the camera; ``None`` when none covers a pixel centre.
+
+    Returns:
+        ``(u (T, 3), v (T, 3), umin, vmin, vmax (T,) int pixel bounds, (ai, ci, di) (T,) each)`` with
+        ``1/z = ai (u - umin) + ci (v - vmin) + di`` over each kept triangle.
+    """
     if len(F) == 0:
-        return np.zeros((height, width), dtype=np.float32)
-
+        return None
     # Drop triangles behind (or too close to) the camera, then project.
     tri = V[F]  # (M, 3 vertices, 3 coords)
     tri = tri[np.all(tri[:, :, 2] > znear, axis=1)]
     if len(tri) == 0:
-        return np.zeros((height, width), dtype=np.float32)
+        return None
     proj = tri @ K.T
     iz = 1.0 / tri[:, :, 2]  # (M, 3): 1 / z of each vertex
     u = proj[:, :, 0] * iz
@@ -101,10 +125,10 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
     vmax = np.minimum(np.floor(v.max(axis=1) + 1e-9), height - 1)
     keep = (np.abs(area2) > 1e-12) & (umax >= umin) & (vmax >= vmin)
     if not np.any(keep):
-        return np.zeros((height, width), dtype=np.float32)
+        return None
     u0, u1, u2, v0, v1, v2 = u0[keep], u1[keep], u2[keep], v0[keep], v1[keep], v2[keep]
     area2, iz = area2[keep], iz[keep]
-    umin, umax = umin[keep].astype(np.int64), umax[keep].astype(np.int64)
+    umin = umin[keep].astype(np.int64)
     vmin, vmax = vmin[keep].astype(np.int64), vmax[keep].astype(np.int64)
 
     # 1/z is affine in (u, v) over a planar triangle: 1/z = a u + c v + d. Coefficients per triangle,
@@ -119,16 +143,27 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
     ai = a0 * (iz0 - iz2) + a1 * (iz1 - iz2)
     ci = c0 * (iz0 - iz2) + c1 * (iz1 - iz2)
     di = d0 * (iz0 - iz2) + d1 * (iz1 - iz2) + iz2
+    u = np.stack([u0, u1, u2], axis=1)
+    v = np.stack([v0, v1, v2], axis=1)
+    return u, v, umin, vmin, vmax, (ai, ci, di)
 
-    # Scanlines: one (triangle, row) pair per pixel row crossed by the triangle's bounding box; the
-    # covered pixel centres of that row form the span between the row's crossings of the edges.
+
+def _row_spans(tris, width: int):
+    """Scanlines: one (triangle, row) pair per pixel row crossed by the triangle's bounding box; the covered
+    pixel centres of that row form the span between the row's crossings of the edges.
+
+    Returns:
+        ``(rows, first column, span length, first column relative to the bounding box, 1/z at relative column
+        0, 1/z slope per column)`` of the non-empty spans.
+    """
+    u, v, umin, vmin, vmax, (ai, ci, di) = tris
     nrows = vmax - vmin + 1
     tri_of_row = np.repeat(np.arange(len(nrows)), nrows)
     row_first = np.cumsum(nrows) - nrows
     rows = vmin[tri_of_row] + (np.arange(int(nrows.sum()), dtype=np.int64) - row_first[tri_of_row])
     y = rows.astype(np.float64)
-    eu = np.stack([u0, u1, u2], axis=1)[tri_of_row]  # (P, 3)
-    ev = np.stack([v0, v1, v2], axis=1)[tri_of_row]
+    eu = u[tri_of_row]  # (P, 3)
+    ev = v[tri_of_row]
     ul = np.full(len(rows), np.inf)
     ur = np.full(len(rows), -np.inf)
     for i, j in ((0, 1), (1, 2), (2, 0)):
@@ -153,8 +188,12 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
     rrel = (rows - vmin[tri_of_row]).astype(np.float64)
     crel0 = pl - umin[tri_of_row]
     iz_row = coef[:, 1] * rrel + coef[:, 2]  # 1/z at column offset 0 of each row
-    slope = coef[:, 0]
+    return rows, pl, span, crel0, iz_row, coef[:, 0]
 
+
+def _fill_spans(zbuf: np.ndarray, width: int, spans, max_pairs: int) -> None:
+    """Keep the minimum depth of every span pixel in the flat z-buffer, ``max_pairs`` pixels per batch."""
+    rows, pl, span, crel0, iz_row, slope = spans
     ends = np.cumsum(span)
     n = len(span)
     start = 0
@@ -171,9 +210,6 @@ def rasterize_depth(vertices_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, 
         good = izp > 0
         np.minimum.at(zbuf, pix[good], 1.0 / izp[good])
         start = stop
-
-    zbuf[~np.isfinite(zbuf)] = 0.0
-    return zbuf.reshape(height, width).astype(np.float32)
 
 
 def render_depth(vertices: np.ndarray, faces: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray,

@@ -18,15 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from simtest.io.files import atomic_write_text, write_csv
+from simtest.cells import RESULTS_FILE, SUMMARY_FILE
+from simtest.io.files import atomic_write_text, read_csv
+from simtest.metrics.registry import metric
 
-__all__ = ["write_outputs", "fit_logistic"]
-
-RESULT_COLUMNS = ["estimator", "condition", "factor", "level", "severity", "kind", "scene_id", "im_id", "obj_id",
-                  "episode", "target_name", "matched", "visib_fract", "diameter_m", "add_m", "adi_m",
-                  "add_s_or_add_m", "re_deg", "re_sym_deg", "te_m", "mssd_m", "success", "reason"]
-SUMMARY_COLUMNS = ["estimator", "condition", "factor", "level", "severity", "kind", "metric", "value"]
-
+__all__ = ["write_report", "fit_logistic", "markdown_tables"]
 
 def _f(v: Any) -> float:
     try:
@@ -34,48 +30,6 @@ def _f(v: Any) -> float:
     except (TypeError, ValueError):
         return float("nan")
     return x
-
-
-def _collect(cfg, out: Path, conds) -> tuple[list[dict], list[dict]]:
-    from simtest.io.files import read_csv
-    from simtest.sweep import _cell_dir
-
-    results, summary = [], []
-    for cond in conds:
-        base = {"condition": cond.name, "factor": cond.factor, "level": cond.level,
-                "severity": "" if cond.severity is None else cond.severity}
-        for est in cfg.estimators:
-            pdir = _cell_dir(out, est.name, cond.name, "pose")
-            if (pdir / "cell.json").exists():
-                cell = json.loads((pdir / "cell.json").read_text())
-                for key, value in cell["overall"].items():
-                    if isinstance(value, (int, float)) or value is None:
-                        summary.append({**base, "estimator": est.name, "kind": "pose", "metric": key,
-                                        "value": "" if value is None else value})
-                if (pdir / "errors.csv").exists():
-                    for r in read_csv(pdir / "errors.csv"):
-                        results.append({**base, "estimator": est.name, "kind": "pose", "scene_id": r["scene_id"],
-                                        "im_id": r["im_id"], "obj_id": r["obj_id"], "matched": r["matched"],
-                                        "visib_fract": r["visib_fract"], "diameter_m": r["diameter_m"],
-                                        "add_m": r["add"], "adi_m": r["adi"], "add_s_or_add_m": r["add_s_or_add"],
-                                        "re_deg": r["re"], "re_sym_deg": r["re_sym"], "te_m": r["te"],
-                                        "mssd_m": r["mssd"]})
-            gdir = _cell_dir(out, est.name, cond.name, "grasp")
-            if (gdir / "cell.json").exists():
-                s = json.loads((gdir / "cell.json").read_text())["summary"]
-                for key in ("success_rate", "episodes", "successes"):
-                    summary.append({**base, "estimator": est.name, "kind": "grasp", "metric": key, "value": s[key]})
-                summary.append({**base, "estimator": est.name, "kind": "grasp", "metric": "ci95_low",
-                                "value": s["ci95"][0]})
-                summary.append({**base, "estimator": est.name, "kind": "grasp", "metric": "ci95_high",
-                                "value": s["ci95"][1]})
-                if (gdir / "episodes.csv").exists():
-                    for r in read_csv(gdir / "episodes.csv"):
-                        results.append({**base, "estimator": est.name, "kind": "grasp", "episode": r["episode"],
-                                        "obj_id": r["target_obj_id"], "target_name": r["target_name"],
-                                        "add_s_or_add_m": r["add_s"], "re_deg": r["re_deg"], "te_m": r["te"],
-                                        "mssd_m": r["mssd"], "success": r["success"], "reason": r["reason"]})
-    return results, summary
 
 
 def _value(summary: list[dict], est: str, cond: str, kind: str, metric: str) -> float:
@@ -102,17 +56,15 @@ def _column_label(c) -> str:
 
 def markdown_tables(cfg, conds, summary: list[dict]) -> str:
     """One table per metric: rows estimators, columns L0 L1 L2 L3 | corruptions | depth presets."""
-    from simtest.sweep import POSE_METRICS
-
     cols = [c for _, cs in _groups(conds) for c in cs]
     header = "| estimator | " + " | ".join(_column_label(c) for c in cols) + " |"
     sep = "|---|" + "|".join("---:" for _ in cols) + "|"
     parts = []
     for m in cfg.metrics:
-        label, scale, unit, _ = POSE_METRICS[m]
-        rows = [f"| {e.name} | " + " | ".join(_fmt(_value(summary, e.name, c.name, "pose", m) * scale)
+        spec = metric(m)
+        rows = [f"| {e.name} | " + " | ".join(_fmt(spec.shown(_value(summary, e.name, c.name, "pose", m)))
                                                 for c in cols) + " |" for e in cfg.estimators]
-        parts.append(f"### {label} ({unit})\n\n{header}\n{sep}\n" + "\n".join(rows))
+        parts.append(f"### {spec.label} ({spec.unit})\n\n{header}\n{sep}\n" + "\n".join(rows))
     if cfg.grasp.episodes > 0:
         rows = []
         for e in cfg.estimators:
@@ -167,13 +119,12 @@ def _plots(cfg, conds, summary: list[dict], results: list[dict]) -> list[tuple[s
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from simtest.sweep import POSE_METRICS
-
     plots = []
     severities = sorted({c.severity for c in conds if c.severity is not None})
     corruptions = sorted({c.level for c in conds if c.factor == "corruption"})
     for m in cfg.metrics:
-        label, scale, unit, _ = POSE_METRICS[m]
+        spec = metric(m)
+        label, scale, unit = spec.label, spec.scale, spec.unit
         fig, ax = plt.subplots(figsize=(5.8, 3.2))
         if len(severities) > 1:
             for e in cfg.estimators:
@@ -289,10 +240,9 @@ def _md_to_html_tables(md: str) -> str:
 
 def _headline(cfg, conds, summary: list[dict]) -> str:
     """One sentence per estimator: the first metric clean, and the condition that hurts it most."""
-    from simtest.sweep import POSE_METRICS
-
     m = cfg.metrics[0]
-    label, scale, unit, higher = POSE_METRICS[m]
+    spec = metric(m)
+    label, scale, unit, higher = spec.label, spec.scale, spec.unit, spec.higher_is_better
     items = []
     for e in cfg.estimators:
         clean = _value(summary, e.name, "clean", "pose", m)
@@ -310,11 +260,16 @@ def _headline(cfg, conds, summary: list[dict]) -> str:
     return "<ul class=\"headline\">" + "".join(items) + "</ul>"
 
 
-def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
-    """Write ``results.csv``, ``summary.csv``, ``tables.md`` and ``report.html`` from the finished cells."""
-    results, summary = _collect(cfg, out, conds)
-    write_csv(out / "results.csv", results, RESULT_COLUMNS)
-    write_csv(out / "summary.csv", summary, SUMMARY_COLUMNS)
+def write_report(cfg, out: Path, conds) -> dict[str, Path]:
+    """Write ``tables.md`` and ``report.html`` from the sweep's ``results.csv`` and ``summary.csv``.
+
+    Args:
+        cfg: The sweep config (estimators, metrics, grasp settings, dataset, seed).
+        out: Sweep folder holding ``results.csv`` and ``summary.csv`` (:func:`simtest.cells.write_tables`).
+        conds: The sweep's conditions in table order.
+    """
+    results = read_csv(out / RESULTS_FILE)
+    summary = read_csv(out / SUMMARY_FILE)
     md = markdown_tables(cfg, conds, summary)
     atomic_write_text(out / "tables.md", md)
     plots = _plots(cfg, conds, summary, results)
@@ -344,5 +299,4 @@ def write_outputs(cfg, out: Path, conds) -> dict[str, Path]:
     page = ("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>simtest robustness report</title>"
             f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
     atomic_write_text(out / "report.html", page)
-    return {"results": out / "results.csv", "summary": out / "summary.csv", "tables": out / "tables.md",
-            "report": out / "report.html"}
+    return {"tables": out / "tables.md", "report": out / "report.html"}

@@ -21,29 +21,14 @@ from pathlib import Path
 from typing import Any
 
 
+from simtest import cells
 from simtest.errors import ConfigError, DatasetError
 from simtest.io.files import atomic_write_json, jsonable
+from simtest.metrics.registry import metric_keys
 from simtest.schema import bounds, build, read_config_file, to_plain
 
 __all__ = ["SweepConfig", "EstimatorEntry", "Condition", "SweepReport", "load_sweep_config", "run_sweep",
            "conditions_of"]
-
-#: Metrics a sweep can tabulate: key in the evaluation's ``overall`` -> (label, unit scale, unit, higher is
-#: better).
-POSE_METRICS: dict[str, tuple[str, float, str, bool]] = {
-    "add_s_or_add_01d": ("ADD(-S)-0.1d", 100.0, "%", True),
-    "auc_add_s_or_add": ("AUC ADD(-S)", 100.0, "%", True),
-    "auc_adds": ("AUC ADD-S", 100.0, "%", True),
-    "adds_lt_2cm": ("ADD-S < 2 cm", 100.0, "%", True),
-    "acc_pi_6": ("Acc@pi/6", 100.0, "%", True),
-    "acc_pi_18": ("Acc@pi/18", 100.0, "%", True),
-    "median_re_deg": ("median re", 1.0, "deg", False),
-    "ar": ("BOP AR", 100.0, "%", True),
-    "ar_mssd": ("AR MSSD", 100.0, "%", True),
-    "ar_mspd": ("AR MSPD", 100.0, "%", True),
-    "ar_vsd": ("AR VSD", 100.0, "%", True),
-}
-
 
 @dataclass(frozen=True)
 class EstimatorEntry:
@@ -88,7 +73,7 @@ class GraspSection:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """A whole sweep. ``metrics`` lists :data:`POSE_METRICS` keys shown in the tables and report."""
+    """A whole sweep. ``metrics`` lists keys of :mod:`simtest.metrics.registry` (sweepable ones) shown in the tables and report."""
 
     estimators: tuple[EstimatorEntry, ...]
     dataset: DatasetSection = field(default_factory=DatasetSection)
@@ -141,9 +126,10 @@ class SweepConfig:
         for d in self.factors.depth_noise:
             if d not in DEPTH_PRESETS:
                 raise bad("factors.depth_noise", d, " | ".join(DEPTH_PRESETS))
+        allowed = metric_keys(sweepable=True)
         for m in self.metrics:
-            if m not in POSE_METRICS:
-                raise bad("metrics", m, " | ".join(POSE_METRICS))
+            if m not in allowed:
+                raise bad("metrics", m, " | ".join(allowed))
 
     def to_dict(self) -> dict[str, Any]:
         import dataclasses
@@ -223,10 +209,6 @@ class SweepReport:
     paths: dict[str, Path] = field(default_factory=dict)
 
 
-def _cell_dir(out: Path, est: str, cond: str, kind: str) -> Path:
-    return out / "cells" / est / cond / kind
-
-
 def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     if cfg.dataset.path is not None:
         path = Path(cfg.dataset.path)
@@ -297,14 +279,14 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     report = SweepReport(out)
     conds = conditions_of(cfg)
     kinds = ["pose"] + (["grasp"] if cfg.grasp.episodes > 0 else [])
-    cells = [(e, c, k) for c in conds for e in cfg.estimators for k in kinds]
-    bar = tqdm(total=len(cells), unit="cell", desc="sweep", disable=not progress, dynamic_ncols=True)
+    grid = [(e, c, k) for c in conds for e in cfg.estimators for k in kinds]
+    bar = tqdm(total=len(grid), unit="cell", desc="sweep", disable=not progress, dynamic_ncols=True)
     clean = None
     try:
-        for est, cond, kind in cells:
+        for est, cond, kind in grid:
             key = f"{est.name}/{cond.name}/{kind}"
-            cdir = _cell_dir(out, est.name, cond.name, kind)
-            if (cdir / "cell.json").exists():
+            cdir = cells.cell_dir(out, est.name, cond.name, kind)
+            if cells.is_finished(cdir):
                 report.cells_skipped.append(key)
                 bar.update(1)
                 continue
@@ -320,9 +302,10 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
             bar.update(1)
     finally:
         bar.close()
-    from simtest.report import write_outputs
+    from simtest.report import write_report
 
-    report.paths = write_outputs(cfg, out, conds)
+    report.paths = cells.write_tables(out, [e.name for e in cfg.estimators], conds)
+    report.paths.update(write_report(cfg, out, conds))
     report.seconds = time.perf_counter() - t0
     return report
 
@@ -333,9 +316,9 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
     t0 = time.perf_counter()
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
                    progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options))
-    atomic_write_json(cdir / "cell.json", {"kind": "pose", "estimator": est.name, "dataset": str(data),
-                                           "overall": rep.to_json()["overall"], "seconds":
-                                               time.perf_counter() - t0, "failures": len(rep.failures)})
+    cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "dataset": str(data),
+                             "overall": rep.to_json()["overall"], "seconds": time.perf_counter() - t0,
+                             "failures": len(rep.failures)})
 
 
 def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir: Path, cond_index: int) -> None:
@@ -347,5 +330,5 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
                          seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
                          width=g.width, height=g.height, workers=cfg.workers, **cond.grasp_settings())
     rep = run_grasp_episodes(run, cdir, progress=False)
-    atomic_write_json(cdir / "cell.json", {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
-                                           "seconds": time.perf_counter() - t0})
+    cells.finish_cell(cdir, {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
+                             "seconds": time.perf_counter() - t0})

@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp``: speed figures as ratios against raw MuJoCo measured in the same run."""
+"""``simtest bench generate|grasp|metrics``: speed figures measured in the same run (ratios against raw MuJoCo)."""
 
 from __future__ import annotations
 
@@ -20,11 +20,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     gr = bsub.add_parser("grasp", help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
     gr.add_argument("--episodes", type=int, default=3)
     gr.set_defaults(func=_grasp)
+    m = bsub.add_parser("metrics", help="milliseconds per call of each pose metric on a fixed synthetic model")
+    m.add_argument("--number", type=int, default=5, help="calls per timing (default 5)")
+    m.add_argument("--repeat", type=int, default=3, help="timings; the best is reported (default 3)")
+    m.set_defaults(func=_metrics)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _generate(args: argparse.Namespace) -> int:
-    from simtest.bench import bench_generate
+    from simtest.benchmarks.generate import bench_generate
 
     res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
                          args.objects, two_workers=not args.no_workers)
@@ -33,7 +37,14 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _grasp(args: argparse.Namespace) -> int:
-    from simtest.envs.bench import bench_grasp
+    from simtest.benchmarks.grasp import bench_grasp
 
     print(bench_grasp(episodes=args.episodes).table())
+    return 0
+
+
+def _metrics(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.metrics import run, table
+
+    print(table(run(args.number, args.repeat)))
     return 0

@@ -310,8 +310,46 @@ def paste_occluders(
     if lvl == 0:
         info = OcclusionInfo(0, definition, 0.0, 0.0, (0.0, 0.0), (0.0, 0.0), True, 0, 0, n_obj)
         return rgb.copy(), np.zeros((h, w), bool), info
-    fg_band, bg_band, (fg_t, bg_t) = OCCLUSION_BANDS[definition][lvl]
+    fg_band, bg_band, _ = OCCLUSION_BANDS[definition][lvl]
+    margin = int(min(25, max(0, int(0.1 * min(h, w)))))
+    shapes, scales, trials = _search_occluders(obj, OCCLUSION_BANDS[definition][lvl], margin, bank, rng)
+    out, occ, kinds = _paint_occluders(rgb, obj, shapes, scales, bank, rng)
+    fg, bg = _fractions(occ, obj, n_obj, n_bg)
+    info = OcclusionInfo(
+        level=lvl, definition=definition, fg_fraction=float(fg), bg_fraction=float(bg), fg_band=fg_band,
+        bg_band=bg_band, in_band=_band_distance(fg, fg_band) == 0 and _band_distance(bg, bg_band) == 0,
+        n_occluders=len(shapes), trials=trials, object_pixels=n_obj, kinds=tuple(kinds),
+        centers=tuple((float(sh.cx), float(sh.cy)) for sh in shapes), margin=margin,
+    )
+    return out, occ, info
 
+
+def _occluder_centre(i: int, obj: np.ndarray, n_obj: int, margin: int, samplers: tuple,
+                     rng: np.random.Generator) -> tuple[float, float]:
+    """Centre (x, y) of occluder ``i``: the first on the object, the others preferably on the background."""
+    h, w = obj.shape
+    obj_points, bg_points, any_points = samplers
+    if i == 0 and n_obj:
+        if obj_points:
+            return obj_points(rng)
+        # object entirely within the margin: clamp an object pixel into it
+        ys, xs = np.nonzero(obj)
+        j = int(rng.integers(len(xs)))
+        return float(np.clip(xs[j], margin, w - 1 - margin)), float(np.clip(ys[j], margin, h - 1 - margin))
+    if bg_points:
+        return bg_points(rng)
+    if any_points:
+        return any_points(rng)
+    return (w - 1) / 2, (h - 1) / 2
+
+
+def _search_occluders(obj: np.ndarray, bands: tuple, margin: int, bank, rng: np.random.Generator
+                      ) -> tuple[list[_Shape], list[float], int]:
+    """Random occluder layouts, each sized by bisection to the level's targets, until one lands in both bands
+    (else the closest of :data:`_MAX_TRIALS`). Returns ``(shapes, scales in pixels, trials)``."""
+    fg_band, bg_band, (fg_t, bg_t) = bands
+    h, w = obj.shape
+    n_obj = int(obj.sum())
     # working resolution for the size search
     f = min(1.0, _WORK_SIDE / max(h, w))
     wh, ww = max(1, int(round(h * f))), max(1, int(round(w * f)))
@@ -320,14 +358,12 @@ def paste_occluders(
     n_obj_w = int(obj_w.sum())
     n_bg_w = ww * wh - n_obj_w
     if n_obj and not n_obj_w:  # tiny object lost by the downscale: search at full resolution
-        f_eff, wh, ww, obj_w, n_obj_w, n_bg_w = 1.0, h, w, obj, n_obj, n_bg
-    margin = int(min(25, max(0, int(0.1 * min(h, w)))))
+        f_eff, wh, ww, obj_w, n_obj_w, n_bg_w = 1.0, h, w, obj, n_obj, h * w - n_obj
     hi = float(np.hypot(h, w))
     # background occluders are centred preferably far from the object (probability ~ squared distance)
     far = cv2.distanceTransform((~obj).astype(np.uint8), cv2.DIST_L2, 3) ** 2 if n_obj else None
-    obj_points = _PointSampler(obj, margin)
-    bg_points = _PointSampler(~obj, margin, far)
-    any_points = _PointSampler(np.ones((h, w), bool), margin)
+    samplers = (_PointSampler(obj, margin), _PointSampler(~obj, margin, far),
+                _PointSampler(np.ones((h, w), bool), margin))
 
     best: tuple[float, list[_Shape], list[float], int] | None = None
     trials = 0
@@ -335,19 +371,7 @@ def paste_occluders(
         n = int(rng.integers(1, 4))
         shapes: list[_Shape] = []
         for i in range(n):
-            if i == 0 and n_obj:
-                if obj_points:
-                    pt = obj_points(rng)
-                else:  # object entirely within the margin: clamp an object pixel into it
-                    ys, xs = np.nonzero(obj)
-                    j = int(rng.integers(len(xs)))
-                    pt = (float(np.clip(xs[j], margin, w - 1 - margin)), float(np.clip(ys[j], margin, h - 1 - margin)))
-            elif bg_points:
-                pt = bg_points(rng)
-            elif any_points:
-                pt = any_points(rng)
-            else:
-                pt = ((w - 1) / 2, (h - 1) / 2)
+            pt = _occluder_centre(i, obj, n_obj, margin, samplers, rng)
             if bank is not None:
                 k = int(rng.integers(len(bank)))
                 shapes.append(_Shape(pt[0], pt[1], alpha=bank[k][1], bank_index=k))
@@ -378,9 +402,13 @@ def paste_occluders(
         if _band_distance(fg, fg_band) == 0 and _band_distance(bg, bg_band) == 0:
             break
     assert best is not None
-    _, shapes, scales, _ = best
+    return best[1], best[2], trials
 
-    # paint at full resolution
+
+def _paint_occluders(rgb: np.ndarray, obj: np.ndarray, shapes: list[_Shape], scales: list[float], bank,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Paint the occluders at full resolution: ``(image, union mask of pasted pixels, texture kind each)``."""
+    h, w = obj.shape
     out = rgb.copy()
     occ = np.zeros((h, w), bool)
     kinds: list[str] = []
@@ -410,14 +438,7 @@ def paste_occluders(
         sub = m[y0:y1, x0:x1]
         out[y0:y1, x0:x1][sub] = tex[sub]
         occ |= m
-    fg, bg = _fractions(occ, obj, n_obj, n_bg)
-    info = OcclusionInfo(
-        level=lvl, definition=definition, fg_fraction=float(fg), bg_fraction=float(bg), fg_band=fg_band,
-        bg_band=bg_band, in_band=_band_distance(fg, fg_band) == 0 and _band_distance(bg, bg_band) == 0,
-        n_occluders=len(shapes), trials=trials, object_pixels=n_obj, kinds=tuple(kinds),
-        centers=tuple((float(sh.cx), float(sh.cy)) for sh in shapes), margin=margin,
-    )
-    return out, occ, info
+    return out, occ, kinds
 
 
 def _image_crop(rgb: np.ndarray, obj: np.ndarray, bh: int, bw: int, rng: np.random.Generator) -> np.ndarray:

@@ -13,14 +13,14 @@ Written layout (what the BOP toolkit's ``inout.load_ply`` and ``load_json`` read
     models/simtest_objects.json  simtest's extra metadata (name, category, instance, density, rgba,
                                  source); the BOP toolkit ignores it
 
-Every file is written atomically (a temporary file in the same folder, then ``os.replace``).
+Every file is written atomically (a temporary file in the same folder, then ``os.replace``). Reading a folder
+into object models is :func:`simtest.objects.loaders.read_bop_models`, built on the readers here.
 """
 
 from __future__ import annotations
 
 import json
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,12 +30,11 @@ from simtest.errors import AssetError
 from simtest.io.bop import MM_PER_M
 from simtest.io.files import atomic_write_bytes as _atomic_write
 
-__all__ = ["MM_PER_M", "write_bop_models", "read_bop_models", "models_info_entry", "INFO_FILE", "META_FILE"]
+__all__ = ["MM_PER_M", "write_bop_models", "find_models_dir", "read_models_info", "read_symmetries",
+           "models_info_entry", "INFO_FILE", "META_FILE"]
 
 INFO_FILE = "models_info.json"
 META_FILE = "simtest_objects.json"
-#: A BOP model whose bbox centre is farther than this from its origin (metres) triggers a warning.
-CENTER_TOLERANCE = 1e-3
 
 
 def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray | None,
@@ -136,83 +135,69 @@ def _load_json(path: Path) -> dict:
     return data
 
 
-def read_bop_models(models_dir: str | Path, units: str = "mm") -> "ObjectSet":  # noqa: F821
-    """Read a BOP ``models/`` folder into an :class:`~simtest.objects.ObjectSet` (metres).
-
-    The model frame of the files is kept as it is (ground-truth poses of a BOP dataset refer to it); BOP
-    models have their origin at the bbox centre, and a model whose bbox centre is more than 1 mm off
-    its origin triggers a warning (its offset is recorded in ``extra["bbox_center"]``).
-
-    Args:
-        models_dir: Folder with ``models_info.json`` and ``obj_{id:06d}.ply``; a dataset root holding a
-            ``models/`` folder is accepted too.
-        units: Units of the files: ``"mm"`` (the BOP standard), ``"m"`` or ``"auto"`` (by size).
+def find_models_dir(models_dir: str | Path) -> Path:
+    """The folder holding ``models_info.json``: ``models_dir`` itself or its ``models/`` sub-folder.
 
     Raises:
-        AssetError: Missing folder, ``models_info.json`` or model file, malformed entries (naming the file,
-            object and field), absurd sizes for the units, or broken meshes.
+        AssetError: The folder does not exist.
     """
-    from simtest.objects.loaders import load_mesh, unit_scale
-    from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
-
     root = Path(models_dir)
     if not root.is_dir():
         raise AssetError(f"{root}: BOP models folder not found")
     if not (root / INFO_FILE).exists() and (root / "models" / INFO_FILE).exists():
         root = root / "models"
+    return root
+
+
+def read_models_info(root: Path) -> tuple[dict[int, dict], dict[str, dict]]:
+    """``({obj_id: models_info entry}, simtest_objects.json records)`` of a models folder, keys checked.
+
+    Raises:
+        AssetError: Missing or malformed ``models_info.json`` (naming the file and the bad key or entry).
+    """
     info_path = root / INFO_FILE
     info = _load_json(info_path)
     meta = _load_json(root / META_FILE) if (root / META_FILE).exists() else {}
-    objects = []
+    out: dict[int, dict] = {}
     for key, entry in info.items():
         if not re.fullmatch(r"\d+", str(key)) or int(key) < 1:
             raise AssetError(f"{info_path}: keys must be positive integer object ids, got {key!r}")
-        obj_id = int(key)
-        where = f"{info_path} (obj_id {obj_id})"
         if not isinstance(entry, dict):
-            raise AssetError(f"{where}: expected an object with diameter, min_x, ..., got {entry!r}")
-        ply = root / f"obj_{obj_id:06d}.ply"
-        if not ply.exists():
-            raise AssetError(f"{ply}: model file of obj_id {obj_id} listed in {info_path} not found")
-        mesh, raw_rgba = load_mesh(ply)
-        scale, unit = unit_scale(mesh, units, ply)
-        mesh = trimesh.Trimesh(np.asarray(mesh.vertices) * scale, np.asarray(mesh.faces), process=False)
-        to_m = scale  # file units -> metres, applied to the symmetry translations too
-        sym_d = []
-        for i, flat in enumerate(entry.get("symmetries_discrete", []) or []):
-            T = _floats(flat, 16, where, f"symmetries_discrete[{i}]").reshape(4, 4).copy()
-            R = T[:3, :3]
-            if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
-                raise AssetError(f"{where}: symmetries_discrete[{i}] is not a rigid transform: {flat!r}")
-            T[:3, 3] *= to_m
-            sym_d.append(T)
-        sym_c = []
-        for i, sym in enumerate(entry.get("symmetries_continuous", []) or []):
-            if not isinstance(sym, dict) or "axis" not in sym:
-                raise AssetError(f"{where}: symmetries_continuous[{i}] must be {{axis, offset}}, got {sym!r}")
-            axis = _floats(sym["axis"], 3, where, f"symmetries_continuous[{i}].axis")
-            if np.linalg.norm(axis) == 0:
-                raise AssetError(f"{where}: symmetries_continuous[{i}].axis must be non-zero, got {sym['axis']!r}")
-            offset = _floats(sym.get("offset", [0, 0, 0]), 3, where, f"symmetries_continuous[{i}].offset")
-            sym_c.append(ContinuousSymmetry(tuple(float(a) for a in axis), tuple(float(o) * to_m for o in offset)))
-        m = meta.get(str(obj_id), {}) if isinstance(meta, dict) else {}
-        center = 0.5 * (mesh.bounds[0] + mesh.bounds[1])
-        extra = {"units": unit, "scale": scale, "path": str(ply)}
-        if np.linalg.norm(center) > CENTER_TOLERANCE:
-            warnings.warn(f"{ply}: bbox centre is {np.round(center * 1000, 2).tolist()} mm off the model origin "
-                          "(BOP models are centred); the file frame is kept so dataset poses stay valid",
-                          stacklevel=2)
-            extra["bbox_center"] = center.tolist()
-        rgba = tuple(m.get("rgba", raw_rgba or (0.7, 0.7, 0.7, 1.0)))
-        objects.append(ObjectModel(
-            obj_id=obj_id, name=str(m.get("name", f"obj_{obj_id:06d}")), category=str(m.get("category", "obj")),
-            instance=int(m.get("instance", 0)), mesh=mesh, density=float(m.get("density", 500.0)), rgba=rgba,
-            symmetries_discrete=tuple(sym_d), symmetries_continuous=tuple(sym_c),
-            source=str(m.get("source", str(ply))), extra=extra))
-    listed = {f"obj_{o.obj_id:06d}.ply" for o in objects}
-    extra_files = sorted(p.name for p in root.glob("obj_*.ply") if p.name not in listed)
-    if extra_files:
-        warnings.warn(f"{root}: model files not listed in {INFO_FILE} are ignored: {', '.join(extra_files)}",
-                      stacklevel=2)
-    objects.sort(key=lambda o: o.obj_id)
-    return ObjectSet(objects, name=str(root))
+            raise AssetError(f"{info_path} (obj_id {int(key)}): expected an object with diameter, min_x, ..., "
+                             f"got {entry!r}")
+        out[int(key)] = entry
+    return out, meta if isinstance(meta, dict) else {}
+
+
+def read_symmetries(entry: dict, where: str, to_m: float) -> tuple[list[np.ndarray], list[tuple]]:
+    """The symmetries of one ``models_info`` entry in metres.
+
+    Args:
+        entry: The ``models_info.json`` record.
+        where: Text naming the file and object, for errors.
+        to_m: File units -> metres (applied to translations and offsets).
+
+    Returns:
+        ``(discrete 4x4 transforms, continuous (axis, offset) tuples)``.
+
+    Raises:
+        AssetError: A discrete symmetry that is not rigid, or a malformed continuous one.
+    """
+    sym_d = []
+    for i, flat in enumerate(entry.get("symmetries_discrete", []) or []):
+        T = _floats(flat, 16, where, f"symmetries_discrete[{i}]").reshape(4, 4).copy()
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+            raise AssetError(f"{where}: symmetries_discrete[{i}] is not a rigid transform: {flat!r}")
+        T[:3, 3] *= to_m
+        sym_d.append(T)
+    sym_c = []
+    for i, sym in enumerate(entry.get("symmetries_continuous", []) or []):
+        if not isinstance(sym, dict) or "axis" not in sym:
+            raise AssetError(f"{where}: symmetries_continuous[{i}] must be {{axis, offset}}, got {sym!r}")
+        axis = _floats(sym["axis"], 3, where, f"symmetries_continuous[{i}].axis")
+        if np.linalg.norm(axis) == 0:
+            raise AssetError(f"{where}: symmetries_continuous[{i}].axis must be non-zero, got {sym['axis']!r}")
+        offset = _floats(sym.get("offset", [0, 0, 0]), 3, where, f"symmetries_continuous[{i}].offset")
+        sym_c.append((tuple(float(a) for a in axis), tuple(float(o) * to_m for o in offset)))
+    return sym_d, sym_c

@@ -3,7 +3,7 @@
 Header ``scene_id,im_id,obj_id,score,R,t,time``; one row per estimate; ``R`` is the 3x3 rotation (model ->
 camera) as 9 space-separated floats, row-major; ``t`` the translation as 3 space-separated floats in
 **millimetres**; ``time`` the seconds spent on the whole image (-1 if unknown), the same on every row of one
-image. Inside simtest the rows are :class:`simtest.metrics.bop19.PoseEstimate` with ``t`` in metres; this
+image. Inside simtest the rows are :class:`simtest.metrics.bop19.ResultRow` with ``t`` in metres; this
 module converts at the file boundary (``MM_PER_M`` of :mod:`simtest.io.bop`).
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 from simtest.errors import DatasetError
 from simtest.io.bop import MM_PER_M
 from simtest.io.files import atomic_write_text
-from simtest.metrics.bop19 import PoseEstimate
+from simtest.metrics.bop19 import ResultRow
 
 __all__ = ["RESULTS_HEADER", "write_bop_results", "read_bop_results", "format_bop_results"]
 
@@ -31,7 +31,7 @@ def _floats(values: Iterable[float]) -> str:
     return " ".join(repr(float(v)) for v in values)
 
 
-def format_bop_results(rows: Iterable[PoseEstimate]) -> str:
+def format_bop_results(rows: Iterable[ResultRow]) -> str:
     """The text of a BOP results CSV for ``rows`` (translations in metres, written in millimetres)."""
     out = [",".join(RESULTS_HEADER)]
     for r in rows:
@@ -42,7 +42,7 @@ def format_bop_results(rows: Iterable[PoseEstimate]) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_bop_results(path: str | Path, rows: Iterable[PoseEstimate]) -> Path:
+def write_bop_results(path: str | Path, rows: Iterable[ResultRow]) -> Path:
     """Write pose estimates as a BOP results CSV (atomically).
 
     Args:
@@ -89,7 +89,7 @@ def _parse_float(text: str, where: str, field: str) -> float:
     return v
 
 
-def read_bop_results(path: str | Path, check_rotation: bool = True) -> list[PoseEstimate]:
+def read_bop_results(path: str | Path, check_rotation: bool = True) -> list[ResultRow]:
     """Read a BOP results CSV into estimates with ``t`` in metres.
 
     Args:
@@ -114,7 +114,7 @@ def read_bop_results(path: str | Path, check_rotation: bool = True) -> list[Pose
         raise DatasetError(f"{path}: empty file; expected the header {','.join(RESULTS_HEADER)}") from None
     if tuple(header) != RESULTS_HEADER:
         raise DatasetError(f"{path}:1: header must be {','.join(RESULTS_HEADER)}, got {','.join(header)}")
-    rows: list[PoseEstimate] = []
+    rows: list[ResultRow] = []
     times: dict[tuple[int, int], float] = {}
     for line_no, fields in enumerate(reader, start=2):
         if not fields or all(not f.strip() for f in fields):
@@ -140,6 +140,6 @@ def read_bop_results(path: str | Path, check_rotation: bool = True) -> list[Pose
             raise DatasetError(f"{where}: field 'time' is {time} but an earlier row of scene {scene_id}, image "
                                f"{im_id} has {times[key]}; BOP requires one time per image")
         times.setdefault(key, time)
-        rows.append(PoseEstimate(scene_id=scene_id, im_id=im_id, obj_id=obj_id, score=score, R=R,
+        rows.append(ResultRow(scene_id=scene_id, im_id=im_id, obj_id=obj_id, score=score, R=R,
                                  t=t_mm / MM_PER_M, time=time))
     return rows

@@ -7,6 +7,8 @@
   Chamfer distance.
 * :mod:`.viewpoint` — viewpoint protocol: geodesic error, Acc@pi/6, Acc@pi/18, median error, and the
   (azimuth, elevation, theta) parameterisation.
+* :mod:`.registry` — every aggregate metric declared once (key, label, definition, direction, format); tables,
+  sweeps and reports read it.
 """
 
 from simtest.metrics.auc import accuracy_below, auc_mean_rule, ycb_auc
@@ -14,7 +16,7 @@ from simtest.metrics.bop19 import (
     Bop19Result,
     EvalImage,
     GroundTruthPose,
-    PoseEstimate,
+    ResultRow,
     evaluate_bop19,
     match_greedy,
 )
@@ -62,7 +64,7 @@ __all__ = [
     # auc
     "ycb_auc", "auc_mean_rule", "accuracy_below",
     # bop19
-    "PoseEstimate", "GroundTruthPose", "EvalImage", "Bop19Result", "evaluate_bop19", "match_greedy",
+    "ResultRow", "GroundTruthPose", "EvalImage", "Bop19Result", "evaluate_bop19", "match_greedy",
     # nocs
     "rotation_error", "rotation_error_deg", "translation_error_cm", "n_deg_m_cm", "n_deg_m_cm_accuracy",
     "iou_3d", "iou_3d_legacy", "iou_accuracy", "chamfer_distance",

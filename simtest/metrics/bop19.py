@@ -35,7 +35,7 @@ from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, as_symmetries, mspd, mssd
 from simtest.raster import render_depth
 
 __all__ = [
-    "PoseEstimate",
+    "ResultRow",
     "GroundTruthPose",
     "EvalImage",
     "Bop19Result",
@@ -81,8 +81,9 @@ def _t(t: Any, what: str) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class PoseEstimate:
-    """One pose estimate, as a row of a BOP results file but in metres.
+class ResultRow:
+    """One scored pose estimate: a row of a BOP results file, in metres (what an estimator returned for one
+    image, with the image's ids; the estimator-side type is :class:`simtest.estimators.PoseEstimate`).
 
     Attributes:
         scene_id: Scene id.
@@ -247,7 +248,7 @@ def _spheres_overlap(radius: float, t1: np.ndarray, t2: np.ndarray) -> bool:
     return bool(d < radius * (1.0 / t1[2] + 1.0 / t2[2]))
 
 
-def evaluate_bop19(estimates: Iterable[PoseEstimate], ground_truth: Iterable[GroundTruthPose],
+def evaluate_bop19(estimates: Iterable[ResultRow], ground_truth: Iterable[GroundTruthPose],
                    models: Mapping[int, Any], images: Mapping[tuple[int, int], EvalImage], *,
                    visib_gt_min: float = VISIB_GT_MIN, n_top: int = -1,
                    error_types: Sequence[str] = ("vsd", "mssd", "mspd"), vsd_delta: float = VSD_DELTA,
@@ -284,30 +285,17 @@ def evaluate_bop19(estimates: Iterable[PoseEstimate], ground_truth: Iterable[Gro
         raise ConfigError(f"error_types must be a non-empty subset of ('vsd', 'mssd', 'mspd'), got {error_types!r}")
     if n_top < -1:
         raise ConfigError(f"n_top must be -1, 0 or positive, got {n_top!r}")
-    vsd_taus_a = np.asarray(vsd_taus, dtype=np.float64)
-    vsd_thetas_a = np.asarray(vsd_thetas, dtype=np.float64)
-    mssd_thetas_a = np.asarray(mssd_thetas, dtype=np.float64)
-    mspd_thetas_a = np.asarray(mspd_thetas, dtype=np.float64)
-
-    # Targets per (scene, im, obj).
-    targets: dict[tuple[int, int, int], list[GroundTruthPose]] = defaultdict(list)
-    for g in ground_truth:
-        if g.visib_fract >= visib_gt_min:
-            targets[(int(g.scene_id), int(g.im_id), int(g.obj_id))].append(g)
+    thresholds = {"vsd": (np.asarray(vsd_taus, dtype=np.float64), np.asarray(vsd_thetas, dtype=np.float64)),
+                  "mssd": np.asarray(mssd_thetas, dtype=np.float64), "mspd": np.asarray(mspd_thetas, dtype=np.float64)}
+    targets, by_group = _group_targets(ground_truth, estimates, visib_gt_min)
     num_targets = sum(len(v) for v in targets.values())
-    if num_targets == 0:
-        raise ConfigError(f"no ground-truth instance has visib_fract >= {visib_gt_min!r}; nothing to evaluate")
-    by_group: dict[tuple[int, int, int], list[PoseEstimate]] = defaultdict(list)
-    for e in estimates:
-        key = (int(e.scene_id), int(e.im_id), int(e.obj_id))
-        if key in targets:
-            by_group[key].append(e)
 
     # Matched-target counts per threshold, per object.
     obj_ids = sorted({k[2] for k in targets})
-    hits_vsd = {o: np.zeros((len(vsd_taus_a), len(vsd_thetas_a))) for o in obj_ids}
-    hits_mssd = {o: np.zeros(len(mssd_thetas_a)) for o in obj_ids}
-    hits_mspd = {o: np.zeros(len(mspd_thetas_a)) for o in obj_ids}
+    taus, thetas = thresholds["vsd"]
+    hits = {"vsd": {o: np.zeros((len(taus), len(thetas))) for o in obj_ids},
+            "mssd": {o: np.zeros(len(thresholds["mssd"])) for o in obj_ids},
+            "mspd": {o: np.zeros(len(thresholds["mspd"])) for o in obj_ids}}
     n_obj_targets = {o: 0 for o in obj_ids}
     parts_cache: dict[int, tuple] = {}
     gt_render_cache: dict[tuple[int, int, int], np.ndarray] = {}
@@ -326,61 +314,101 @@ def evaluate_bop19(estimates: Iterable[PoseEstimate], ground_truth: Iterable[Gro
             raise ConfigError(f"no model for obj_id {obj_id}; models given for {sorted(models)}")
         if obj_id not in parts_cache:
             parts_cache[obj_id] = _model_parts(models[obj_id], obj_id)
-        vertices, faces, diameter, syms = parts_cache[obj_id]
         image = images.get((scene_id, im_id))
         if image is None:
             raise ConfigError(f"no EvalImage for scene {scene_id}, image {im_id}")
-        scores = [float(e.score) for e in ests]
-        n_e, n_g = len(ests), len(gts)
+        _count_hits(hits, obj_id, ests, gts, parts_cache[obj_id], image, (scene_id, im_id), error_types,
+                    thresholds, vsd_delta, gt_render_cache)
 
-        if "mssd" in error_types:
-            E = np.array([[mssd(e.R, e.t, g.R, g.t, vertices, syms) for g in gts] for e in ests])
-            for k, th in enumerate(mssd_thetas_a):
-                hits_mssd[obj_id][k] += len(match_greedy(scores, E, th * diameter))
-        if "mspd" in error_types:
-            E = np.array([[mspd(e.R, e.t, g.R, g.t, image.K, vertices, syms) for g in gts] for e in ests])
-            E *= MSPD_REFERENCE_WIDTH / float(image.width)
-            for k, th in enumerate(mspd_thetas_a):
-                hits_mspd[obj_id][k] += len(match_greedy(scores, E, th))
-        if "vsd" in error_types:
-            if image.depth is None:
-                raise ConfigError(f"VSD needs the test depth of scene {scene_id}, image {im_id}")
-            E = np.ones((n_e, n_g, len(vsd_taus_a)))
-            radius = 0.5 * diameter
-            for i, e in enumerate(ests):
-                depth_est = None
-                for j, g in enumerate(gts):
-                    if not _spheres_overlap(radius, e.t, g.t):
-                        continue
-                    if depth_est is None:
-                        depth_est = render_depth(vertices, faces, e.R, e.t, image.K, image.width, image.height)
-                    gkey = (scene_id, im_id, g.gt_id)
-                    if gkey not in gt_render_cache:
-                        gt_render_cache[gkey] = render_depth(vertices, faces, g.R, g.t, image.K, image.width,
-                                                             image.height)
-                    E[i, j] = vsd_from_depth(depth_est, gt_render_cache[gkey], image.depth, image.K, vsd_delta,
-                                             vsd_taus_a, diameter)
-            for a in range(len(vsd_taus_a)):
-                for b, th in enumerate(vsd_thetas_a):
-                    hits_vsd[obj_id][a, b] += len(match_greedy(scores, E[:, :, a], th))
-
-    def _ar(hits: dict[int, np.ndarray], objs: Iterable[int], kind: str) -> tuple[np.ndarray, float]:
-        if kind not in error_types:
-            shape = next(iter(hits.values())).shape
-            return np.full(shape, np.nan), float("nan")
-        objs = list(objs)
-        total = sum(hits[o] for o in objs) / float(sum(n_obj_targets[o] for o in objs))
-        return total, float(np.mean(total))
-
-    rec_vsd, ar_vsd = _ar(hits_vsd, obj_ids, "vsd")
-    rec_mssd, ar_mssd = _ar(hits_mssd, obj_ids, "mssd")
-    rec_mspd, ar_mspd = _ar(hits_mspd, obj_ids, "mspd")
+    rec_vsd, ar_vsd = _ar(hits["vsd"], obj_ids, n_obj_targets, "vsd" in error_types)
+    rec_mssd, ar_mssd = _ar(hits["mssd"], obj_ids, n_obj_targets, "mssd" in error_types)
+    rec_mspd, ar_mspd = _ar(hits["mspd"], obj_ids, n_obj_targets, "mspd" in error_types)
     ar = float(np.nanmean([ar_vsd, ar_mssd, ar_mspd]))
     per_object = {}
     for o in obj_ids:
-        vals = {k: _ar(h, [o], k)[1] for k, h in (("vsd", hits_vsd), ("mssd", hits_mssd), ("mspd", hits_mspd))}
+        vals = {k: _ar(hits[k], [o], n_obj_targets, k in error_types)[1] for k in ("vsd", "mssd", "mspd")}
         per_object[o] = {"ar_vsd": vals["vsd"], "ar_mssd": vals["mssd"], "ar_mspd": vals["mspd"],
                          "ar": float(np.nanmean(list(vals.values()))), "num_targets": n_obj_targets[o]}
     return Bop19Result(ar=ar, ar_vsd=ar_vsd, ar_mssd=ar_mssd, ar_mspd=ar_mspd, recall_vsd=rec_vsd,
                        recall_mssd=rec_mssd, recall_mspd=rec_mspd, num_targets=num_targets,
                        num_estimates=num_considered, per_object=per_object)
+
+
+def _group_targets(ground_truth: Iterable[GroundTruthPose], estimates: Iterable[ResultRow],
+                   visib_gt_min: float) -> tuple[dict, dict]:
+    """Targets (``visib_fract >= visib_gt_min``) and the estimates of their groups, keyed by
+    ``(scene_id, im_id, obj_id)``.
+
+    Raises:
+        ConfigError: No target at all.
+    """
+    targets: dict[tuple[int, int, int], list[GroundTruthPose]] = defaultdict(list)
+    for g in ground_truth:
+        if g.visib_fract >= visib_gt_min:
+            targets[(int(g.scene_id), int(g.im_id), int(g.obj_id))].append(g)
+    if not targets:
+        raise ConfigError(f"no ground-truth instance has visib_fract >= {visib_gt_min!r}; nothing to evaluate")
+    by_group: dict[tuple[int, int, int], list[ResultRow]] = defaultdict(list)
+    for e in estimates:
+        key = (int(e.scene_id), int(e.im_id), int(e.obj_id))
+        if key in targets:
+            by_group[key].append(e)
+    return targets, by_group
+
+
+def _count_hits(hits: dict, obj_id: int, ests: list, gts: list, parts: tuple, image: EvalImage,
+                image_key: tuple[int, int], error_types: tuple[str, ...], thresholds: dict, vsd_delta: float,
+                gt_render_cache: dict) -> None:
+    """Add the matched-target counts of one (image, object) group at every threshold to ``hits``."""
+    vertices, faces, diameter, syms = parts
+    scores = [float(e.score) for e in ests]
+    if "mssd" in error_types:
+        E = np.array([[mssd(e.R, e.t, g.R, g.t, vertices, syms) for g in gts] for e in ests])
+        for k, th in enumerate(thresholds["mssd"]):
+            hits["mssd"][obj_id][k] += len(match_greedy(scores, E, th * diameter))
+    if "mspd" in error_types:
+        E = np.array([[mspd(e.R, e.t, g.R, g.t, image.K, vertices, syms) for g in gts] for e in ests])
+        E *= MSPD_REFERENCE_WIDTH / float(image.width)
+        for k, th in enumerate(thresholds["mspd"]):
+            hits["mspd"][obj_id][k] += len(match_greedy(scores, E, th))
+    if "vsd" in error_types:
+        taus, thetas = thresholds["vsd"]
+        E = _vsd_errors(ests, gts, parts, image, image_key, taus, vsd_delta, gt_render_cache)
+        for a in range(len(taus)):
+            for b, th in enumerate(thetas):
+                hits["vsd"][obj_id][a, b] += len(match_greedy(scores, E[:, :, a], th))
+
+
+def _vsd_errors(ests: list, gts: list, parts: tuple, image: EvalImage, image_key: tuple[int, int],
+                taus: np.ndarray, vsd_delta: float, gt_render_cache: dict) -> np.ndarray:
+    """VSD errors (n_est, n_gt, n_taus); pairs whose bounding spheres do not overlap keep error 1."""
+    vertices, faces, diameter, _ = parts
+    scene_id, im_id = image_key
+    if image.depth is None:
+        raise ConfigError(f"VSD needs the test depth of scene {scene_id}, image {im_id}")
+    E = np.ones((len(ests), len(gts), len(taus)))
+    radius = 0.5 * diameter
+    for i, e in enumerate(ests):
+        depth_est = None
+        for j, g in enumerate(gts):
+            if not _spheres_overlap(radius, e.t, g.t):
+                continue
+            if depth_est is None:
+                depth_est = render_depth(vertices, faces, e.R, e.t, image.K, image.width, image.height)
+            gkey = (scene_id, im_id, g.gt_id)
+            if gkey not in gt_render_cache:
+                gt_render_cache[gkey] = render_depth(vertices, faces, g.R, g.t, image.K, image.width, image.height)
+            E[i, j] = vsd_from_depth(depth_est, gt_render_cache[gkey], image.depth, image.K, vsd_delta, taus,
+                                     diameter)
+    return E
+
+
+def _ar(hits: dict[int, np.ndarray], objs: Iterable[int], n_obj_targets: dict[int, int],
+        evaluated: bool) -> tuple[np.ndarray, float]:
+    """(recall per threshold, average recall) pooled over ``objs``; NaN when the error type was not evaluated."""
+    if not evaluated:
+        shape = next(iter(hits.values())).shape
+        return np.full(shape, np.nan), float("nan")
+    objs = list(objs)
+    total = sum(hits[o] for o in objs) / float(sum(n_obj_targets[o] for o in objs))
+    return total, float(np.mean(total))

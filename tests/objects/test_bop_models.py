@@ -7,7 +7,8 @@ import json
 import numpy as np
 import trimesh
 
-from simtest.io.bop_models import MM_PER_M, read_bop_models, write_bop_models
+from simtest.io.bop_models import MM_PER_M, write_bop_models
+from simtest.objects import read_bop_models
 
 
 def test_round_trip(tmp_path, builtin):

@@ -11,7 +11,7 @@ from simtest.errors import DatasetError
 from simtest.estimators import PoseEstimate
 from simtest.eval import evaluate, score_results
 from simtest.io.bop_results import read_bop_results, write_bop_results
-from simtest.metrics.bop19 import PoseEstimate as ResultRow
+from simtest.metrics.bop19 import ResultRow
 
 
 class Raising:

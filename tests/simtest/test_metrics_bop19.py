@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from simtest.errors import ConfigError
-from simtest.metrics import EvalImage, GroundTruthPose, PoseEstimate, evaluate_bop19, match_greedy, mspd, vsd
+from simtest.metrics import EvalImage, GroundTruthPose, ResultRow, evaluate_bop19, match_greedy, mspd, vsd
 from simtest.metrics.bop19 import MSPD_THETAS, MSSD_THETAS, VSD_TAUS, VSD_THETAS
 from simtest.objects import ObjectModel
 from simtest.raster import render_depth
@@ -34,7 +34,7 @@ def _gt(t=T0, gt_id=0, visib=1.0, obj_id=3):
 
 
 def _est(t, score, obj_id=3):
-    return PoseEstimate(1, 0, obj_id, score, I3, t)
+    return ResultRow(1, 0, obj_id, score, I3, t)
 
 
 def test_match_greedy_two_estimates_one_gt_only_the_higher_score_matches():
@@ -108,4 +108,4 @@ def test_bad_inputs(box, image):
     with pytest.raises(ConfigError, match="depth"):
         evaluate_bop19([_est(T0, 1.0)], [_gt()], {3: box}, {(1, 0): EvalImage(K, W, H)})
     with pytest.raises(ConfigError, match="R must have 9"):
-        PoseEstimate(1, 0, 3, 1.0, np.eye(2), T0)
+        ResultRow(1, 0, 3, 1.0, np.eye(2), T0)

@@ -1,4 +1,4 @@
-"""Timings of the metrics on a fixed synthetic model: ``python -m simtest.metrics.benchmark``.
+"""Timings of the metrics on a fixed synthetic model: ``simtest bench metrics``.
 
 Model: a closed cylinder (radius 4 cm, height 12 cm) with 1499 sections = 3000 vertices, 5996 faces,
 continuous symmetry about z (315 discrete steps, BOP discretisation). Poses 0.6 m in front of a
@@ -8,7 +8,6 @@ continuous symmetry about z (315 discrete steps, BOP discretisation). Poses 0.6 
 
 from __future__ import annotations
 
-import argparse
 import timeit
 
 import numpy as np
@@ -74,14 +73,6 @@ def run(number: int = 5, repeat: int = 3) -> dict[str, float]:
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--number", type=int, default=5)
-    parser.add_argument("--repeat", type=int, default=3)
-    args = parser.parse_args(argv)
-    for name, ms in run(args.number, args.repeat).items():
-        print(f"{name:40s} {ms:9.3f} ms")
-
-
-if __name__ == "__main__":
-    main()
+def table(timings: dict[str, float]) -> str:
+    """One line per metric: name and milliseconds per call."""
+    return "\n".join(f"{name:40s} {ms:9.3f} ms" for name, ms in timings.items())

@@ -1,0 +1,9 @@
+"""Speed benchmarks (``simtest bench generate|grasp|metrics``), reported as ratios against raw MuJoCo (or as
+milliseconds per call) measured in the same run; never timed assertions in tests.
+
+* :mod:`.generate` — dataset generation frames/s vs raw ``mujoco.Renderer`` rendering; 1 vs 2 workers.
+* :mod:`.grasp` — grasp env steps/s vs raw ``mj_step``; wall time per oracle episode.
+* :mod:`.metrics` — milliseconds per call of each pose metric on a fixed synthetic model.
+
+These are orchestration modules: they drive :mod:`simtest.generators` and :mod:`simtest.envs`, imported lazily.
+"""

@@ -1,0 +1,69 @@
+"""Tables of an evaluation report: a Markdown table per object and overall, and a terminal summary.
+
+Columns, labels, units and number formats come from :mod:`simtest.metrics.registry`; this module only lays
+them out.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from simtest.metrics.bop19 import VISIB_GT_MIN
+from simtest.metrics.registry import NDEG_MCM, metric
+
+__all__ = ["format_table", "overall_table", "TABLE_METRICS", "SUMMARY_METRICS"]
+
+#: Metric keys of the Markdown table's columns (after the object name), in order. ``ar_vsd`` is dropped when
+#: VSD was not evaluated.
+TABLE_METRICS: tuple[str, ...] = ("num_targets", "add_s_or_add_01d", "auc_adds", "auc_add_s_or_add", "adds_lt_2cm",
+                                  "acc_pi_6", "acc_pi_18", "median_re_deg", "median_te_m", "5deg5cm", "10deg5cm",
+                                  "ar", "ar_vsd", "ar_mssd", "ar_mspd")
+#: Metric keys of the terminal summary, in order.
+SUMMARY_METRICS: tuple[str, ...] = (
+    "add_s_or_add_01d", "auc_adds", "auc_add_s_or_add", "adds_lt_2cm", "acc_pi_6", "acc_pi_18", "median_re_deg",
+    "median_te_m", *(f"{n:g}deg{m:g}cm" for n, m in NDEG_MCM), "ar", "ar_vsd", "ar_mssd", "ar_mspd",
+    "num_targets", "num_estimates", "num_failures", "mean_time_per_image_s")
+
+
+def _columns(vsd_on: bool) -> list[str]:
+    return [k for k in TABLE_METRICS if vsd_on or k != "ar_vsd"]
+
+
+def format_table(report: Any) -> str:
+    """Markdown tables of an :class:`~simtest.eval.EvalReport`: one row per object and one overall; units in
+    the headers (percent, degrees, centimetres)."""
+    vsd_on = bool(report.settings.get("vsd", True))
+    keys = _columns(vsd_on)
+    headers = [("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]
+    cols = ["Object", *headers]
+
+    def line(name: str, values: dict[str, Any]) -> str:
+        return "| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in keys]) + " |"
+
+    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
+    body = [line(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
+    body.append(line("**All**", report.overall))
+    s = report.settings
+    o = report.overall
+    title = s.get("estimator") or s.get("results", "")
+    footer = (f"\n{report.num_images} images, {o['num_targets']} targets (visib_fract >= {VISIB_GT_MIN}), "
+              f"{o.get('num_estimates', 0)} estimates, {o.get('num_failures', 0)} failures; "
+              f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
+              "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
+              "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
+    return f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + head + "\n".join(
+        body) + "\n" + footer
+
+
+def overall_table(report: Any) -> str:
+    """A short plain-text summary of the overall scores (for terminals): label, value and unit per line."""
+    o = report.overall
+    items = []
+    for k in SUMMARY_METRICS:
+        m = metric(k)
+        digits = 2 if k in ("median_re_deg", "median_te_m") else None
+        text = m.format(o.get(k), digits) if k in o else ""
+        items.append((m.label, f"{text} {m.unit}".rstrip()))
+    w = max(len(k) for k, _ in items)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in items)
