@@ -10,7 +10,9 @@ straight approach, closing, a straight lift by 0.15 m and a 1 s hold.
 Success: the target is at least 0.10 m above its resting height and in the gripper (touching a finger) at
 every control period of the 1.0 s hold, and held between both fingers at its end. Otherwise exactly one failure reason is recorded (:data:`FAILURE_REASONS`):
 
-* ``estimator_error``: the estimator raised, or returned a malformed pose (not a rotation);
+* ``estimator_error``: the estimator raised, called ``sys.exit``, returned something other than a list, or
+  returned a malformed estimate for the target (not PoseEstimate-like, wrong shapes, not a rotation);
+* ``estimator_timeout``: the estimator did not return within the time limit;
 * ``no_estimate``: no estimate for the target, or one with NaN / inf values;
 * ``no_feasible_grasp``: no grasp candidate passes the approach, table and collision checks;
 * ``ik_failure``: candidates pass the geometric checks but IK reaches none (or a motion became unreachable);
@@ -39,6 +41,7 @@ from simtest import panda
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner
 from simtest.estimators.base import Observation, PoseEstimate, load_estimator
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
 from simtest.geometry import Pose
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
@@ -46,7 +49,7 @@ __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode",
 
 #: Every failure reason an episode can end with ("none" = success).
 FAILURE_REASONS = ("none", "no_estimate", "no_feasible_grasp", "ik_failure", "missed", "slipped", "collision",
-                   "estimator_error")
+                   "estimator_error", "estimator_timeout")
 #: Contact force (N) between the robot and the table / another object that counts as a collision.
 COLLISION_FORCE = 15.0
 #: Fingertip-table contact force (N) at which the approach stops (a guarded move) and the gripper closes.
@@ -77,8 +80,9 @@ class EpisodeResult:
         visible_pixels: Target pixels visible in the observation.
         grasp_index: Index of the executed grasp candidate (-1 if none).
         approach_tilt_deg: Angle of the executed approach from straight down, degrees (NaN if none).
-        error: The estimator's exception text if it raised; for collisions the phase, the two geoms and the
-            contact force; for IK failures during execution the unreachable pose.
+        error: What went wrong with the estimator (exception text, ``sys.exit``, the time limit, the invalid
+            return value or estimate) for ``estimator_*`` and ``no_estimate`` outcomes; for collisions the
+            phase, the two geoms and the contact force; for IK failures during execution the unreachable pose.
         frames: Video frames (third-person | wrist), only when recording.
     """
 
@@ -290,28 +294,30 @@ def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.
             "mssd": mssd(R_e, t_e, R_g, t_g, pts, _SYMMETRY_CACHE[key])}
 
 
-def _pick_estimate(estimates: list, obj_id: int) -> PoseEstimate | None:
-    best = None
-    for e in estimates:
-        if int(getattr(e, "obj_id", -1)) != obj_id or getattr(e, "target_index", None) not in (None, 0):
-            continue
-        score = float(getattr(e, "score", 1.0))
-        if best is None or (np.isfinite(score) and score > float(best.score)):
+def _pick_estimate(elements: list, obj_id: int,
+                   known: set[int]) -> tuple[PoseEstimate | None, InvalidEstimate | None]:
+    """The highest-scoring valid estimate of ``obj_id`` answering the first target (or no target); without one,
+    the first invalid element for ``obj_id`` (or of unknown object) says why."""
+    best, first_bad = None, None
+    for i, element in enumerate(elements):
+        e, why = check_estimate(element, known, index=i)
+        if why is not None:
+            if first_bad is None and why.obj_id in (None, obj_id):
+                first_bad = why
+        elif e.obj_id == obj_id and e.target_index in (None, 0) and (best is None or e.score > best.score):
             best = e
-    return best
+    return best, (None if best is not None else first_bad)
 
 
-def _as_rotation(R: np.ndarray) -> np.ndarray | None:
-    """``R`` if it is (numerically) a rotation, re-orthonormalised; ``None`` otherwise."""
-    R = np.asarray(R, dtype=np.float64)
-    if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) <= 0:
-        return None
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    """The rotation nearest to ``R`` (a checked rotation, within rounding)."""
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
 
 
 def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int | None = None,
-                options: dict | None = None, *, record: bool = False, record_every: int = 2) -> EpisodeResult:
+                options: dict | None = None, *, record: bool = False, record_every: int = 2,
+                timeout: float | None = DEFAULT_TIMEOUT_S) -> EpisodeResult:
     """Run one closed-loop episode (see the module docstring).
 
     Args:
@@ -325,9 +331,12 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
         options: ``reset`` options (objects, target, n_distractors, occlusion, corruption, depth_noise, ...).
         record: Keep video frames (third-person | wrist) in ``EpisodeResult.frames``.
         record_every: Record every n-th control period (2 -> 10 frames per simulated second).
+        timeout: Time limit of the estimator call, seconds (``None`` or 0: none); over it the episode ends
+            as ``estimator_timeout``.
 
     Returns:
-        An :class:`EpisodeResult`; estimator failures are recorded, never raised.
+        An :class:`EpisodeResult`; estimator failures (exceptions, ``sys.exit``, timeouts, invalid return
+        values) are recorded, never raised. ``KeyboardInterrupt`` propagates.
     """
     t_start = time.perf_counter()
     u = env.unwrapped
@@ -381,24 +390,16 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
 
     # 2. Estimate.
     t0 = time.perf_counter()
-    try:
-        estimates = list(est.estimate(observation) or [])
-    except Exception as exc:  # any estimator failure is a recorded outcome
-        result.estimate_s = time.perf_counter() - t0
-        result.error = f"{type(exc).__name__}: {exc}"
-        return finish("estimator_error")
+    elements, fault = call_estimator(est, observation, timeout)
     result.estimate_s = time.perf_counter() - t0
-    chosen = _pick_estimate(estimates, tid)
+    if fault is not None:
+        result.error = fault.message
+        return finish("estimator_timeout" if fault.kind == "timeout" else "estimator_error")
+    chosen, why = _pick_estimate(elements, tid, set(u.objects.ids))
     if chosen is None:
-        return finish("no_estimate")
-    R_e = np.asarray(chosen.R, dtype=np.float64)
-    t_e = np.asarray(chosen.t, dtype=np.float64).reshape(-1)
-    if R_e.shape != (3, 3) or t_e.shape != (3,) or not (np.all(np.isfinite(R_e)) and np.all(np.isfinite(t_e))):
-        return finish("no_estimate")
-    R_e = _as_rotation(R_e)
-    if R_e is None:
-        result.error = "the estimated R is not a rotation matrix"
-        return finish("estimator_error")
+        result.error = "" if why is None else why.message
+        return finish("estimator_error" if why is not None and why.problem != "non-finite" else "no_estimate")
+    R_e, t_e = _orthonormal(chosen.R), chosen.t
     errs = pose_errors(obj, R_e, t_e, R_g, t_g)
     result.add_s, result.re_deg, result.te, result.mssd = (errs["add_s"], errs["re_deg"], errs["te"],
                                                            errs["mssd"])

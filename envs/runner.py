@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
 from simtest.io.files import jsonable
 
@@ -69,6 +70,8 @@ class GraspRunConfig:
         workers: Worker processes.
         video: Write a GIF per episode (third-person | wrist) for the first ``video_episodes`` episodes.
         video_episodes: How many episodes get a video.
+        timeout: Time limit of the estimator call per episode, seconds (``None`` or 0: none); over it the
+            episode ends as ``estimator_timeout`` and the run goes on.
     """
 
     estimator: str = "oracle"
@@ -87,6 +90,7 @@ class GraspRunConfig:
     workers: int = 1
     video: bool = False
     video_episodes: int = 5
+    timeout: float | None = DEFAULT_TIMEOUT_S
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -154,7 +158,7 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
     seed = episode_seed(cfg.seed, index)
     record = bool(cfg.video and ctx["out"] is not None and index < cfg.video_episodes)
     res = run_episode(ctx["env"], ctx["estimator"], seed=seed, options=cfg.reset_options(index, ctx["targets"]),
-                      record=record)
+                      record=record, timeout=cfg.timeout)
     row = {"episode": index, **res.to_row()}
     if record and res.frames:
         path = Path(ctx["out"]) / "videos" / f"episode_{index:04d}_{res.target_name}_{res.reason}.gif"
@@ -192,6 +196,9 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     ``summary.md`` (success rate with a 95 % Wilson interval, per object, per failure reason, pose errors),
     and with ``cfg.video`` ``videos/episode_NNNN_<object>_<reason>.gif`` (or ``.mp4``).
 
+    Estimator faults (exceptions, ``sys.exit``, timeouts, invalid return values) end their episode as
+    ``estimator_error`` or ``estimator_timeout`` (message in the ``error`` column) and the run goes on.
+
     Raises:
         ConfigError: On bad settings (checked before any episode runs).
     """
@@ -201,6 +208,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         raise ConfigError(f"workers must be >= 1, got {cfg.workers!r}")
     if cfg.seed < 0:
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
+    check_timeout(cfg.timeout)
     from simtest.envs.grasp_env import EpisodeConfig
 
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early

@@ -1,10 +1,12 @@
 """Run a pose estimator over a BOP dataset and score it; or score an existing BOP results CSV.
 
 :func:`evaluate` iterates the images of a split, builds one :class:`~simtest.estimators.base.Observation` per
-image, calls the estimator (timing it, catching every exception: a failing image is recorded and the run goes
-on), rejects invalid estimates (NaN / inf, not a rotation, unknown object id), writes the estimates as a BOP
-results CSV and scores them with :func:`score_estimates`. :func:`score_results` scores a results CSV written
-by any estimator, with the same code, so both give the same numbers.
+image, calls the estimator through :func:`simtest.estimators.guard.call_estimator` (timing it, with a per-image
+time limit; an exception, ``sys.exit``, a timeout or a return value that is not a list is recorded and the run
+goes on), rejects invalid estimates (:func:`~simtest.estimators.guard.check_estimate`: not PoseEstimate-like,
+wrong shapes, NaN / inf, not a rotation, unknown object id), writes the estimates as a BOP results CSV and
+scores them with :func:`score_estimates`. :func:`score_results` scores a results CSV written by any
+estimator, with the same code, so both give the same numbers.
 
 Scoring protocol
 ----------------
@@ -29,8 +31,8 @@ Scoring protocol
   targets, so the per-image ARs weighted by their target counts add up to the pooled AR.
 
 Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
-target), ``failures.csv`` (image, object, kind, message) and ``metrics.md`` (Markdown tables, units in the
-column headers).
+target), ``failures.csv`` (image, object, kind, message, exception type) and ``metrics.md`` (Markdown tables,
+units in the column headers).
 """
 
 from __future__ import annotations
@@ -39,7 +41,6 @@ import json
 import logging
 import math
 import time
-import traceback
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import Estimator, Observation, load_estimator
-from simtest.estimators.base import PoseEstimate as EstimatorPose
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
 from simtest.io.files import atomic_write_text, csv_text, jsonable
@@ -59,16 +60,15 @@ from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, 
 from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, te, vsd
 from simtest.metrics.registry import NDEG_MCM, definitions
-from simtest.tables import format_table, overall_table
+from simtest.tables import failure_counts, format_table, overall_table
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
-           "NDEG_MCM"]
+           "NDEG_MCM", "format_table", "overall_table", "failure_counts"]
 
 log = logging.getLogger(__name__)
 
 #: How targets are given to the estimator.
 TARGET_MODES = ("gt-masks", "none")
-_ROT_TOL = 1e-3
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -158,7 +158,8 @@ class EvalReport:
             degrees where the key says ``_deg``, fractions in [0, 1]).
         per_object: ``{obj_id: metrics}`` with the same keys.
         errors: One dict per target (``errors.csv`` rows).
-        failures: One dict per failure (``failures.csv`` rows): ``scene_id, im_id, obj_id, kind, message``.
+        failures: One dict per failure (``failures.csv`` rows): ``scene_id, im_id, obj_id, kind, message,
+            exception_type``.
         estimates: The valid estimates, as BOP result rows (metres).
         object_names: ``{obj_id: name}``.
         num_images: Images evaluated.
@@ -184,7 +185,7 @@ class EvalReport:
         return {"settings": self.settings, "num_images": self.num_images, "overall": jsonable(self.overall),
                 "per_object": {str(k): {"name": self.object_names.get(k, str(k)), **jsonable(v)}
                                for k, v in sorted(self.per_object.items())},
-                "num_failures": len(self.failures),
+                "num_failures": len(self.failures), "failures_by_kind": failure_counts(self.failures),
                 "definitions": METRIC_DEFINITIONS}
 
 
@@ -370,38 +371,16 @@ def _observation(ref: _ImageRef, objects, targets: str, width: int, height: int,
     return obs, tg
 
 
-def _check_estimate(e: Any, known: set[int]) -> str | None:
-    """Why an estimate is invalid, or None."""
-    if not isinstance(e, EstimatorPose):
-        return f"expected simtest.estimators.PoseEstimate, got {type(e).__name__}"
-    try:
-        R = np.asarray(e.R, dtype=np.float64)
-        t = np.asarray(e.t, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        return f"R / t are not numeric: {exc}"
-    if R.shape != (3, 3) or t.reshape(-1).shape != (3,):
-        return f"R must be 3x3 and t a 3-vector (metres), got shapes {R.shape} and {t.shape}"
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t)) and np.isfinite(float(e.score))):
-        return "non-finite estimate (NaN or inf in R, t or score)"
-    if not np.isfinite(float(e.scale)):
-        return f"non-finite scale {e.scale!r}"
-    dev = float(np.abs(R @ R.T - np.eye(3)).max())
-    if dev > _ROT_TOL or np.linalg.det(R) < 0:
-        return f"R is not a rotation matrix (max |R R^T - I| = {dev:.2g}, det = {np.linalg.det(R):.3f})"
-    if int(e.obj_id) not in known:
-        return f"unknown obj_id {e.obj_id!r}; dataset objects: {sorted(known)}"
-    return None
-
-
-def _failure(ref: _ImageRef, obj_id: Any, kind: str, message: str) -> dict[str, Any]:
+def _failure(ref: _ImageRef, obj_id: Any, kind: str, message: str, exception_type: str = "") -> dict[str, Any]:
     return {"scene_id": ref.scene_id, "im_id": ref.im_id, "obj_id": "" if obj_id is None else obj_id,
-            "kind": kind, "message": message}
+            "kind": kind, "message": message, "exception_type": exception_type}
 
 
 def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str = "train_pbr",
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
-             estimator_options: dict[str, Any] | None = None) -> EvalReport:
+             estimator_options: dict[str, Any] | None = None,
+             timeout: float | None = DEFAULT_TIMEOUT_S) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -418,21 +397,25 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         out_dir: Write ``results.csv``, ``metrics.json``, ``errors.csv``, ``failures.csv``, ``metrics.md``.
         vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240.
         estimator_options: Options for a named estimator (ignored for instances).
+        timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit); an image over the
+            limit is recorded as a ``timeout`` failure and the run goes on with the next image.
 
     Returns:
         The :class:`EvalReport`.
 
     Raises:
-        ConfigError: Unknown ``targets`` value or estimator, or an estimator needing ground truth with
-            ``targets="none"``.
+        ConfigError: Unknown ``targets`` value or estimator, an estimator needing ground truth with
+            ``targets="none"``, or a negative ``timeout``.
         DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
             ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
             runs.
 
-    An exception raised by the estimator on an image is recorded in ``failures.csv`` (its targets count as
-    misses) and the run goes on. An estimator may also expose ``last_failures``: a list of
-    ``{"obj_id", "reason"}`` dicts describing the targets it gave up on in its last call; they are recorded
-    with kind ``no-estimate``.
+    Estimator faults never end the run: an image where the estimator raises (kind ``exception``), calls
+    ``sys.exit`` (``exit``), exceeds ``timeout`` (``timeout``) or returns something other than a list
+    (``invalid-return``) is recorded in ``failures.csv`` and its targets count as misses; an invalid element of
+    the returned list is recorded as ``invalid-estimate`` and dropped. ``KeyboardInterrupt`` stops the run. An
+    estimator may also expose ``last_failures``: a list of ``{"obj_id", "reason"}`` dicts describing the
+    targets it gave up on in its last call; they are recorded with kind ``no-estimate``.
     """
     from tqdm import tqdm
 
@@ -444,6 +427,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if needs_gt and targets == "none":
         raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt = True); use "
                           "targets='gt-masks'")
+    limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
     known = set(objects.ids)
     refs = _iter_images(root, split, scenes, max_images, known)
@@ -455,33 +439,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     bar = tqdm(refs, desc="eval", unit="img", disable=not progress, dynamic_ncols=True)
     for ref in bar:
         obs, _ = _observation(ref, objects, targets, width, height, needs_gt)
-        t0 = time.perf_counter()
-        try:
-            out = est.estimate(obs)
-            out = list(out) if out is not None else []
-        except Exception as exc:  # noqa: BLE001 - every estimator error is recorded, never fatal
-            dt = time.perf_counter() - t0
-            times.append(dt)
-            msg = f"{type(exc).__name__}: {exc}"
-            log.warning("estimator failed on scene %d image %d: %s\n%s", ref.scene_id, ref.im_id, msg,
-                        traceback.format_exc())
-            failures.append(_failure(ref, None, "exception", msg))
-            continue
-        dt = time.perf_counter() - t0
-        times.append(dt)
-        for f in list(getattr(est, "last_failures", None) or []):
-            failures.append(_failure(ref, f.get("obj_id"), "no-estimate", str(f.get("reason", ""))))
-        for e in out:
-            why = _check_estimate(e, known)
-            if why is not None:
-                failures.append(_failure(ref, getattr(e, "obj_id", None), "invalid-estimate", why))
-                continue
-            row = ResultRow(scene_id=ref.scene_id, im_id=ref.im_id, obj_id=int(e.obj_id), score=float(e.score),
-                            R=np.asarray(e.R, dtype=np.float64), t=np.asarray(e.t, dtype=np.float64).reshape(3),
-                            time=dt)
-            results.append(row)
-            if float(e.scale) != 1.0:
-                scales[id(row)] = float(e.scale)
+        times.append(_estimate_image(est, obs, ref, known, limit, results, scales, failures))
         if progress:
             bar.set_postfix(fail=len(failures), s_per_img=f"{np.mean(times):.3f}")
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
@@ -494,12 +452,39 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
     settings = {"dataset": str(root), "split": split, "estimator": _describe(estimator, est), "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {})}
+                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings)
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
+
+
+def _estimate_image(est: Any, obs: Observation, ref: _ImageRef, known: set[int], timeout: float | None,
+                    results: list[ResultRow], scales: dict[int, float], failures: list[dict[str, Any]]) -> float:
+    """Run the estimator on one image; append its valid estimates to ``results`` (and non-unit scales to
+    ``scales``) and every fault to ``failures``. Returns the wall time of the call, s."""
+    t0 = time.perf_counter()
+    out, fault = call_estimator(est, obs, timeout)
+    dt = time.perf_counter() - t0
+    if fault is not None:
+        log.warning("estimator failed on scene %d image %d (%s): %s\n%s", ref.scene_id, ref.im_id, fault.kind,
+                    fault.message, fault.trace)
+        failures.append(_failure(ref, None, fault.kind, fault.message, fault.exception_type))
+        return dt
+    for f in list(getattr(est, "last_failures", None) or []):
+        failures.append(_failure(ref, f.get("obj_id"), "no-estimate", str(f.get("reason", ""))))
+    for i, element in enumerate(out):
+        e, why = check_estimate(element, known, index=i)
+        if why is not None:
+            failures.append(_failure(ref, why.obj_id, "invalid-estimate", why.message))
+            continue
+        row = ResultRow(scene_id=ref.scene_id, im_id=ref.im_id, obj_id=e.obj_id, score=e.score, R=e.R, t=e.t,
+                        time=dt)
+        results.append(row)
+        if e.scale != 1.0:
+            scales[id(row)] = e.scale
+    return dt
 
 
 def _describe(spec: Any, est: Any) -> str:
@@ -562,7 +547,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
 # Output files
 _ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diameter_m", "symmetric", "matched",
                   "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale"]
-_FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message"]
+_FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type"]
 
 
 def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:

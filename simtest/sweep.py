@@ -23,6 +23,7 @@ from typing import Any
 
 from simtest import cells
 from simtest.errors import ConfigError, DatasetError
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S
 from simtest.io.files import atomic_write_json, jsonable
 from simtest.metrics.registry import metric_keys
 from simtest.schema import bounds, build, read_config_file, to_plain
@@ -73,7 +74,9 @@ class GraspSection:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """A whole sweep. ``metrics`` lists keys of :mod:`simtest.metrics.registry` (sweepable ones) shown in the tables and report."""
+    """A whole sweep. ``metrics`` lists sweepable keys of :mod:`simtest.metrics.registry` shown in the tables
+    and report; ``timeout`` is the time limit of one estimator call (per image, per grasp episode), seconds
+    (0: none)."""
 
     estimators: tuple[EstimatorEntry, ...]
     dataset: DatasetSection = field(default_factory=DatasetSection)
@@ -83,6 +86,7 @@ class SweepConfig:
     vsd: bool = False
     seed: int = field(default=0, metadata=bounds(0, 2**63 - 1))
     workers: int = field(default=1, metadata=bounds(1, 64))
+    timeout: float = field(default=DEFAULT_TIMEOUT_S, metadata=bounds(0, 86_400))
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "sweep config") -> "SweepConfig":
@@ -315,7 +319,8 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
 
     t0 = time.perf_counter()
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
-                   progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options))
+                   progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options),
+                   timeout=cfg.timeout)
     cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "dataset": str(data),
                              "overall": rep.to_json()["overall"], "seconds": time.perf_counter() - t0,
                              "failures": len(rep.failures)})
@@ -328,7 +333,8 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
     g = cfg.grasp
     run = GraspRunConfig(estimator=est.estimator, estimator_options=dict(est.options), episodes=g.episodes,
                          seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
-                         width=g.width, height=g.height, workers=cfg.workers, **cond.grasp_settings())
+                         width=g.width, height=g.height, workers=cfg.workers, timeout=cfg.timeout,
+                         **cond.grasp_settings())
     rep = run_grasp_episodes(run, cdir, progress=False)
     cells.finish_cell(cdir, {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
                              "seconds": time.perf_counter() - t0})

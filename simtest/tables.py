@@ -6,13 +6,14 @@ them out.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from simtest.metrics.bop19 import VISIB_GT_MIN
 from simtest.metrics.registry import NDEG_MCM, metric
 
-__all__ = ["format_table", "overall_table", "TABLE_METRICS", "SUMMARY_METRICS"]
+__all__ = ["format_table", "overall_table", "failure_counts", "TABLE_METRICS", "SUMMARY_METRICS"]
 
 #: Metric keys of the Markdown table's columns (after the object name), in order. ``ar_vsd`` is dropped when
 #: VSD was not evaluated.
@@ -48,7 +49,8 @@ def format_table(report: Any) -> str:
     o = report.overall
     title = s.get("estimator") or s.get("results", "")
     footer = (f"\n{report.num_images} images, {o['num_targets']} targets (visib_fract >= {VISIB_GT_MIN}), "
-              f"{o.get('num_estimates', 0)} estimates, {o.get('num_failures', 0)} failures; "
+              f"{o.get('num_estimates', 0)} estimates, {o.get('num_failures', 0)} failures"
+              f"{_kinds_text(report.failures)}; "
               f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
               "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
@@ -64,6 +66,22 @@ def overall_table(report: Any) -> str:
         m = metric(k)
         digits = 2 if k in ("median_re_deg", "median_te_m") else None
         text = m.format(o.get(k), digits) if k in o else ""
+        if k == "num_failures":
+            text += _kinds_text(report.failures)
         items.append((m.label, f"{text} {m.unit}".rstrip()))
     w = max(len(k) for k, _ in items)
     return "\n".join(f"{k:<{w}}  {v}" for k, v in items)
+
+
+def failure_counts(failures: Iterable[dict[str, Any]]) -> dict[str, int]:
+    """``{kind: number of failures}``, kinds in order of first appearance."""
+    out: dict[str, int] = {}
+    for f in failures:
+        out[f["kind"]] = out.get(f["kind"], 0) + 1
+    return out
+
+
+def _kinds_text(failures: list[dict[str, Any]]) -> str:
+    """``" (timeout 2, exception 1)"``: how many failures of each kind; ``""`` without failures."""
+    counts = failure_counts(failures)
+    return " (" + ", ".join(f"{k} {n}" for k, n in counts.items()) + ")" if counts else ""

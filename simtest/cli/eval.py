@@ -31,6 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD (faster; AR is then mean of MSSD and MSPD)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
+                   help="time limit of the estimator per image (default 120; 0 = none); an image over it is "
+                        "recorded in failures.csv as 'timeout' and the run goes on")
     p.set_defaults(func=run)
 
 
@@ -83,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         report = score_results(args.results, args.data, **common)
     else:
         report = evaluate(args.data, args.estimator, targets=args.targets,
-                          estimator_options=parse_options(args.opt), **common)
+                          estimator_options=parse_options(args.opt), timeout=args.timeout, **common)
     print(format_table(report))
     print(overall_table(report))
     print()

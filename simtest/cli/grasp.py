@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
     p.add_argument("--video-episodes", type=int, default=5, help="how many episodes get a clip (default 5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
+                   help="time limit of the estimator per episode (default 120; 0 = none); an episode over it "
+                        "ends as 'estimator_timeout' and the run goes on")
     p.set_defaults(func=run)
 
 
@@ -78,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed, objects=args.objects, targets=_targets(args.target), n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
-        workers=args.workers, video=args.video, video_episodes=args.video_episodes)
+        workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout)
     report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, command_line=["simtest", *sys.argv[1:]])
     print(report.table())
     print(f"wrote {args.out}/episodes.csv, summary.json, summary.md")

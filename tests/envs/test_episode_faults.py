@@ -1,0 +1,90 @@
+"""Estimator faults in closed-loop episodes: each ends its episode with a recorded reason and message, the
+runner goes on, and the next episode runs normally."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from simtest.envs.episode import FAILURE_REASONS, run_episode
+from simtest.estimators.base import PoseEstimate
+from simtest.estimators.oracle import OracleEstimator
+
+
+class Sleeper:
+    def estimate(self, observation):
+        time.sleep(30)
+        return []
+
+
+class Exits:
+    def estimate(self, observation):
+        sys.exit(3)
+
+
+class ReturnsNone:
+    def estimate(self, observation):
+        return None
+
+
+class FlatRotation:
+    def estimate(self, observation):
+        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=np.eye(2), t=np.zeros(3))]
+
+
+class SlowFirst:
+    """Hangs on its first call, then returns the ground truth (an oracle)."""
+
+    needs_gt = True
+
+    def __init__(self):
+        self.calls = 0
+
+    def estimate(self, observation):
+        self.calls += 1
+        if self.calls == 1:
+            time.sleep(30)
+        R, t = observation.gt_poses[0]
+        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=R, t=t)]
+
+
+def test_timeout_ends_the_episode_and_the_next_runs_normally(env):
+    res = run_episode(env, Sleeper(), seed=4, options={"target": "box_1"}, timeout=1)
+    assert not res.success and res.reason == "estimator_timeout" and "estimator_timeout" in FAILURE_REASONS
+    assert "1 s time limit" in res.error and np.isnan(res.add_s) and res.grasp_index == -1
+    after = run_episode(env, OracleEstimator(), seed=3, options={"target": "box_1"}, timeout=1)
+    assert after.reason == "none" and after.success and after.add_s < 1e-6
+
+
+@pytest.mark.parametrize("estimator, words", [
+    (Exits(), "sys.exit(3)"),
+    (ReturnsNone(), "estimate() returned None; expected a list of PoseEstimate"),
+    (FlatRotation(), "R must be 3x3 and t 3 values"),
+])
+def test_faulty_estimators_are_estimator_errors(env, estimator, words):
+    res = run_episode(env, estimator, seed=4, options={"target": "box_1"})
+    assert not res.success and res.reason == "estimator_error"
+    assert words in res.error and np.isnan(res.add_s)
+
+
+def test_grasp_cli_records_a_timeout_and_goes_on(tmp_path, capsys):
+    from simtest.cli import main
+
+    out = tmp_path / "run"
+    assert main(["grasp", "--estimator", f"{__name__}:SlowFirst", "--episodes", "2", "--target", "box_1",
+                 "--width", "96", "--timeout", "1", "--out", str(out), "--quiet"]) == 0
+    assert "| estimator_timeout | 1 |" in capsys.readouterr().out
+    with (out / "episodes.csv").open(newline="") as f:
+        first, second = list(csv.DictReader(f))
+    assert first["reason"] == "estimator_timeout" and "1 s time limit" in first["error"]
+    assert second["reason"] not in ("estimator_timeout", "estimator_error", "no_estimate")
+    assert float(second["add_s"]) < 1e-6
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["by_reason"]["estimator_timeout"] == 1 and summary["config"]["timeout"] == 1.0
+    assert main(["grasp", "--estimator", "oracle", "--timeout", "-2", "--out", str(tmp_path / "x"),
+                 "--quiet"]) == 2
