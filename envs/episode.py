@@ -43,6 +43,7 @@ from simtest.envs.planner import GraspPlan, GraspPlanner
 from simtest.estimators.base import Observation, PoseEstimate, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
 from simtest.geometry import Pose
+from simtest.io.bop import mask_bbox
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
            "pose_errors"]
@@ -378,9 +379,7 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     result.visible_pixels = int(mask.sum())
     T_cam_obj_gt = info["T_cam_obj"][u.grasp_scene.target_instance]
     R_g, t_g = T_cam_obj_gt[:3, :3], T_cam_obj_gt[:3, 3]
-    ys, xs = np.nonzero(mask)
-    box = ((int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
-           if len(xs) else (0, 0, 0, 0))
+    box = tuple(mask_bbox(mask)) if mask.any() else (0, 0, 0, 0)  # BOP's bbox_visib convention
     needs_gt = bool(getattr(est, "needs_gt", False))
     observation = Observation(
         rgb=obs["rgb"], depth=obs["depth"], K=obs["K"], width=u.width, height=u.height, objects=u.objects,

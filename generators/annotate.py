@@ -16,6 +16,7 @@ import numpy as np
 from simtest.camera import CameraModel
 from simtest.generators.builder import SimScene
 from simtest.geometry import Pose
+from simtest.io.bop import mask_bbox
 from simtest.objects import ObjectSet
 from simtest.render import Frame
 
@@ -35,8 +36,9 @@ class InstanceAnnotation:
         px_count_valid: Silhouette pixels (in the image) with valid depth.
         px_count_visib: Visible pixels.
         visib_fract: ``px_count_visib / px_count_all`` (0 if the object is not in front of the camera).
-        bbox_obj: [x, y, w, h] of the silhouette (may extend beyond the image), [-1]*4 if empty.
-        bbox_visib: [x, y, w, h] of the visible mask, [-1]*4 if empty.
+        bbox_obj: [x, y, w, h] of the silhouette (may extend beyond the image), [-1]*4 if empty; BOP's
+            convention (:func:`simtest.io.bop.mask_bbox`: ``w = xmax - xmin``, ``h = ymax - ymin``).
+        bbox_visib: [x, y, w, h] of the visible mask (same convention), [-1]*4 if empty.
     """
 
     obj_id: int
@@ -111,12 +113,13 @@ def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, 
     return mask, (x0, y0)
 
 
-def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> list[int]:
-    ys = np.flatnonzero(mask.any(axis=1))
-    if len(ys) == 0:
-        return [-1, -1, -1, -1]
-    xs = np.flatnonzero(mask.any(axis=0))
-    return [int(xs[0] + x0), int(ys[0] + y0), int(xs[-1] - xs[0] + 1), int(ys[-1] - ys[0] + 1)]
+def _box_union(a: list[int], b: list[int]) -> list[int]:
+    """Smallest BOP box ``[x, y, w, h]`` (pixels) holding boxes ``a`` and ``b`` (``w < 0``: empty box)."""
+    if a[2] < 0 or b[2] < 0:
+        return list(b if a[2] < 0 else a)
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    x1, y1 = max(a[0] + a[2], b[0] + b[2]), max(a[1] + a[3], b[1] + b[3])
+    return [x0, y0, x1 - x0, y1 - y0]
 
 
 def _silhouette(scene: SimScene, i: int, obj, camera: CameraModel, T_cam_world: Pose, near: float):
@@ -182,9 +185,11 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
         # The amodal mask contains the visible one by definition; GL's sub-pixel vertex snapping can leave a
         # rare pixel centre that sits within 1/256 px of a vertex covered in the render but not in the fill.
         extra = visib & ~mask
+        bbox_obj = mask_bbox(sil, x0, y0)
         if extra.any():
             mask |= extra
             px_all += int(extra.sum())
+            bbox_obj = _box_union(bbox_obj, mask_bbox(extra))
         px_visib = int(visib[ys0:ys1, xs0:xs1].sum()) if ys1 > ys0 and xs1 > xs0 else 0
         px_valid = int(np.count_nonzero(mask[ys0:ys1, xs0:xs1] & (frame.depth[ys0:ys1, xs0:xs1] > 0))) \
             if ys1 > ys0 and xs1 > xs0 else 0
@@ -192,6 +197,6 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
             obj_id=oid, T_cam_obj=T, mask=mask, mask_visib=visib, px_count_all=px_all,
             px_count_valid=px_valid, px_count_visib=px_visib,
             visib_fract=float(px_visib / px_all) if px_all > 0 else 0.0,
-            bbox_obj=_bbox(sil, x0, y0), bbox_visib=_bbox(visib[ys0:ys1, xs0:xs1], xs0, ys0) if px_visib else
-            [-1, -1, -1, -1], instance=i))
+            bbox_obj=bbox_obj,
+            bbox_visib=mask_bbox(visib[ys0:ys1, xs0:xs1], xs0, ys0) if px_visib else [-1, -1, -1, -1], instance=i))
     return out

@@ -105,9 +105,12 @@ class MaterialConfig:
 class RenderConfig:
     profile: Literal["fast", "quality"] = field(default="fast", metadata=_bounds(choices=("fast", "quality")))
     depth_scale: float = field(default=0.1, metadata=_bounds(1e-3, 100.0))  # mm per depth PNG unit (BOP)
-    rgb_format: Literal["png", "jpg"] = field(default="png", metadata=_bounds(choices=("png", "jpg")))
+    # rgb/ images: JPEG as in BOP's PBR layout, or lossless PNG; JPEG quality 1-100.
+    rgb_format: Literal["jpg", "png"] = field(default="jpg", metadata=_bounds(choices=("jpg", "png")))
     jpg_quality: int = field(default=95, metadata=_bounds(1, 100))
     coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
+    # box of each COCO annotation: whole object in the image (BOP toolkit default) or its visible part
+    coco_bbox: Literal["amodal", "modal"] = field(default="amodal", metadata=_bounds(choices=("amodal", "modal")))
 
 
 @dataclass(frozen=True)

@@ -151,7 +151,8 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
     scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
-                         rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco)
+                         rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
+                         coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
     with Renderer(scene.model, cfg.camera.width, cfg.camera.height, profile=cfg.render.profile) as renderer:

@@ -9,8 +9,13 @@ from __future__ import annotations
 
 from simtest import gl as _gl
 
+#: Oldest MuJoCo release simtest runs on (3.7 made joint damping a vector, which the Panda model sets).
+#: pyproject.toml declares the same floor.
+MIN_MUJOCO = "3.7"
+
 _gl.configure()  # must precede any import of mujoco
+_gl.check_mujoco(MIN_MUJOCO)
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+__all__ = ["__version__", "MIN_MUJOCO"]

@@ -64,8 +64,14 @@ def mujoco_camera_intrinsics(K: np.ndarray, width: int, height: int) -> dict[str
 class CameraModel:
     """A pinhole camera with OpenCV intrinsics and its pose in the world.
 
+    Pixel centres: ``K`` follows OpenCV, so the centre of pixel ``(row v, col u)`` is the image point
+    ``(u, v)`` (integer coordinates) and ``cx = (width - 1) / 2`` puts the principal point at the image centre.
+    simtest's masks hold exactly the pixels whose centre the silhouette covers. Renderers that sample pixel
+    centres at ``(u + 0.5, v + 0.5)`` (OpenGL-style, e.g. the BOP toolkit's vispy renderer) reproduce simtest's
+    masks when given ``cx + 0.5`` and ``cy + 0.5`` (same ``fx``, ``fy``).
+
     Attributes:
-        K: 3x3 intrinsics (pixels), OpenCV convention.
+        K: 3x3 intrinsics (pixels), OpenCV convention (pixel centres at integer coordinates).
         width: Image width (pixels).
         height: Image height (pixels).
         T_world_cam: Pose of the OpenCV camera frame in the world (metres).

@@ -20,7 +20,8 @@ key                 type / shape         meaning
 ``R``, ``t``        float64 (N,3,3),(N,3) ground-truth pose model -> camera; ``t`` in metres
 ``R_sym``,``t_sym`` float64 (N,3,3),(N,3) the symmetry-equivalent pose the keypoints are computed from
                                          (equal to ``R``, ``t`` for objects without symmetries)
-``boxes``           float32 (N, 4)       visible box ``[x, y, w, h]`` in pixels, from the (updated) mask
+``boxes``           float32 (N, 4)       visible box ``[x, y, w, h]`` in pixels, from the (updated) mask, as
+                                         BOP's ``bbox_visib`` (``w = xmax - xmin``); zeros when not visible
 ``keypoints_2d``    float64 (N, J, 2)    model keypoints projected with ``(R_sym, t_sym)`` and ``K``, pixels
 ``keypoints_3d``    float64 (N, J, 3)    the model-frame keypoints, metres
 ``visib_fract``     float32 (N,)         visible fraction after the transforms
@@ -435,12 +436,13 @@ class PoseDataset:
                 R_sym[k] = s["R"][k] @ S[:3, :3]
                 t_sym[k] = s["R"][k] @ S[:3, 3] + s["t"][k]
             kp2[k] = project_points(kp3[k], R_sym[k], t_sym[k], s["K"])
+        from simtest.io.bop import mask_bbox
+
         masks = s["masks"]
         boxes = np.zeros((n, 4), np.float32)
         for k in range(n):
-            ys, xs = np.nonzero(masks[k])
-            if len(xs):
-                boxes[k] = (xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+            if masks[k].any():
+                boxes[k] = mask_bbox(masks[k])
         visib = np.array([masks[k].sum() / s["px_all"][k] for k in range(n)], np.float32) if n else \
             np.zeros(0, np.float32)
         rgb = torch.from_numpy(np.ascontiguousarray(s["rgb"].transpose(2, 0, 1)))

@@ -1,7 +1,7 @@
 """Speed benchmarks, reported as ratios against raw MuJoCo measured in the same run.
 
 ``bench_generate``: frames/s of the whole ``generate`` pipeline (sampling, building, settling, rendering,
-annotation, PNG/JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
+annotation, image and JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
 segmentation: three ``render()`` calls per frame, MuJoCo's own API for them) for the same settled scenes and
 camera poses; and 1 vs 2 workers. With 2 workers, throughput is frames over the busy time of the slower worker
 (worker start-up, about 1.5 s of imports and object loading per process, is reported separately).

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.io.bop import mask_bbox
 
 __all__ = [
     "OCCLUSION_DEFINITIONS",
@@ -498,15 +499,10 @@ def visibility_stats(mask_visib: np.ndarray, px_count_all: int) -> dict[str, Any
 
     Returns:
         ``{"px_count_visib", "visib_fract", "bbox_visib"}`` with ``visib_fract = px_count_visib /
-        px_count_all`` (0 if ``px_count_all`` is 0) and ``bbox_visib = [x, y, w, h]`` in pixels
-        (``[-1, -1, -1, -1]`` when nothing is visible).
+        px_count_all`` (0 if ``px_count_all`` is 0) and ``bbox_visib = [x, y, w, h]`` in pixels, BOP's box
+        (:func:`simtest.io.bop.mask_bbox`; ``[-1, -1, -1, -1]`` when nothing is visible).
     """
     m = np.asarray(mask_visib).astype(bool)
     n = int(m.sum())
-    if n:
-        ys, xs = np.nonzero(m)
-        bbox = [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)]
-    else:
-        bbox = [-1, -1, -1, -1]
     return {"px_count_visib": n, "visib_fract": float(n / px_count_all) if px_count_all > 0 else 0.0,
-            "bbox_visib": bbox}
+            "bbox_visib": mask_bbox(m)}

@@ -6,7 +6,7 @@ This module (with :mod:`simtest.io.bop_models` for ``models/``) is the only plac
 Layout written::
 
     DATASET/camera.json, models/, manifest.json
-    DATASET/{split}/{scene:06d}/rgb/{im:06d}.png|jpg, depth/{im:06d}.png (uint16, mm = value * depth_scale),
+    DATASET/{split}/{scene:06d}/rgb/{im:06d}.jpg|png, depth/{im:06d}.png (uint16, mm = value * depth_scale),
         mask/{im:06d}_{gt:06d}.png, mask_visib/..., scene_camera.json, scene_gt.json, scene_gt_info.json,
         scene_gt_coco.json (optional)
 """
@@ -26,21 +26,45 @@ import cv2
 import numpy as np
 
 from simtest.camera import CameraModel
-from simtest.errors import DatasetError
+from simtest.errors import ConfigError, DatasetError
 from simtest.geometry import Pose
 from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed
 
 __all__ = [
-    "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json", "encode_depth", "decode_depth",
+    "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
+    "encode_depth", "decode_depth",
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
     "dataset_split_dir", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
-    "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS",
+    "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
 ]
 
 #: The only metres <-> millimetres factor in simtest.
 MM_PER_M = 1000.0
 #: Largest representable depth value of a uint16 PNG.
 _UINT16_MAX = 65535
+#: File formats of ``rgb/`` images the writer knows (BOP's PBR layout stores JPEG).
+RGB_FORMATS: tuple[str, ...] = ("jpg", "png")
+#: Boxes of ``scene_gt_coco.json`` (as the BOP toolkit's ``calc_gt_coco.py``): of the whole object in the image
+#: (``amodal``, the toolkit's default) or of its visible part (``modal``).
+COCO_BBOX_TYPES: tuple[str, ...] = ("amodal", "modal")
+
+
+def mask_bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> list[int]:
+    """BOP box ``[x, y, w, h]`` (pixels) of a mask, as the BOP toolkit's ``misc.calc_2d_bbox``.
+
+    ``x, y`` are the smallest column and row that hold a mask pixel, ``w = xmax - xmin`` and ``h = ymax - ymin``
+    (no +1: a one-pixel mask has ``w = h = 0``); ``[-1, -1, -1, -1]`` when the mask is empty.
+
+    Args:
+        mask: (H, W) mask (non-zero = inside).
+        x0, y0: Pixel coordinates of ``mask[0, 0]`` (for a mask cut from a larger canvas).
+    """
+    m = np.asarray(mask).astype(bool, copy=False)
+    ys = np.flatnonzero(m.any(axis=1))
+    if len(ys) == 0:
+        return [-1, -1, -1, -1]
+    xs = np.flatnonzero(m.any(axis=0))
+    return [int(xs[0] + x0), int(ys[0] + y0), int(xs[-1] - xs[0]), int(ys[-1] - ys[0])]
 
 
 def pose_to_bop(T: Pose) -> tuple[list[float], list[float]]:
@@ -128,7 +152,27 @@ class SceneWriter:
     """
 
     def __init__(self, split_dir: str | Path, scene_id: int, depth_scale: float = 0.1,
-                 rgb_format: str = "png", jpg_quality: int = 95, coco: bool = False) -> None:
+                 rgb_format: str = "jpg", jpg_quality: int = 95, coco: bool = False, coco_bbox: str = "amodal",
+                 coco_categories: list[int] | None = None) -> None:
+        """Start the scene in its hidden partial folder.
+
+        Args:
+            split_dir: The split folder (``DATASET/train_pbr``).
+            scene_id: Scene id (the folder name, 6 digits).
+            depth_scale: Millimetres per depth PNG unit.
+            rgb_format: ``"jpg"`` (BOP's PBR layout; lossy at ``jpg_quality``) or ``"png"`` (lossless).
+            jpg_quality: JPEG quality 1-100.
+            coco: Also write ``scene_gt_coco.json``.
+            coco_bbox: Box of each COCO annotation: ``"amodal"`` (whole object in the image) or ``"modal"``.
+            coco_categories: Object ids listed as COCO categories (the whole object set, as the BOP toolkit
+                does) besides those that appear in the scene.
+        """
+        if rgb_format not in RGB_FORMATS:
+            raise ConfigError(f"rgb_format = {rgb_format!r} is invalid; allowed: {', '.join(RGB_FORMATS)}")
+        if coco_bbox not in COCO_BBOX_TYPES:
+            raise ConfigError(f"coco_bbox = {coco_bbox!r} is invalid; allowed: {', '.join(COCO_BBOX_TYPES)}")
+        if not 1 <= int(jpg_quality) <= 100:
+            raise ConfigError(f"jpg_quality = {jpg_quality!r} is invalid; allowed: [1, 100]")
         self.final_dir = Path(split_dir) / f"{scene_id:06d}"
         self.dir = Path(split_dir) / f".{scene_id:06d}.partial"
         if self.dir.exists():
@@ -140,6 +184,8 @@ class SceneWriter:
         self.rgb_format = rgb_format
         self.jpg_quality = int(jpg_quality)
         self.coco = coco
+        self.coco_bbox = coco_bbox
+        self.coco_categories = None if coco_categories is None else sorted(int(c) for c in coco_categories)
         self.scene_camera: dict[str, dict] = {}
         self.scene_gt: dict[str, list] = {}
         self.scene_gt_info: dict[str, list] = {}
@@ -153,6 +199,14 @@ class SceneWriter:
 
     def _write_png(self, path: Path, img: np.ndarray, mask: bool = False) -> None:
         self._pending.append(self._pool.submit(lambda: atomic_write_bytes(path, _png(img, mask))))
+
+    def _write_rgb(self, im_id: int, rgb: np.ndarray) -> None:
+        """Queue ``rgb/{im_id:06d}.jpg|png`` (``rgb`` in RGB order)."""
+        bgr = np.ascontiguousarray(rgb[..., ::-1])
+        path = self.dir / "rgb" / f"{im_id:06d}.{self.rgb_format}"
+        q = self.jpg_quality
+        self._pending.append(self._pool.submit(
+            lambda: atomic_write_bytes(path, encode_image(bgr, path.suffix, jpg_quality=q))))
 
     def _drain(self, keep: int = 0) -> None:
         """Wait for queued writes (all, or all but the newest ``keep``), re-raising their errors."""
@@ -173,14 +227,7 @@ class SceneWriter:
         """
         key = str(im_id)
         self._drain(keep=64)  # bound the memory held by queued images
-        bgr = np.ascontiguousarray(rgb[..., ::-1])
-        if self.rgb_format == "jpg":
-            path = self.dir / "rgb" / f"{im_id:06d}.jpg"
-            q = self.jpg_quality
-            self._pending.append(self._pool.submit(
-                lambda: atomic_write_bytes(path, encode_image(bgr, ".jpg", jpg_quality=q))))
-        else:
-            self._write_png(self.dir / "rgb" / f"{im_id:06d}.png", bgr)
+        self._write_rgb(im_id, rgb)
         self._write_png(self.dir / "depth" / f"{im_id:06d}.png", encode_depth(depth_m, self.depth_scale))
         T_cam_world = camera.T_cam_world
         R9, t_mm = pose_to_bop(T_cam_world)
@@ -196,24 +243,33 @@ class SceneWriter:
             self._write_png(self.dir / "mask" / f"{im_id:06d}_{gt_id:06d}.png", m.astype(np.uint8) * 255, True)
             self._write_png(self.dir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png", mv.astype(np.uint8) * 255,
                             True)
-            if self.coco and inst.px_count_visib > 0:
-                self._coco_annotation(im_id, inst, mv)
+            if self.coco and mv.any():
+                self._coco_annotation(im_id, inst, m, mv)
         self.scene_gt[key] = gts
         self.scene_gt_info[key] = infos
         if self.coco:
-            ext = "jpg" if self.rgb_format == "jpg" else "png"
-            self.coco_images.append({"id": im_id, "file_name": f"rgb/{im_id:06d}.{ext}", "width": camera.width,
-                                     "height": camera.height})
+            self.coco_images.append({"id": im_id, "file_name": f"rgb/{im_id:06d}.{self.rgb_format}",
+                                     "width": camera.width, "height": camera.height})
 
-    def _coco_annotation(self, im_id: int, inst, mask_visib: np.ndarray) -> None:
+    def _coco_annotation(self, im_id: int, inst, mask: np.ndarray, mask_visib: np.ndarray) -> None:
+        """One COCO annotation as the BOP toolkit's ``calc_gt_coco.py`` writes it.
+
+        Ids count from 1 within the scene file (pycocotools' COCOeval reads id 0 as "no match"); the
+        segmentation is the visible mask (compressed RLE); ``ignore`` marks instances less than 10 % visible;
+        the box is COCO's (pixel extent, ``w = xmax - xmin + 1``) of the amodal mask cut to the image, or of the
+        visible mask with ``coco_bbox="modal"``.
+        """
         from pycocotools import mask as mask_utils
 
         rle = mask_utils.encode(np.asfortranarray(mask_visib.astype(np.uint8)))
+        box_rle = rle if self.coco_bbox == "modal" else mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
+        bbox = [int(round(float(v))) for v in mask_utils.toBbox(box_rle)]
         rle["counts"] = rle["counts"].decode("ascii")
+        h, w = mask_visib.shape
         self.coco_annotations.append({
-            "id": len(self.coco_annotations), "image_id": im_id, "category_id": int(inst.obj_id),
-            "iscrowd": 0, "area": int(inst.px_count_visib), "bbox": list(inst.bbox_visib), "segmentation": rle,
-            "ignore": False})
+            "id": len(self.coco_annotations) + 1, "image_id": im_id, "category_id": int(inst.obj_id),
+            "iscrowd": 0, "area": int(np.count_nonzero(mask_visib)), "bbox": bbox, "segmentation": rle,
+            "ignore": bool(inst.visib_fract < 0.1), "width": int(w), "height": int(h)})
 
     def close(self) -> Path:
         """Write the scene JSON files and move the finished scene into place; returns its folder."""
@@ -223,9 +279,9 @@ class SceneWriter:
         atomic_write_text(self.dir / "scene_gt.json", dump_json_keyed(self.scene_gt))
         atomic_write_text(self.dir / "scene_gt_info.json", dump_json_keyed(self.scene_gt_info))
         if self.coco:
-            cats = sorted({a["category_id"] for a in self.coco_annotations})
+            cats = sorted(set(self.coco_categories or ()) | {a["category_id"] for a in self.coco_annotations})
             atomic_write_json(self.dir / "scene_gt_coco.json", {
-                "info": {"description": f"scene {self.scene_id}"}, "images": self.coco_images,
+                "info": {"description": f"scene {self.scene_id}"}, "licenses": [], "images": self.coco_images,
                 "annotations": self.coco_annotations,
                 "categories": [{"id": c, "name": str(c), "supercategory": "object"} for c in cats]}, indent=None)
         if self.final_dir.exists():

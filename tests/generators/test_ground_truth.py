@@ -45,8 +45,96 @@ def test_dataset_layout_and_json_fields(small_dataset, small_config):
                                   "visib_fract"}
                 # Translations are millimetres: objects sit 0.2-3 m from the camera.
                 assert 200 < np.linalg.norm(g["cam_t_m2c"]) < 3000
-            for ext_dir in ("rgb", "depth"):
-                assert (scene_dir / ext_dir / f"{int(k):06d}.png").is_file()
+            # BOP's PBR layout: JPEG colour, 16-bit PNG depth
+            assert (scene_dir / "rgb" / f"{int(k):06d}.jpg").is_file()
+            assert (scene_dir / "depth" / f"{int(k):06d}.png").is_file()
+
+
+def _calc_2d_bbox(mask: np.ndarray) -> list[int]:
+    """The BOP toolkit's ``misc.calc_2d_bbox`` of a mask's pixels: ``[xmin, ymin, xmax - xmin, ymax - ymin]``."""
+    ys, xs = np.nonzero(mask)
+    return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min()), int(ys.max() - ys.min())]
+
+
+def test_mask_bbox_is_the_toolkits_box():
+    from simtest.io.bop import mask_bbox
+
+    m = np.zeros((6, 8), bool)
+    m[2, 3] = True
+    assert mask_bbox(m) == [3, 2, 0, 0]  # one pixel: zero width and height, as calc_2d_bbox
+    m[4, 6] = True
+    assert mask_bbox(m) == [3, 2, 3, 2] == _calc_2d_bbox(m)
+    assert mask_bbox(m, x0=-5, y0=10) == [-2, 12, 3, 2]
+    assert mask_bbox(np.zeros((3, 3), bool)) == [-1, -1, -1, -1]
+
+
+def test_boxes_match_bop_toolkit_calc_2d_bbox(small_dataset):
+    """bbox_visib is calc_2d_bbox of mask_visib; bbox_obj is that of the amodal mask (for untruncated objects)
+    and contains the in-image amodal mask otherwise."""
+    checked_obj = 0
+    for scene_dir, im_id, im, depth, gt_id, gt in _instances(small_dataset):
+        visib = read_mask(scene_dir, im_id, gt_id, visible=True)
+        amodal = read_mask(scene_dir, im_id, gt_id, visible=False)
+        assert gt.bbox_visib == (_calc_2d_bbox(visib) if visib.any() else [-1, -1, -1, -1])
+        if not amodal.any():
+            continue
+        x, y, w, h = gt.bbox_obj
+        if gt.px_count_all == amodal.sum():  # the whole silhouette is in the image
+            assert gt.bbox_obj == _calc_2d_bbox(amodal)
+            checked_obj += 1
+        else:
+            ax, ay, aw, ah = _calc_2d_bbox(amodal)
+            assert x <= ax and y <= ay and x + w >= ax + aw and y + h >= ay + ah
+    assert checked_obj >= 5
+
+
+def test_pixel_centres_follow_opencv_and_vispy_needs_half_pixel_shift():
+    """A rendered sphere covers the pixels whose centre (u, v) its outline contains, with K as given (OpenCV,
+    centres at integers). A renderer sampling at (u + 0.5, v + 0.5), as the BOP toolkit's vispy renderer,
+    gives the same pixels with cx + 0.5, cy + 0.5 and pixels shifted by half a pixel without."""
+    import mujoco
+
+    from simtest.geometry import Pose
+    from simtest.render import Renderer
+
+    W, H = 120, 90
+    K = intrinsics_matrix(150.0, 150.0, (W - 1) / 2, (H - 1) / 2)
+    cam = CameraModel(K, W, H, Pose(np.eye(3), np.zeros(3)))
+    centre, radius = np.array([0.013, -0.021, 0.5]), 0.06
+    spec = mujoco.MjSpec()
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = W, H
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], pos=centre.tolist())
+    pos, R_mj = cam.mujoco_pose()
+    c = spec.worldbody.add_camera(name="c", pos=pos.tolist(), **cam.mujoco_intrinsics())
+    c.quat = Pose(R_mj, pos).quat_wxyz().tolist()
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with Renderer(model, W, H) as r:
+        seg = r.render(data, "c", rgb=False, depth=False).seg >= 0
+
+    def covered(K_: np.ndarray, offset: float) -> np.ndarray:
+        """Pixels whose sample point (u + offset, v + offset) sees the sphere (ray-sphere test)."""
+        v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+        rays = np.stack([u + offset, v + offset, np.ones_like(u)], -1) @ np.linalg.inv(K_).T
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        along = rays @ centre
+        return (centre @ centre - along ** 2) < radius ** 2
+
+    opencv = covered(K, 0.0)
+    K_vispy = K.copy()
+    K_vispy[0, 2] += 0.5
+    K_vispy[1, 2] += 0.5
+    assert np.array_equal(covered(K_vispy, 0.5), opencv)
+    unshifted = covered(K, 0.5)
+
+    def centroid(m: np.ndarray) -> np.ndarray:
+        ys, xs = np.nonzero(m)
+        return np.array([xs.mean(), ys.mean()])
+
+    assert np.abs(centroid(seg) - centroid(opencv)).max() < 0.15
+    assert np.abs(centroid(seg) - centroid(unshifted)).min() > 0.35
+    assert (seg & opencv).sum() / (seg | opencv).sum() > 0.95
 
 
 def test_reprojected_vertices_land_on_masks(small_dataset):

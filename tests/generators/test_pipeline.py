@@ -40,6 +40,7 @@ def test_same_seed_same_bytes_with_1_or_2_workers(tmp_path, tiny_config):
     assert a.scenes_done == 3 and a.frames_written == 6
     da, db = _digest(tmp_path / "a"), _digest(tmp_path / "b")
     assert len(da) > 20 and da == db
+    assert any(k.endswith(".jpg") for k in da)  # JPEG colour (the default) is deterministic too
     c = generate(tiny_config.replace(seed=8), tmp_path / "c", progress=False)
     assert c.frames_written == 6
     assert _digest(tmp_path / "c") != da
@@ -180,6 +181,86 @@ def test_coco_annotations_decode_to_visible_masks(tmp_path, tiny_config):
         matches = [j for j, g in enumerate(gt[im]) if g["obj_id"] == ann["category_id"]
                    and (read_mask(scene, int(im), j) == decoded).all()]
         assert matches and decoded.sum() == ann["area"]
+
+
+def test_coco_ground_truth_fed_back_scores_ap_1(tmp_path, tiny_config):
+    """pycocotools reads scene_gt_coco.json as the BOP toolkit writes it: ids from 1, ``ignore`` below 10 %
+    visibility, amodal boxes; the ground truth fed back as detections scores AP 1.0 (segm and bbox)."""
+    import contextlib
+    import io
+    import json
+
+    from pycocotools import mask as mask_utils
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    from simtest.io.bop import read_mask
+
+    generate(tiny_config.replace(scenes=1, frames_per_scene=3, **{"render.coco": True}), tmp_path / "c",
+             progress=False)
+    scene = tmp_path / "c" / "train_pbr" / "000000"
+    path = scene / "scene_gt_coco.json"
+    data = json.loads(path.read_text())
+    infos = json.loads((scene / "scene_gt_info.json").read_text())
+    gts = json.loads((scene / "scene_gt.json").read_text())
+    anns = data["annotations"]
+    ids = [a["id"] for a in anns]
+    assert anns and min(ids) >= 1 and len(set(ids)) == len(ids)
+    assert [im["file_name"] for im in data["images"]] == [f"rgb/{i:06d}.jpg" for i in range(3)]
+    # Each annotation is, in order, a visible instance of scene_gt: its ignore flag and box follow calc_gt_coco.
+    visible = [(int(k), j) for k in gts for j in range(len(gts[k])) if infos[k][j]["px_count_visib"] > 0]
+    assert len(visible) == len(anns)
+    for a, (im, j) in zip(anns, visible):
+        assert a["image_id"] == im and a["category_id"] == gts[str(im)][j]["obj_id"] and a["iscrowd"] == 0
+        assert a["ignore"] is (infos[str(im)][j]["visib_fract"] < 0.1)
+        amodal = read_mask(scene, im, j, visible=False)
+        ys, xs = np.nonzero(amodal)
+        assert a["bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+        rle = dict(a["segmentation"], counts=a["segmentation"]["counts"].encode())
+        assert np.array_equal(mask_utils.decode(rle).astype(bool), read_mask(scene, im, j))
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco_gt = COCO(str(path))
+        for iou_type in ("segm", "bbox"):
+            dets = [{k: a[k] for k in ("image_id", "category_id", "segmentation", "bbox")} | {"score": 1.0}
+                    for a in anns]
+            ev = COCOeval(coco_gt, coco_gt.loadRes(dets), iou_type)
+            ev.evaluate()
+            ev.accumulate()
+            ev.summarize()
+            assert abs(ev.stats[0] - 1.0) < 1e-6, (iou_type, ev.stats[0])
+
+
+def test_coco_modal_boxes_and_png_rgb_option(tmp_path, tiny_config):
+    """render.coco_bbox = "modal" boxes the visible mask; --rgb-format png writes lossless rgb/*.png that the
+    readers take like the JPEG default."""
+    import json
+
+    from simtest.cli import build_parser
+    from simtest.cli.generate import config_from_args
+    from simtest.io.bop import read_image, read_mask
+
+    args = build_parser().parse_args(["generate", "--rgb-format", "png", "--out", str(tmp_path / "x")])
+    cfg = config_from_args(args)
+    assert cfg.render.rgb_format == "png" and GenerateConfig().render.rgb_format == "jpg"
+    cfg = tiny_config.replace(scenes=1, frames_per_scene=1, **{"render.coco": True, "render.coco_bbox": "modal",
+                                                                "render.rgb_format": "png"})
+    generate(cfg, tmp_path / "p", progress=False)
+    generate(tiny_config.replace(scenes=1, frames_per_scene=1), tmp_path / "j", progress=False)
+    scene = tmp_path / "p" / "train_pbr" / "000000"
+    assert sorted(p.name for p in (scene / "rgb").iterdir()) == ["000000.png"]
+    jpg = read_image(tmp_path / "j" / "train_pbr" / "000000", 0).astype(int)
+    png = read_image(scene, 0).astype(int)
+    psnr = 10 * np.log10(255.0 ** 2 / np.mean((png - jpg) ** 2))
+    assert png.shape == jpg.shape and 30.0 < psnr < 99.0, psnr  # same render; JPEG at quality 95 is lossy
+    data = json.loads((scene / "scene_gt_coco.json").read_text())
+    assert data["images"][0]["file_name"] == "rgb/000000.png"
+    gts = json.loads((scene / "scene_gt.json").read_text())["0"]
+    visible = [j for j in range(len(gts)) if read_mask(scene, 0, j).any()]
+    for a, j in zip(data["annotations"], visible):
+        ys, xs = np.nonzero(read_mask(scene, 0, j))
+        assert a["bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+    with pytest.raises(ConfigError, match="render.coco_bbox = 'full'"):
+        GenerateConfig().replace(**{"render.coco_bbox": "full"})
 
 
 def test_config_toml_round_trip(tmp_path):

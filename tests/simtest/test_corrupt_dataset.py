@@ -162,6 +162,30 @@ def test_corrupt_dataset_weather_only_and_order_independence(tmp_path: Path) -> 
     assert _files(tmp_path / "out") == out
 
 
+def test_corrupted_copy_keeps_jpeg_rgb_and_bop_boxes(tmp_path: Path) -> None:
+    """A source with rgb/*.jpg (BOP's PBR layout) gives a copy with rgb/*.jpg; recomputed visible boxes are
+    BOP's (``w = xmax - xmin``) boxes of the occluded visible masks."""
+    from simtest.io.bop import encode_image, read_image
+
+    src = make_bop(tmp_path / "in")
+    rgb_dir = src / "train_pbr" / "000000" / "rgb"
+    for p in sorted(rgb_dir.glob("*.png")):
+        p.with_suffix(".jpg").write_bytes(encode_image(cv2.imread(str(p)), ".jpg", jpg_quality=95))
+        p.unlink()
+    spec = CorruptionSpec(weather="fog", severity=2, occlusion="L1")
+    corrupt_dataset(src, tmp_path / "out", spec, seed=2, progress=False)
+    scene = tmp_path / "out" / "train_pbr" / "000000"
+    assert sorted(p.name for p in (scene / "rgb").iterdir()) == ["000000.jpg", "000001.jpg"]
+    for im in (0, 1):
+        assert (scene / "rgb" / f"{im:06d}.jpg").read_bytes()[:2] == b"\xff\xd8"  # JPEG signature
+        assert read_image(scene, im).shape == (H, W, 3)
+        assert not np.array_equal(read_image(scene, im), read_image(src / "train_pbr" / "000000", im))
+        new = cv2.imread(str(scene / "mask_visib" / f"{im:06d}_000000.png"), 0) > 0
+        ys, xs = np.nonzero(new)
+        info = json.loads((scene / "scene_gt_info.json").read_text())[str(im)][0]
+        assert info["bbox_visib"] == [xs.min(), ys.min(), xs.max() - xs.min(), ys.max() - ys.min()]
+
+
 def test_corrupt_dataset_errors(tmp_path: Path) -> None:
     spec = CorruptionSpec(weather="fog")
     with pytest.raises(DatasetError, match="nope"):

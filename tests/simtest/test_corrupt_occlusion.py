@@ -102,7 +102,7 @@ def test_update_visible_masks_and_stats() -> None:
     np.testing.assert_array_equal(n2, m2)
     assert len(update_visible_masks(m1, occ)) == 1
     st = visibility_stats(n1, px_count_all=30)
-    assert st == {"px_count_visib": 12, "visib_fract": 0.4, "bbox_visib": [3, 2, 3, 4]}
+    assert st == {"px_count_visib": 12, "visib_fract": 0.4, "bbox_visib": [3, 2, 2, 3]}  # BOP: w = xmax - xmin
     assert visibility_stats(np.zeros((4, 4), bool), 0) == {"px_count_visib": 0, "visib_fract": 0.0,
                                                           "bbox_visib": [-1, -1, -1, -1]}
 

@@ -76,11 +76,11 @@ def test_sample_shapes_units_and_keypoints(small_dataset):
             v_g = obj.vertices @ R.T + t
             dist = np.sqrt(((v_e[:, None] - v_g[None]) ** 2).sum(-1)).min(1)
             assert dist.max() < 2e-3
-        # boxes are those of the visible masks
+        # boxes are BOP's boxes (bop_toolkit misc.calc_2d_bbox: w = xmax - xmin) of the visible masks
         m = s["masks"][k].numpy()
         if m.any():
             ys, xs = np.nonzero(m)
-            assert s["boxes"][k].tolist() == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+            assert s["boxes"][k].tolist() == [xs.min(), ys.min(), xs.max() - xs.min(), ys.max() - ys.min()]
 
 
 def test_crop_shifts_intrinsics_and_keypoints(small_dataset):

@@ -21,3 +21,63 @@ def test_every_package_is_listed_in_pyproject():
             name = ".".join((MAPPED[parts[0]].split(".") if parts[0] in MAPPED else [parts[0]]) + list(parts[1:]))
             found.add(name)
     assert found == listed
+
+
+def _pyproject_mujoco_floor() -> str:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    spec = [d for d in deps if d.replace(" ", "").startswith("mujoco>=")]
+    assert len(spec) == 1, f"pyproject.toml must declare mujoco>=X once, got {deps}"
+    return spec[0].replace(" ", "").split(">=", 1)[1].split(",")[0]
+
+
+def test_mujoco_floor_agrees_with_pyproject_and_the_installed_version():
+    from importlib import metadata
+
+    import mujoco
+
+    import simtest
+    from simtest.gl import version_tuple
+
+    assert _pyproject_mujoco_floor() == simtest.MIN_MUJOCO
+    assert version_tuple(mujoco.__version__) >= version_tuple(simtest.MIN_MUJOCO)
+    assert metadata.version("mujoco") == mujoco.__version__
+    # what the floor stands for: joint damping as a vector (set on the Panda's finger joints)
+    joint = mujoco.MjSpec().worldbody.add_body().add_joint()
+    joint.damping = [200.0, 0.0, 0.0]
+    assert float(joint.damping[0]) == 200.0
+
+
+def test_older_mujoco_is_refused_with_versions_and_the_upgrade_command():
+    import pytest
+
+    from simtest.gl import check_mujoco
+
+    check_mujoco("3.7", installed="3.7.0")
+    check_mujoco("3.7", installed="4.0.0")
+    check_mujoco("3.7", installed="3.10.1")
+    for old in ("3.6.0", "3.2.7", "2.3.7"):
+        with pytest.raises(ImportError, match=rf"mujoco >= 3\.7, but mujoco {old} is installed.*pip install -U mujoco"):
+            check_mujoco("3.7", installed=old)
+
+
+def test_import_simtest_checks_the_installed_mujoco(tmp_path):
+    """``import simtest`` reads the installed mujoco version from its distribution metadata: with an older
+    mujoco first on the path it stops with the clear message (here a 3.6.0 distribution record)."""
+    import os
+    import subprocess
+    import sys
+
+    dist = tmp_path / "mujoco-3.6.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: mujoco\nVersion: 3.6.0\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run([sys.executable, "-c", "import simtest"], env=env, capture_output=True, text=True)
+    assert proc.returncode != 0
+    assert "ImportError: simtest needs mujoco >= 3.7, but mujoco 3.6.0 is installed" in proc.stderr
+    assert "pip install -U mujoco" in proc.stderr
+    ok = subprocess.run([sys.executable, "-c", "import simtest"], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
