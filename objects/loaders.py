@@ -25,13 +25,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from simtest.errors import AssetError
+from simtest.errors import AssetError, DatasetError
+from simtest.io.bop import read_json
 from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_models_info,
                                     read_symmetries)
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, validate_mesh
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
-           "read_bop_models", "MESH_EXTENSIONS", "UNITS", "MIN_SIZE_M", "MAX_SIZE_M"]
+           "read_bop_models", "load_dataset_objects", "MESH_EXTENSIONS", "UNITS", "MIN_SIZE_M", "MAX_SIZE_M"]
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 UNITS = ("m", "mm", "auto")
@@ -271,3 +272,26 @@ def read_bop_models(models_dir: str | Path, units: str = "mm") -> ObjectSet:
                       stacklevel=2)
     objects.sort(key=lambda o: o.obj_id)
     return ObjectSet(objects, name=str(root))
+
+
+def load_dataset_objects(dataset_dir: str | Path) -> ObjectSet:
+    """The object set the dataset's poses refer to: ``DATASET/models/`` if present, else the manifest's
+    ``object_set`` (a built-in name or a path).
+
+    Raises:
+        DatasetError: The folder does not exist, or neither models nor an object set is there.
+    """
+    root = Path(dataset_dir)
+    if not root.is_dir():
+        raise DatasetError(f"dataset folder {root} does not exist")
+    models_dir = root / "models"
+    if (models_dir / INFO_FILE).is_file():
+        return read_bop_models(models_dir)
+    manifest = root / "manifest.json"
+    if manifest.is_file():
+        data = read_json(manifest)
+        name = data.get("object_set") if isinstance(data, dict) else None
+        if name:
+            return load_object_set(name)
+    raise DatasetError(f"{root}: no models/models_info.json and no 'object_set' in manifest.json; cannot tell "
+                       "which object models the poses refer to")

@@ -232,7 +232,7 @@ class PoseDataset:
         split: Split folder, e.g. ``"train_pbr"``.
         scenes: Scene ids to use (default all).
         objects: Object set the classes and keypoints come from (default: the dataset's own, via
-            :func:`simtest.eval.load_dataset_objects`, and then a ground-truth ``obj_id`` outside it is an
+            :func:`simtest.objects.loaders.load_dataset_objects`, and then a ground-truth ``obj_id`` outside it is an
             error); with a given set, instances of other objects are dropped.
         keypoints: ``"bbox"`` (8 corners) or ``"fps"`` (the model's farthest-point-sampled points).
         transform: ``f(sample, rng) -> sample`` on numpy arrays (e.g. :class:`Corrupt`, :class:`Compose`,
@@ -287,7 +287,7 @@ class PoseDataset:
         # instances of other objects are dropped.
         gt_obj_ids = None
         if objects is None:
-            from simtest.eval import load_dataset_objects
+            from simtest.objects.loaders import load_dataset_objects
 
             objects = load_dataset_objects(self.root)
             gt_obj_ids = [int(o.obj_id) for o in objects]

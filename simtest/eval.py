@@ -39,27 +39,25 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
-from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from simtest.errors import ConfigError, DatasetError
+from simtest.errors import ConfigError
 from simtest.estimators.base import Estimator, Observation, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
+from simtest.io.dataset import ImageRef, image_size, image_targets, select_images
 from simtest.io.files import atomic_write_text, csv_text, jsonable
-from simtest.metrics.auc import ADDS_2CM, ycb_auc
-from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, evaluate_bop19
-from simtest.metrics.bop19 import ResultRow
-from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, te, vsd
+from simtest.metrics.bop19 import VISIB_GT_MIN, ResultRow
 from simtest.metrics.registry import NDEG_MCM, definitions
+from simtest.objects.loaders import load_dataset_objects
+from simtest.scoring import score_estimates
 from simtest.tables import failure_counts, format_table, overall_table
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
@@ -69,82 +67,6 @@ log = logging.getLogger(__name__)
 
 #: How targets are given to the estimator.
 TARGET_MODES = ("gt-masks", "none")
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Dataset access
-def load_dataset_objects(dataset_dir: str | Path):
-    """The object set the dataset's poses refer to: ``DATASET/models/`` if present, else the manifest's
-    ``object_set`` (a built-in name or a path).
-
-    Raises:
-        DatasetError: The folder does not exist, or neither models nor an object set is there.
-    """
-    root = Path(dataset_dir)
-    if not root.is_dir():
-        raise DatasetError(f"dataset folder {root} does not exist")
-    models_dir = root / "models"
-    if (models_dir / "models_info.json").is_file():
-        from simtest.objects.loaders import read_bop_models
-
-        return read_bop_models(models_dir)
-    manifest = root / "manifest.json"
-    if manifest.is_file():
-        data = bop.read_json(manifest)
-        name = data.get("object_set") if isinstance(data, dict) else None
-        if name:
-            from simtest.objects import load_object_set
-
-            return load_object_set(name)
-    raise DatasetError(f"{root}: no models/models_info.json and no 'object_set' in manifest.json; cannot tell "
-                       "which object models the poses refer to")
-
-
-@dataclass(frozen=True)
-class _ImageRef:
-    scene_id: int
-    im_id: int
-    scene_dir: Path
-    info: dict  # read_scene entry: K, depth_scale, gt
-
-
-def _iter_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
-                 max_images: int | None, obj_ids: Iterable[int]) -> list[_ImageRef]:
-    """The selected images with their validated ground truth (:func:`simtest.io.bop.read_scene`; a ground-truth
-    ``obj_id`` outside ``obj_ids`` is a :class:`DatasetError`)."""
-    split_dir = bop.dataset_split_dir(dataset_dir, split)
-    obj_ids = sorted(obj_ids)
-    if max_images is not None and int(max_images) < 1:
-        raise ConfigError(f"max_images must be >= 1 or None, got {max_images!r}")
-    dirs = bop.scene_dirs(split_dir)
-    if scenes is not None:
-        want = {int(s) for s in scenes}
-        known = {int(d.name) for d in dirs}
-        missing = sorted(want - known)
-        if missing:
-            raise ConfigError(f"scenes {missing} not in {split_dir}; available: {sorted(known)}")
-        dirs = [d for d in dirs if int(d.name) in want]
-    refs: list[_ImageRef] = []
-    for d in dirs:
-        frames = bop.read_scene(d, obj_ids)
-        for im_id in sorted(frames):
-            refs.append(_ImageRef(int(d.name), im_id, d, frames[im_id]))
-            if max_images is not None and len(refs) >= int(max_images):
-                return refs
-    if not refs:
-        raise DatasetError(f"{split_dir}: no images found")
-    return refs
-
-
-def _image_size(dataset_dir: Path, ref: _ImageRef) -> tuple[int, int]:
-    cam = bop.read_camera_json(dataset_dir / "camera.json")
-    return int(cam["width"]), int(cam["height"])
-
-
-def _targets(ref: _ImageRef, objects) -> list[tuple[int, bop.ImageGT]]:
-    """(gt_id, gt) of the instances that are scored: visib_fract >= VISIB_GT_MIN (every ground-truth object is
-    one of ``objects``: :func:`_iter_images` checked it)."""
-    return [(j, g) for j, g in enumerate(ref.info["gt"]) if g.visib_fract >= VISIB_GT_MIN]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -194,171 +116,12 @@ METRIC_DEFINITIONS = definitions()
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Scoring
-def _re_sym(R_e: np.ndarray, R_g: np.ndarray, syms: np.ndarray) -> float:
-    """Smallest geodesic angle (degrees) between ``R_e`` and ``R_g R_s`` over the symmetry rotations."""
-    M = R_g.T @ R_e  # trace(R_e (R_g R_s)^T) = sum(M * R_s)
-    tr = np.einsum("ij,sij->s", M, syms[:, :3, :3])
-    return float(np.degrees(np.arccos(np.clip(0.5 * (tr.max() - 1.0), -1.0, 1.0))))
-
-
-def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dict[int, int]:
-    """{target index -> estimate index}: by decreasing score, nearest translation, one estimate per target."""
-    order = sorted(range(len(ests)), key=lambda i: -float(ests[i].score))
-    free = set(range(len(targets)))
-    out: dict[int, int] = {}
-    for i in order:
-        cands = [j for j in free if targets[j][1].obj_id == ests[i].obj_id]
-        if not cands:
-            continue
-        j = min(cands, key=lambda j: float(np.linalg.norm(ests[i].t - targets[j][1].T_cam_obj.t)))
-        free.discard(j)
-        out[j] = i
-    return out
-
-
-def _aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    n = len(rows)
-    inf = float("inf")
-
-    def col(key: str, miss: float) -> np.ndarray:
-        return np.array([r[key] if r["matched"] else miss for r in rows], dtype=np.float64)
-
-    adds = col("adi", inf)
-    addsa = col("add_s_or_add", inf)
-    diam = np.array([r["diameter_m"] for r in rows])
-    re_s = col("re_sym", 180.0)
-    te_m = col("te", inf)
-    out: dict[str, Any] = {
-        "num_targets": n,
-        "num_matched": int(sum(r["matched"] for r in rows)),
-        "add_s_or_add_01d": float(np.mean(addsa < 0.1 * diam)),
-        "auc_adds": ycb_auc(adds),
-        "auc_add_s_or_add": ycb_auc(addsa),
-        "adds_lt_2cm": float(np.mean(adds < ADDS_2CM)),
-        "acc_pi_6": float(np.mean(np.radians(re_s) < np.pi / 6)),
-        "acc_pi_18": float(np.mean(np.radians(re_s) < np.pi / 18)),
-        "median_re_deg": float(np.median(re_s)),
-        "median_te_m": float(np.median(te_m)),
-        "mean_add_s_or_add_m": float(np.mean(addsa[np.isfinite(addsa)])) if np.isfinite(addsa).any() else inf,
-    }
-    for nd, mc in NDEG_MCM:
-        out[f"{nd:g}deg{mc:g}cm"] = float(np.mean((re_s <= nd) & (te_m <= mc / 100.0)))
-    return out
-
-
-def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str = "train_pbr",
-                    scenes: Sequence[int] | None = None, max_images: int | None = None, vsd_enabled: bool = True,
-                    scales: dict[int, float] | None = None, objects=None, progress: bool = False,
-                    _refs: list | None = None) -> tuple[dict, dict, list[dict], dict[int, str]]:
-    """Score estimates (metres) against the dataset's ground truth.
-
-    Args:
-        dataset_dir: BOP dataset root.
-        estimates: Result rows (:class:`simtest.metrics.bop19.ResultRow`, metres).
-        split: Split folder name.
-        scenes: Scene ids to evaluate (default all).
-        max_images: Evaluate only the first N images (scenes in order, images in order).
-        vsd_enabled: Compute VSD (per-target mean over taus and BOP19 AR_VSD).
-        scales: Optional ``{id(estimate): scale}`` to copy into the error rows.
-        objects: The object set (default :func:`load_dataset_objects`).
-        progress: Show a progress bar.
-
-    Returns:
-        ``(overall, per_object, error_rows, object_names)``; every target of the selected images counts,
-        images without estimates are all misses.
-    """
-    from tqdm import tqdm
-
-    root = Path(dataset_dir)
-    objects = load_dataset_objects(root) if objects is None else objects
-    refs = _refs if _refs is not None else _iter_images(root, split, scenes, max_images, objects.ids)
-    width, height = _image_size(root, refs[0])
-    by_image: dict[tuple[int, int], list[ResultRow]] = defaultdict(list)
-    for e in estimates:
-        by_image[(int(e.scene_id), int(e.im_id))].append(e)
-    models = {o.obj_id: o for o in objects}
-    sym_cache: dict[int, np.ndarray] = {}
-    rows: list[dict[str, Any]] = []
-    # BOP19 hit counts: sum over images of ar_x * num_targets, per object.
-    bop_hits: dict[int, dict[str, float]] = defaultdict(lambda: defaultdict(float))
-    error_types = ("vsd", "mssd", "mspd") if vsd_enabled else ("mssd", "mspd")
-    for ref in tqdm(refs, desc="score", unit="img", disable=not progress, dynamic_ncols=True):
-        targets = _targets(ref, objects)
-        if not targets:
-            continue
-        ests = [e for e in by_image.get((ref.scene_id, ref.im_id), []) if e.obj_id in models]
-        K = ref.info["K"]
-        depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]) if vsd_enabled else None
-        match = _match(ests, targets)
-        for j, (gt_id, g) in enumerate(targets):
-            obj = models[g.obj_id]
-            if g.obj_id not in sym_cache:
-                sym_cache[g.obj_id] = obj.symmetry_transforms()
-            syms = sym_cache[g.obj_id]
-            R_g, t_g = g.T_cam_obj.R, g.T_cam_obj.t
-            row: dict[str, Any] = {"scene_id": ref.scene_id, "im_id": ref.im_id, "gt_id": gt_id, "obj_id": g.obj_id,
-                                   "visib_fract": float(g.visib_fract), "diameter_m": float(obj.diameter),
-                                   "symmetric": bool(obj.is_symmetric), "matched": j in match}
-            if j in match:
-                e = ests[match[j]]
-                pts = obj.vertices
-                row.update(score=float(e.score), add=add(e.R, e.t, R_g, t_g, pts), adi=adi(e.R, e.t, R_g, t_g, pts))
-                row["add_s_or_add"] = row["adi"] if obj.is_symmetric else row["add"]
-                row.update(re=re(e.R, R_g), re_sym=_re_sym(e.R, R_g, syms), te=te(e.t, t_g),
-                           mssd=mssd(e.R, e.t, R_g, t_g, pts, syms),
-                           mspd=mspd(e.R, e.t, R_g, t_g, K, pts, syms) * MSPD_REFERENCE_WIDTH / width)
-                if vsd_enabled:
-                    row["vsd"] = float(np.mean(vsd(e.R, e.t, R_g, t_g, depth, K, obj, VSD_DELTA, VSD_TAUS,
-                                                   obj.diameter)))
-                if scales is not None and id(e) in scales:
-                    row["scale"] = float(scales[id(e)])
-            rows.append(row)
-        # BOP19 on this image.
-        gts = [GroundTruthPose(ref.scene_id, ref.im_id, j, g.obj_id, g.T_cam_obj.R, g.T_cam_obj.t, g.visib_fract)
-               for j, g in enumerate(ref.info["gt"]) if g.obj_id in models]
-        res = evaluate_bop19(ests, gts, models, {(ref.scene_id, ref.im_id): EvalImage(K, width, height, depth)},
-                             error_types=error_types)
-        for o, po in res.per_object.items():
-            n = po["num_targets"]
-            for k in ("ar_vsd", "ar_mssd", "ar_mspd"):
-                if math.isfinite(po[k]):
-                    bop_hits[o][k] += po[k] * n
-            bop_hits[o]["n"] += n
-    if not rows:
-        raise DatasetError(f"{root}/{split}: no ground-truth instance with visib_fract >= {VISIB_GT_MIN} and a "
-                           "known model in the selected images; nothing to score")
-
-    def bop_of(objs: Iterable[int]) -> dict[str, float]:
-        objs = list(objs)
-        n = sum(bop_hits[o]["n"] for o in objs)
-        out = {}
-        for k in ("ar_vsd", "ar_mssd", "ar_mspd"):
-            out[k] = sum(bop_hits[o][k] for o in objs) / n if (n and (k != "ar_vsd" or vsd_enabled)) else float("nan")
-        vals = [out[k] for k in ("ar_vsd", "ar_mssd", "ar_mspd") if math.isfinite(out[k])]
-        out["ar"] = float(np.mean(vals)) if vals else float("nan")
-        return out
-
-    overall = _aggregate(rows)
-    overall.update(bop_of(bop_hits))
-    per_object: dict[int, dict[str, Any]] = {}
-    by_obj: dict[int, list] = defaultdict(list)
-    for r in rows:
-        by_obj[r["obj_id"]].append(r)
-    for o in sorted(by_obj):
-        per_object[o] = _aggregate(by_obj[o])
-        per_object[o].update(bop_of([o]))
-    names = {o.obj_id: o.name for o in objects}
-    return overall, per_object, rows, names
-
-
-# ---------------------------------------------------------------------------------------------------------
 # Running an estimator
-def _observation(ref: _ImageRef, objects, targets: str, width: int, height: int,
+def _observation(ref: ImageRef, objects, targets: str, width: int, height: int,
                  needs_gt: bool) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"])
-    tg = _targets(ref, objects)
+    tg = image_targets(ref, VISIB_GT_MIN)
     kw: dict[str, Any] = {}
     if targets == "gt-masks":
         kw["target_obj_ids"] = tuple(g.obj_id for _, g in tg)
@@ -371,7 +134,7 @@ def _observation(ref: _ImageRef, objects, targets: str, width: int, height: int,
     return obs, tg
 
 
-def _failure(ref: _ImageRef, obj_id: Any, kind: str, message: str, exception_type: str = "") -> dict[str, Any]:
+def _failure(ref: ImageRef, obj_id: Any, kind: str, message: str, exception_type: str = "") -> dict[str, Any]:
     return {"scene_id": ref.scene_id, "im_id": ref.im_id, "obj_id": "" if obj_id is None else obj_id,
             "kind": kind, "message": message, "exception_type": exception_type}
 
@@ -430,8 +193,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
     known = set(objects.ids)
-    refs = _iter_images(root, split, scenes, max_images, known)
-    width, height = _image_size(root, refs[0])
+    refs = select_images(root, split, scenes, max_images, known)
+    width, height = image_size(root)
     results: list[ResultRow] = []
     scales: dict[int, float] = {}
     failures: list[dict[str, Any]] = []
@@ -460,7 +223,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     return report
 
 
-def _estimate_image(est: Any, obs: Observation, ref: _ImageRef, known: set[int], timeout: float | None,
+def _estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], timeout: float | None,
                     results: list[ResultRow], scales: dict[int, float], failures: list[dict[str, Any]]) -> float:
     """Run the estimator on one image; append its valid estimates to ``results`` (and non-unit scales to
     ``scales``) and every fault to ``failures``. Returns the wall time of the call, s."""
@@ -512,7 +275,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     root = Path(dataset_dir)
     rows = read_bop_results(results_csv)
     objects = load_dataset_objects(root)
-    refs = _iter_images(root, split, scenes, max_images, objects.ids)
+    refs = select_images(root, split, scenes, max_images, objects.ids)
     selected = {(r.scene_id, r.im_id) for r in refs}
     known = set(objects.ids)
     failures = []

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from simtest.eval import METRIC_DEFINITIONS, _aggregate
+from simtest.eval import METRIC_DEFINITIONS
+from simtest.scoring import aggregate as _aggregate
 from simtest.metrics.registry import METRICS, metric, metric_keys
 from simtest.sweep import SweepConfig
 from simtest.tables import SUMMARY_METRICS, TABLE_METRICS

@@ -173,7 +173,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     from simtest.estimators.keypoints.checkpoint import (FORMAT, check_objects, load_checkpoint, object_record,
                                                          save_checkpoint)
     from simtest.estimators.keypoints.loss import make_targets, total_loss
-    from simtest.eval import load_dataset_objects
+    from simtest.objects.loaders import load_dataset_objects
     from simtest.io.files import atomic_write_text
 
     t_start = time.perf_counter()
