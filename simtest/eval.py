@@ -53,7 +53,7 @@ from simtest.estimators.base import Estimator, Observation, load_estimator
 from simtest.estimators.base import PoseEstimate as EstimatorPose
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
-from simtest.io.files import atomic_write_text, csv_text, jsonable
+from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_dir
 from simtest.metrics.auc import ADDS_2CM, YCB_AUC_MAX_THRESHOLD, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, evaluate_bop19
 from simtest.metrics.bop19 import PoseEstimate as ResultRow
@@ -412,7 +412,7 @@ def _failure(ref: _ImageRef, obj_id: Any, kind: str, message: str) -> dict[str, 
 def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str = "train_pbr",
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
-             estimator_options: dict[str, Any] | None = None) -> EvalReport:
+             estimator_options: dict[str, Any] | None = None, overwrite: bool = False) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -429,6 +429,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         out_dir: Write ``results.csv``, ``metrics.json``, ``errors.csv``, ``failures.csv``, ``metrics.md``.
         vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240.
         estimator_options: Options for a named estimator (ignored for instances).
+        overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
+            estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
 
     Returns:
         The :class:`EvalReport`.
@@ -436,7 +438,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     Raises:
         ConfigError: Unknown ``targets`` value or estimator, or an estimator needing ground truth with
             ``targets="none"``.
-        DatasetError: Missing split, scenes or models.
+        DatasetError: Missing split, scenes or models; ``out_dir`` not empty without ``overwrite``, not
+            writable, or inside ``dataset_dir``.
 
     An exception raised by the estimator on an image is recorded in ``failures.csv`` (its targets count as
     misses) and the run goes on. An estimator may also expose ``last_failures``: a list of
@@ -448,6 +451,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     root = Path(dataset_dir)
+    _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
     needs_gt = bool(getattr(est, "needs_gt", False))
     if needs_gt and targets == "none":
@@ -511,13 +515,18 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     return report
 
 
+def _check_out(out_dir: str | Path | None, dataset_dir: Path, overwrite: bool) -> None:
+    if out_dir is not None:
+        prepare_out_dir(out_dir, overwrite=overwrite, protect=[dataset_dir])
+
+
 def _describe(spec: Any, est: Any) -> str:
     return spec if isinstance(spec, str) else type(est).__name__
 
 
 def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
-                  progress: bool = True, out_dir: str | Path | None = None) -> EvalReport:
+                  progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False) -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -529,11 +538,13 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
         out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
             or objects) and ``metrics.md``.
+        overwrite: As in :func:`evaluate`.
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
     """
     root = Path(dataset_dir)
+    _check_out(out_dir, root, overwrite)
     rows = read_bop_results(results_csv)
     objects = load_dataset_objects(root)
     refs = _iter_images(root, split, scenes, max_images)

@@ -22,7 +22,7 @@ from typing import Any
 
 
 from simtest.errors import ConfigError, DatasetError
-from simtest.io.files import atomic_write_json, jsonable
+from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
 from simtest.schema import bounds, build, read_config_file, to_plain
 
 __all__ = ["SweepConfig", "EstimatorEntry", "Condition", "SweepReport", "load_sweep_config", "run_sweep",
@@ -273,24 +273,19 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     Raises:
         DatasetError: Non-empty ``out_dir`` without ``resume``/``overwrite``, or a resume with another config.
     """
-    import shutil
-
     from tqdm import tqdm
 
     out = Path(out_dir)
-    if resume and overwrite:
-        raise ConfigError("--resume and --overwrite exclude each other; choose one")
-    if out.exists() and any(out.iterdir()):
-        if overwrite:
-            shutil.rmtree(out)
-        elif not resume:
-            raise DatasetError(f"sweep folder {str(out)!r} is not empty; pass --resume to continue it or "
-                               f"--overwrite to replace it")
-        else:
-            old = out / "sweep_config.json"
-            if old.exists() and json.loads(old.read_text()) != cfg.to_dict():
-                raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
-                                   f"(see {old}); use the same config or --overwrite")
+    protect = [] if cfg.dataset.path is None else [cfg.dataset.path]
+    if prepare_out_dir(out, overwrite=overwrite, resume=resume, can_resume=True, clear=True, protect=protect,
+                       what="sweep folder"):
+        old = out / "sweep_config.json"
+        if not old.is_file():
+            raise DatasetError(f"cannot resume {str(out)!r}: it has no sweep_config.json (not a sweep folder); "
+                               f"choose another --out or pass --overwrite")
+        if json.loads(old.read_text()) != cfg.to_dict():
+            raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
+                               f"(see {old}); use the same config or --overwrite")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "sweep_config.json", cfg.to_dict())
     t0 = time.perf_counter()
@@ -332,7 +327,8 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
 
     t0 = time.perf_counter()
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
-                   progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options))
+                   progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options),
+                   overwrite=True)  # the cell folder is the sweep's own; a killed cell's leftovers are replaced
     atomic_write_json(cdir / "cell.json", {"kind": "pose", "estimator": est.name, "dataset": str(data),
                                            "overall": rep.to_json()["overall"], "seconds":
                                                time.perf_counter() - t0, "failures": len(rep.failures)})
@@ -346,6 +342,6 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
     run = GraspRunConfig(estimator=est.estimator, estimator_options=dict(est.options), episodes=g.episodes,
                          seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
                          width=g.width, height=g.height, workers=cfg.workers, **cond.grasp_settings())
-    rep = run_grasp_episodes(run, cdir, progress=False)
+    rep = run_grasp_episodes(run, cdir, progress=False, overwrite=True)
     atomic_write_json(cdir / "cell.json", {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
                                            "seconds": time.perf_counter() - t0})
