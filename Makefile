@@ -23,7 +23,7 @@ endif
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/simtest demo --out demo_out
+	$(VENV)/bin/simtest demo --out demo_out --resume
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests

@@ -189,7 +189,7 @@ def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 10.
 
 
 def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *, progress: bool = True,
-                       command_line: Sequence[str] | None = None) -> GraspRunReport:
+                       command_line: Sequence[str] | None = None, overwrite: bool = False) -> GraspRunReport:
     """Run ``cfg.episodes`` closed-loop episodes and (with ``out_dir``) write the outputs.
 
     Outputs: ``episodes.csv`` (one row per episode, :data:`CSV_COLUMNS`), ``summary.json`` and
@@ -198,10 +198,17 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
 
     Estimator faults (exceptions, ``sys.exit``, timeouts, invalid return values) end their episode as
     ``estimator_error`` or ``estimator_timeout`` (message in the ``error`` column) and the run goes on.
+    ``out_dir`` must be empty or absent unless ``overwrite`` (its files of these names are then replaced);
+    this is checked before anything is loaded.
 
     Raises:
         ConfigError: On bad settings (checked before any episode runs).
+        DatasetError: ``out_dir`` not empty without ``overwrite``, a file, or not writable.
     """
+    if out_dir is not None:
+        from simtest.io.files import prepare_out_dir
+
+        prepare_out_dir(out_dir, overwrite=overwrite)
     if cfg.episodes < 1:
         raise ConfigError(f"episodes must be >= 1, got {cfg.episodes!r}")
     if cfg.workers < 1:

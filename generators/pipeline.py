@@ -6,6 +6,7 @@ which worker ran it, on how many workers there were, or on whether the run was r
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
 import platform
@@ -19,15 +20,17 @@ import numpy as np
 
 import simtest
 from simtest.camera import CameraModel
-from simtest.errors import ConfigError, DatasetError
+from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
 from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
-from simtest.io.files import atomic_write_json
+from simtest.io.files import atomic_write_json, prepare_out_dir
 from simtest.rng import child_rng
 
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
 MANIFEST = "manifest.json"
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -202,19 +205,22 @@ def _worker_scene(args: tuple[int, str]) -> SceneReport:
 
 # ---------------------------------------------------------------------------------------------------------
 def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool) -> None:
-    if resume and overwrite:
-        raise ConfigError("--resume and --overwrite exclude each other; choose one")
-    if not out.exists() or not any(out.iterdir()):
+    """The output-folder rule (:func:`simtest.io.files.prepare_out_dir`) plus what a resume must match."""
+    if not (resume or overwrite) and out.is_dir() and not (out / MANIFEST).exists() and _only_generated(out, cfg):
+        raise DatasetError(f"dataset folder {str(out)!r} holds an interrupted generation (no {MANIFEST}, "
+                           f"{_count_scenes(out / cfg.split)}); pass --resume to continue it or --overwrite to "
+                           f"start again")
+    if not prepare_out_dir(out, overwrite=overwrite, resume=resume, can_resume=True, clear=True,
+                           what="dataset folder"):
         return
-    if overwrite:
-        shutil.rmtree(out)
-        return
-    if not resume:
-        raise DatasetError(f"output folder {str(out)!r} is not empty; pass --resume to continue an interrupted "
-                           f"run or --overwrite to replace it")
     manifest = out / MANIFEST
     if not manifest.is_file():
-        raise DatasetError(f"cannot resume into {str(out)!r}: it has no {MANIFEST} (not a simtest dataset)")
+        if not _only_generated(out, cfg):
+            foreign = sorted(p.name for p in out.iterdir() if not _is_generated(p.name, cfg))
+            raise DatasetError(f"cannot resume into {str(out)!r}: it has no {MANIFEST} and holds files generate "
+                               f"does not write ({', '.join(foreign[:5])}); not a simtest dataset")
+        log.warning("resuming %s without %s: its complete scenes are kept as made with this config", out, MANIFEST)
+        return
     import json
 
     old = json.loads(manifest.read_text())["config"]
@@ -225,6 +231,22 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
         diffs = _diff(old, new)
         raise DatasetError(f"cannot resume into {str(out)!r}: its config differs from this run's at "
                            f"{', '.join(diffs[:8])}; use the same config (or --overwrite)")
+
+
+def _is_generated(name: str, cfg: GenerateConfig) -> bool:
+    """Whether a top-level entry of a dataset folder is one ``generate`` writes (or its atomic temporary)."""
+    return name in (MANIFEST, "camera.json", "models", cfg.split) or (name.startswith(".") and name.endswith(".tmp"))
+
+
+def _only_generated(out: Path, cfg: GenerateConfig) -> bool:
+    entries = list(out.iterdir())
+    return bool(entries) and all(_is_generated(p.name, cfg) for p in entries)
+
+
+def _count_scenes(split_dir: Path) -> str:
+    done = len(scene_dirs(split_dir)) if split_dir.is_dir() else 0
+    partial = len(list(split_dir.glob(".*.partial"))) if split_dir.is_dir() else 0
+    return f"{done} complete and {partial} partial scene folders"
 
 
 def _diff(a, b, prefix: str = "") -> list[str]:

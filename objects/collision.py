@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import io
 import logging
-import os
-import tempfile
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
+
+from simtest.io.files import atomic_write_bytes
 
 if TYPE_CHECKING:
     from simtest.objects.model import ObjectModel
@@ -44,17 +44,13 @@ def convex_parts(obj: "ObjectModel") -> tuple[trimesh.Trimesh, ...]:
         except Exception as exc:  # a corrupt cache entry is recomputed, never trusted
             log.warning("ignoring unreadable collision cache %s: %s", path, exc)
     parts = _decompose(obj.mesh)
-    path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     arrays = {"n": np.array(len(parts))}
     for i, p in enumerate(parts):
         arrays[f"v{i}"] = np.asarray(p.vertices)
         arrays[f"f{i}"] = np.asarray(p.faces)
     np.savez(buf, **arrays)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(buf.getvalue())
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.getvalue())
     return parts
 
 

@@ -53,7 +53,7 @@ from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_es
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
 from simtest.io.dataset import ImageRef, image_size, image_targets, select_images
-from simtest.io.files import atomic_write_text, csv_text, jsonable
+from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_dir
 from simtest.metrics.bop19 import VISIB_GT_MIN, ResultRow
 from simtest.metrics.registry import NDEG_MCM, definitions
 from simtest.objects.loaders import load_dataset_objects
@@ -143,7 +143,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
-             timeout: float | None = DEFAULT_TIMEOUT_S) -> EvalReport:
+             timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -162,6 +162,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         estimator_options: Options for a named estimator (ignored for instances).
         timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit); an image over the
             limit is recorded as a ``timeout`` failure and the run goes on with the next image.
+        overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
+            estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
 
     Returns:
         The :class:`EvalReport`.
@@ -171,7 +173,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
             ``targets="none"``, or a negative ``timeout``.
         DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
             ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
-            runs.
+            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``.
 
     Estimator faults never end the run: an image where the estimator raises (kind ``exception``), calls
     ``sys.exit`` (``exit``), exceeds ``timeout`` (``timeout``) or returns something other than a list
@@ -185,6 +187,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     root = Path(dataset_dir)
+    _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
     needs_gt = bool(getattr(est, "needs_gt", False))
     if needs_gt and targets == "none":
@@ -250,13 +253,18 @@ def _estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], 
     return dt
 
 
+def _check_out(out_dir: str | Path | None, dataset_dir: Path, overwrite: bool) -> None:
+    if out_dir is not None:
+        prepare_out_dir(out_dir, overwrite=overwrite, protect=[dataset_dir])
+
+
 def _describe(spec: Any, est: Any) -> str:
     return spec if isinstance(spec, str) else type(est).__name__
 
 
 def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
-                  progress: bool = True, out_dir: str | Path | None = None) -> EvalReport:
+                  progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False) -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -268,11 +276,13 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
         out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
             or objects) and ``metrics.md``.
+        overwrite: As in :func:`evaluate`.
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
     """
     root = Path(dataset_dir)
+    _check_out(out_dir, root, overwrite)
     rows = read_bop_results(results_csv)
     objects = load_dataset_objects(root)
     refs = select_images(root, split, scenes, max_images, objects.ids)

@@ -168,10 +168,10 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
-    text = path.read_text(encoding="utf-8")
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
         raise ConfigError(f"config file {str(path)!r}: unsupported extension {path.suffix!r}; use .toml or .json")
+    text = _read_utf8(path)
     try:
         if suffix == ".toml":
             try:
@@ -182,3 +182,17 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         return json.loads(text)
     except ValueError as exc:  # tomllib.TOMLDecodeError and json.JSONDecodeError are ValueErrors
         raise ConfigError(f"config file {str(path)!r} does not parse: {exc}") from exc
+
+
+def _read_utf8(path: Path) -> str:
+    """The text of a config file (UTF-8, an optional byte-order mark dropped); errors name the file and line."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"config file {str(path)!r} cannot be read: {exc.strerror}") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ConfigError(f"config file {str(path)!r} is not UTF-8 text: byte 0x{raw[exc.start]:02x} at line "
+                          f"{line}; save it as UTF-8") from None

@@ -24,7 +24,7 @@ from typing import Any
 from simtest import cells
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
-from simtest.io.files import atomic_write_json, jsonable
+from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
 from simtest.metrics.registry import metric_keys
 from simtest.schema import bounds, build, read_config_file, to_plain
 
@@ -259,24 +259,19 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     Raises:
         DatasetError: Non-empty ``out_dir`` without ``resume``/``overwrite``, or a resume with another config.
     """
-    import shutil
-
     from tqdm import tqdm
 
     out = Path(out_dir)
-    if resume and overwrite:
-        raise ConfigError("--resume and --overwrite exclude each other; choose one")
-    if out.exists() and any(out.iterdir()):
-        if overwrite:
-            shutil.rmtree(out)
-        elif not resume:
-            raise DatasetError(f"sweep folder {str(out)!r} is not empty; pass --resume to continue it or "
-                               f"--overwrite to replace it")
-        else:
-            old = out / "sweep_config.json"
-            if old.exists() and json.loads(old.read_text()) != cfg.to_dict():
-                raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
-                                   f"(see {old}); use the same config or --overwrite")
+    protect = [] if cfg.dataset.path is None else [cfg.dataset.path]
+    if prepare_out_dir(out, overwrite=overwrite, resume=resume, can_resume=True, clear=True, protect=protect,
+                       what="sweep folder"):
+        old = out / "sweep_config.json"
+        if not old.is_file():
+            raise DatasetError(f"cannot resume {str(out)!r}: it has no sweep_config.json (not a sweep folder); "
+                               f"choose another --out or pass --overwrite")
+        if json.loads(old.read_text()) != cfg.to_dict():
+            raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
+                               f"(see {old}); use the same config or --overwrite")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "sweep_config.json", cfg.to_dict())
     t0 = time.perf_counter()
@@ -318,9 +313,10 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
     from simtest.eval import evaluate
 
     t0 = time.perf_counter()
+    # The cell folder is the sweep's own: a killed cell's leftovers are replaced.
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
                    progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options),
-                   timeout=cfg.timeout)
+                   timeout=cfg.timeout, overwrite=True)
     cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "dataset": str(data),
                              "overall": rep.to_json()["overall"], "seconds": time.perf_counter() - t0,
                              "failures": len(rep.failures)})
@@ -335,6 +331,6 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
                          seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
                          width=g.width, height=g.height, workers=cfg.workers, timeout=cfg.timeout,
                          **cond.grasp_settings())
-    rep = run_grasp_episodes(run, cdir, progress=False)
+    rep = run_grasp_episodes(run, cdir, progress=False, overwrite=True)
     cells.finish_cell(cdir, {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),
                              "seconds": time.perf_counter() - t0})

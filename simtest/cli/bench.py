@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 
+from simtest.cli.common import common_parser
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="speed benchmarks (ratios against raw MuJoCo in the same run)")
     bsub = p.add_subparsers(dest="bench_command", metavar="BENCH")
-    g = bsub.add_parser("generate", help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
+    g = bsub.add_parser("generate", parents=[common_parser()], help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
     g.add_argument("--width", type=int, default=640)
     g.add_argument("--height", type=int, default=480)
     g.add_argument("--objects-per-scene", type=int, default=10)
@@ -17,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
     g.set_defaults(func=_generate)
-    gr = bsub.add_parser("grasp", help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
+    gr = bsub.add_parser("grasp", parents=[common_parser()], help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
     gr.add_argument("--episodes", type=int, default=3)
     gr.set_defaults(func=_grasp)
     m = bsub.add_parser("metrics", help="milliseconds per call of each pose metric on a fixed synthetic model")

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
+from simtest.cli.common import LazyChoices, add_no_progress_alias, common_parser
 from simtest.errors import ConfigError, DatasetError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "corrupt",
+        "corrupt", parents=[common_parser()],
         help="preview image corruptions, or write a corrupted copy of a BOP dataset",
         description="Preview: a grid of corruptions x severities 1..5 of one image. Dataset: a copy of a BOP "
                     "dataset with corrupted RGB (ImageNet-C), pasted occluders and/or depth-sensor noise; "
@@ -31,23 +31,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion-kind", default="paste", metavar="KIND", help="occlusion kind (default: paste)")
     p.add_argument("--occlusion-definition", default="pascal3d+", metavar="DEF",
                    help="level bands: pascal3d+ (default) or objectcentric")
-    p.add_argument("--depth-noise", metavar="PRESET", help="depth-sensor noise preset")
+    p.add_argument("--depth-noise", choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),
+                   help="depth-sensor noise preset")
     p.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output dataset folder")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress_alias(p)
     p.set_defaults(func=run)
 
 
 def _write_png(path: Path, rgb) -> None:
     import cv2
 
+    from simtest.io.files import atomic_write_bytes
+
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise ConfigError(f"could not encode the preview grid for {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(buf.tobytes())
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.tobytes())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if args.preview:
         import cv2
 
+        if Path(args.out).is_dir():
+            raise ConfigError(f"--out {args.out!r} is a folder; with --preview give the PNG file to write")
         src = Path(args.preview)
         bgr = cv2.imread(str(src), cv2.IMREAD_COLOR)
         if bgr is None:
@@ -88,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.in_dir).is_dir():
         raise DatasetError(f"dataset folder {args.in_dir} does not exist")
     record = corrupt_dataset(args.in_dir, args.out, spec, seed=args.seed, overwrite=args.overwrite,
-                             progress=not args.no_progress)
+                             progress=not args.quiet)
     line = f"wrote {args.out}: {record['images']} images, {spec.label()}, seed {args.seed}"
     occ = record.get("occlusion", {})
     if "mean_fg_fraction" in occ:

@@ -9,16 +9,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
+from simtest.cli.common import common_parser
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="generate a small dataset, run the demo robustness sweep, print the report path")
-    p.add_argument("--out", default="demo_out", help="output folder (a previous demo there is resumed)")
+    p = sub.add_parser("demo", parents=[common_parser()],
+                       help="generate a small dataset, run the demo robustness sweep, print the report path")
+    p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--episodes", type=int, default=None, help="grasp episodes per cell (default 3; 0 = none)")
-    p.add_argument("--fresh", action="store_true", help="discard a previous demo in --out")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--resume", action="store_true", help="continue a previous demo in --out")
+    g.add_argument("--overwrite", action="store_true", help="discard the contents of a non-empty --out")
+    p.add_argument("--fresh", dest="overwrite", action="store_true", help=argparse.SUPPRESS)  # old name
     p.set_defaults(func=run)
 
 
@@ -26,22 +31,12 @@ def run(args: argparse.Namespace) -> int:
     from simtest.sweep import DEMO_SWEEP, SweepConfig, run_sweep
 
     out = Path(args.out)
-    previous = (out / "sweep_config.json").is_file()
-    if out.exists() and any(out.iterdir()) and not previous:
-        print(f"simtest demo: {out} exists and is not a simtest demo; choose another --out", file=sys.stderr)
-        return 2
     data = json.loads(json.dumps(DEMO_SWEEP))
     if args.episodes is not None:
         data["grasp"]["episodes"] = args.episodes
     cfg = SweepConfig.from_dict(data, source="demo sweep")
     t0 = time.perf_counter()
-    if previous and not args.fresh:
-        try:
-            rep = run_sweep(cfg, out, resume=True)
-        except Exception:  # a demo from another version or with other options: start again
-            rep = run_sweep(cfg, out, overwrite=True)
-    else:
-        rep = run_sweep(cfg, out, overwrite=True)
+    rep = run_sweep(cfg, out, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)
     print((out / "tables.md").read_text())
     print(describe_dataset(out / "data" / "clean"))
     print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s ({len(rep.cells_run)} cells computed, "

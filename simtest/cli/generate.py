@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from simtest.cli.common import common_parser
 from simtest.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("generate", help="generate a BOP-format RGB-D dataset of physically settled scenes",
+    p = sub.add_parser("generate", parents=[common_parser()], help="generate a BOP-format RGB-D dataset of physically settled scenes",
                        description="Generate a BOP-format RGB-D dataset (train_pbr layout) of physically settled "
                                    "MuJoCo scenes with exact ground truth. Command-line values override the "
                                    "config file; every other value keeps its default (`simtest generate --print-config` shows them all).")
@@ -38,7 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 

@@ -3,22 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import ast
 import sys
 
+from simtest.cli.common import LazyChoices, common_parser
 from simtest.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "grasp", help="closed-loop Panda grasping driven by a pose estimator (success rate with 95%% CI)",
+        "grasp", parents=[common_parser()], help="closed-loop Panda grasping driven by a pose estimator (success rate with 95%% CI)",
         description="Run closed-loop grasp episodes: the Panda's wrist camera observes the target, the estimator "
                     "estimates its pose, a grasp planned from that estimate is executed, and success (lifted "
                     ">= 0.10 m and held 1 s) is recorded. Writes episodes.csv, summary.json and summary.md "
                     "(see docs/grasping.md).")
     p.add_argument("--estimator", required=True, help="estimator name (oracle, icp, ...) or module:attr")
     p.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
-                   help="estimator option (repeatable), e.g. --opt trans_noise_mm=10")
+                   help="estimator option (repeatable), parsed as for simtest eval; e.g. --opt trans_noise_mm=10")
     p.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
     p.add_argument("--objects", default="builtin", help="object set: builtin, builtin-small, or a path")
     p.add_argument("--target", default=None,
@@ -29,37 +29,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="physical occluder level between the observation camera and the target")
     p.add_argument("--weather", default=None, help="image corruption of the observation (e.g. fog, snow)")
     p.add_argument("--severity", type=int, default=3, help="corruption severity 1..5 (default 3)")
-    p.add_argument("--depth-noise", default=None, help="depth-noise preset of the observation (e.g. d435)")
+    p.add_argument("--depth-noise", default=None, choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),
+                   help="depth-noise preset of the observation (default: none)")
     p.add_argument("--width", type=int, default=320, help="wrist camera width, pixels (default 320)")
     p.add_argument("--height", type=int, default=None, help="wrist camera height (default 3/4 of the width)")
     p.add_argument("--seed", type=int, default=0, help="master seed; episode i uses SeedSequence child i")
     p.add_argument("--workers", type=int, default=1, help="worker processes (each owns whole episodes)")
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true", help="write into a non-empty --out, replacing its results")
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
     p.add_argument("--video-episodes", type=int, default=5, help="how many episodes get a clip (default 5)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
                    help="time limit of the estimator per episode (default 120; 0 = none); an episode over it "
                         "ends as 'estimator_timeout' and the run goes on")
     p.set_defaults(func=run)
-
-
-def parse_options(items: list[str]) -> dict:
-    """``["k=v", ...]`` -> dict; values are Python literals when they parse (numbers, True, None, lists),
-    strings otherwise."""
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ConfigError(f"--opt expects KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        key = key.strip()
-        if not key.isidentifier():
-            raise ConfigError(f"--opt key must be an identifier, got {key!r}")
-        try:
-            out[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            out[key] = value
-    return out
 
 
 def _targets(text: str | None) -> tuple:
@@ -75,14 +58,21 @@ def _targets(text: str | None) -> tuple:
 
 def run(args: argparse.Namespace) -> int:
     from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
+    from simtest.estimators.base import check_estimator_options, parse_options
+    from simtest.io.files import prepare_out_dir
+
+    prepare_out_dir(args.out, overwrite=args.overwrite)  # before anything is loaded
+    options = parse_options(args.opt)
+    check_estimator_options(args.estimator, options)  # before the robot and the objects are loaded
 
     cfg = GraspRunConfig(
-        estimator=args.estimator, estimator_options=parse_options(args.opt), episodes=args.episodes,
+        estimator=args.estimator, estimator_options=options, episodes=args.episodes,
         seed=args.seed, objects=args.objects, targets=_targets(args.target), n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout)
-    report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, command_line=["simtest", *sys.argv[1:]])
+    report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
+                                command_line=["simtest", *sys.argv[1:]])
     print(report.table())
     print(f"wrote {args.out}/episodes.csv, summary.json, summary.md")
     return 0

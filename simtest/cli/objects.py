@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simtest.errors import AssetError, DatasetError
+from simtest.cli.common import common_parser
+from simtest.errors import AssetError
 
 __all__ = ["register", "object_table", "render_preview"]
 
@@ -23,18 +24,18 @@ def register(subparsers) -> None:
         p.add_argument("--units", default="auto", choices=["m", "mm", "auto"], help="units of mesh files")
         p.add_argument("--seed", type=int, default=0, help="seed of the built-in sets")
 
-    p_list = sub.add_parser("list", help="print a table of the objects")
+    p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
     common(p_list)
     p_list.add_argument("--no-grasps", action="store_true", help="skip grasp sampling (faster)")
     p_list.set_defaults(func=_cmd_list)
 
-    p_exp = sub.add_parser("export", help="write the set as a BOP models/ folder (millimetres)")
+    p_exp = sub.add_parser("export", parents=[common_parser()], help="write the set as a BOP models/ folder (millimetres)")
     common(p_exp)
     p_exp.add_argument("--out", required=True, help="output folder (the models/ folder itself)")
     p_exp.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     p_exp.set_defaults(func=_cmd_export)
 
-    p_prev = sub.add_parser("preview", help="render one object from a few views into a PNG")
+    p_prev = sub.add_parser("preview", parents=[common_parser()], help="render one object from a few views into a PNG")
     common(p_prev)
     p_prev.add_argument("obj_id", type=int, help="object id")
     p_prev.add_argument("--out", required=True, help="PNG file to write")
@@ -75,12 +76,10 @@ def _cmd_list(args) -> int:
 
 def _cmd_export(args) -> int:
     from simtest.io.bop_models import write_bop_models
+    from simtest.io.files import prepare_out_dir
 
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
-        raise DatasetError(f"{out}: folder is not empty; pass --overwrite to write into it")
+    prepare_out_dir(out, overwrite=args.overwrite)
     objects = _load(args)
     write_bop_models(objects, out)
     print(f"wrote {len(objects)} models to {out}")

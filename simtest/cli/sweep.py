@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import argparse
 
+from simtest.cli.common import common_parser
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sweep", help="run a robustness sweep and write tables and report.html",
+    p = sub.add_parser("sweep", parents=[common_parser()], help="run a robustness sweep and write tables and report.html",
                        description="Run every (estimator, condition) cell of a sweep config (TOML or JSON; see "
                                    "configs/sweep-demo.toml) and write results.csv, summary.csv, tables.md and "
                                    "report.html. Finished cells are cached: --resume continues an interrupted "
@@ -17,7 +19,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the sweep in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 

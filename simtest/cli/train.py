@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from simtest.cli.common import add_no_progress_alias, common_parser
 from simtest.errors import ConfigError
 
 #: Models this command can train.
@@ -12,7 +13,7 @@ MODELS = ("keypoints",)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "train",
+        "train", parents=[common_parser()],
         help="train a pose estimator (keypoints) on a BOP dataset (needs PyTorch: pip install 'simtest[train]')",
         description="Train the confidence-based keypoint estimator on a BOP dataset. Writes OUT/last.pt after "
                     "every epoch (resume with --resume), OUT/best.pt (best validation ADD(-S)-0.1d, with --val), "
@@ -41,8 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, help="data-loading worker processes (default: 1)")
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--seed", type=int, default=0, help="seed of weights, sample order and corruptions (default: 0)")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out after its last finished epoch")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--resume", action="store_true", help="continue the run in --out after its last finished epoch")
+    g.add_argument("--overwrite", action="store_true", help="replace the contents of a non-empty --out")
+    add_no_progress_alias(p)
     p.set_defaults(func=run)
 
 
@@ -70,6 +73,10 @@ def parse_ints(text: str, n: int, flag: str) -> tuple[int, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simtest.io.files import prepare_out_dir
+
+    prepare_out_dir(args.out, overwrite=args.overwrite, resume=args.resume, can_resume=True, clear=True,
+                    protect=[args.data] + ([args.val] if args.val else []), what="run folder")
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -85,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
                       augment=augment, device=args.device, seed=args.seed, workers=args.workers,
                       keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads,
                       widths=parse_ints(args.widths, 4, "--widths"), decoder=parse_ints(args.decoder, 2, "--decoder"))
-    res = train_keypoints(cfg, resume=args.resume, progress=not args.no_progress)
+    res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")
     if res.best_path is not None:

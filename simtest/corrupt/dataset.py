@@ -35,7 +35,7 @@ from simtest.rng import child_rng
 from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_mask,
                             read_scene_files, scene_dirs)
 from simtest.io.files import atomic_write_bytes as _atomic_write
-from simtest.io.files import dump_json_keyed
+from simtest.io.files import dump_json_keyed, prepare_out_dir
 
 __all__ = ["corrupt_dataset", "depth_png_to_m", "depth_m_to_png", "find_scenes"]
 
@@ -56,8 +56,7 @@ def depth_m_to_png(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
 def _atomic_copy(src: Path, dst: Path) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
-    shutil.copyfile(src, tmp)
-    shutil.copystat(src, tmp)
+    shutil.copyfile(src, tmp)  # a new file: its mode follows the umask, like every other output
     os.replace(tmp, dst)
 
 
@@ -65,23 +64,6 @@ def find_scenes(dataset: Path) -> list[Path]:
     """Complete scene folders ``DATASET/<split>/<6 digits>/`` holding a ``scene_camera.json``, sorted."""
     return [scene for split in sorted(p for p in dataset.iterdir() if p.is_dir())
             for scene in scene_dirs(split) if (scene / "scene_camera.json").is_file()]
-
-
-def _prepare_out(in_dir: Path, out_dir: Path, overwrite: bool) -> None:
-    if out_dir == in_dir or in_dir in out_dir.parents or out_dir in in_dir.parents:
-        raise DatasetError(f"output {out_dir} must not be, contain or lie inside the input dataset {in_dir}")
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise DatasetError(f"output {out_dir} exists and is not a directory")
-        if any(out_dir.iterdir()):
-            if not overwrite:
-                raise DatasetError(f"output {out_dir} is not empty; pass overwrite=True (--overwrite) to replace it")
-            for child in out_dir.iterdir():
-                if child.is_dir() and not child.is_symlink():
-                    shutil.rmtree(child)
-                else:
-                    child.unlink()
-    out_dir.mkdir(parents=True, exist_ok=True)
 
 
 def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec: CorruptionSpec, seed: int,
@@ -124,7 +106,8 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     for scene in scenes:
         files = read_scene_files(scene, require_gt=False)
         cache[scene] = {"camera": files.camera, "gt": files.gt or {}, "gt_info": files.gt_info}
-    _prepare_out(src, dst, overwrite)
+    prepare_out_dir(dst, overwrite=overwrite, clear=True, protect=[src], what="output dataset")
+    dst.mkdir(parents=True, exist_ok=True)
 
     work = []
     for scene in scenes:

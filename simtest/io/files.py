@@ -1,28 +1,48 @@
-"""Atomic file writes: write to a temporary file in the same folder, then ``os.replace`` it into place."""
+"""Atomic file writes (a temporary file in the same folder, then ``os.replace``) and output-folder checks.
+
+Every file written here gets the permissions an ordinary ``open()`` would give it under the process umask
+(``0644`` under umask ``022``), not the ``0600`` of :func:`tempfile.mkstemp`. :func:`prepare_out_dir` is the
+one check every command runs on its output folder before doing any work.
+"""
 
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
 import os
+import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "dump_json", "dump_json_keyed", "jsonable",
-           "csv_text", "write_csv", "read_csv"]
+from simtest.errors import ConfigError, DatasetError
+
+__all__ = ["prepare_out_dir", "clear_folder", "file_mode", "atomic_write_bytes", "atomic_write_text",
+           "atomic_write_json", "dump_json", "dump_json_keyed", "jsonable", "csv_text", "write_csv", "read_csv"]
+
+
+@functools.cache
+def file_mode() -> int:
+    """Permission bits of a new file under the process umask (``0o644`` under umask ``022``); read once."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that readers see either the old file or the complete new one."""
+    """Write ``data`` to ``path`` so that readers see either the old file or the complete new one; the file
+    gets :func:`file_mode` permissions."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, file_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)
@@ -88,3 +108,93 @@ def read_csv(path: str | Path) -> list[dict[str, str]]:
     """Rows of a CSV file with a header, as dicts of strings."""
     with open(path, newline="", encoding="utf-8") as fh:
         return list(csv.DictReader(fh))
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its closest existing ancestor."""
+    for p in (path, *path.parents):
+        if p.exists():
+            return p
+    return Path(".")  # pragma: no cover - a relative path's root "." always exists
+
+
+def _check_creatable(out: Path) -> None:
+    """Raise :class:`DatasetError` (one line) unless ``out`` is a writable folder or can be made one."""
+    base = _nearest_existing(out)
+    if base == out:
+        if not out.is_dir():
+            raise DatasetError(f"output folder {str(out)!r} is a file, not a folder")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise DatasetError(f"output folder {str(out)!r}: permission denied (not writable)")
+        return
+    if not base.is_dir():
+        raise DatasetError(f"cannot create output folder {str(out)!r}: {str(base)!r} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise DatasetError(f"cannot create output folder {str(out)!r}: permission denied in {str(base)!r}")
+
+
+def _overlaps(out: Path, protected: Path, clear: bool) -> bool:
+    """True if ``out`` is ``protected``, lies inside it, or (when its contents will be deleted) contains it."""
+    return out == protected or protected in out.parents or (clear and out in protected.parents)
+
+
+def clear_folder(path: Path) -> None:
+    """Delete everything inside ``path`` (the folder itself, its owner and permissions stay)."""
+    for child in path.iterdir():
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child)
+        else:
+            child.unlink()
+
+
+def prepare_out_dir(path: str | os.PathLike, *, overwrite: bool = False, resume: bool = False,
+                    can_resume: bool = False, clear: bool = False, protect: Sequence[str | os.PathLike] = (),
+                    what: str = "output folder") -> bool:
+    """Check an output folder before any work starts; the one rule every command follows.
+
+    A folder that does not exist yet or is empty is always fine (it is not created here). A non-empty folder
+    needs ``overwrite`` (or ``resume`` where the caller supports resuming); with ``overwrite`` and ``clear``
+    its contents are deleted here, otherwise the caller writes over its own files. The folder must not be,
+    or lie inside, any ``protect`` folder (the input dataset), nor contain one when it would be cleared.
+
+    Args:
+        path: The output folder.
+        overwrite: Allow a non-empty folder (``--overwrite``).
+        resume: Allow a non-empty folder to be continued (``--resume``); only with ``can_resume``.
+        can_resume: The caller supports ``resume`` (named in the error message).
+        clear: With ``overwrite``, delete the folder's contents.
+        protect: Input folders the output must stay out of.
+        what: How the folder is named in messages.
+
+    Returns:
+        True if the folder holds earlier output that is kept (a resume or a non-clearing overwrite).
+
+    Raises:
+        ConfigError: ``resume`` and ``overwrite`` together, or ``resume`` where it is not supported.
+        DatasetError: The path is a file or lies under one, is not writable, overlaps a ``protect`` folder,
+            or is non-empty without ``overwrite``/``resume``; every message is one line naming the path.
+    """
+    if resume and overwrite:
+        raise ConfigError("--resume and --overwrite exclude each other; choose one")
+    if resume and not can_resume:
+        raise ConfigError(f"this command cannot resume; pass --overwrite to replace the {what}")
+    out = Path(path).resolve()
+    for p in protect:
+        src = Path(p).resolve()
+        if _overlaps(out, src, clear):
+            inside = "contain or lie inside" if clear else "lie inside"
+            raise DatasetError(f"{what} {str(path)!r} must not be, {inside} the input dataset {str(p)!r}; "
+                               f"choose another --out")
+    _check_creatable(out)
+    if not out.is_dir() or not any(out.iterdir()):
+        return False
+    if resume:
+        return True
+    if not overwrite:
+        flags = "--resume to continue it or --overwrite to replace it" if can_resume else \
+            "--overwrite to replace its contents"
+        raise DatasetError(f"{what} {str(path)!r} is not empty; pass {flags} (or choose another --out)")
+    if clear:
+        clear_folder(out)
+        return False
+    return True

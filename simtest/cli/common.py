@@ -1,0 +1,52 @@
+"""What every ``simtest`` command shares: the ``--quiet`` and ``-v/--verbose`` switches (one parent parser),
+logging set-up, and choices read lazily from the library (so ``simtest --help`` imports nothing heavy)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+from collections.abc import Iterator
+
+__all__ = ["common_parser", "add_no_progress_alias", "configure_logging", "LazyChoices"]
+
+
+def common_parser() -> argparse.ArgumentParser:
+    """The parent parser of every command: ``--quiet`` (no progress bars) and ``-v``/``-vv`` (log level)."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help="log more on stderr: -v info, -vv debug (default: warnings and errors only)")
+    return p
+
+
+def add_no_progress_alias(parser: argparse.ArgumentParser) -> None:
+    """Keep ``--no-progress`` working (hidden, deprecated): :func:`simtest.cli.main` turns it into ``--quiet``."""
+    parser.add_argument("--no-progress", dest="no_progress", action="store_true", help=argparse.SUPPRESS)
+
+
+def configure_logging(verbose: int) -> None:
+    """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each."""
+    logging.basicConfig(format="simtest %(levelname)s %(name)s: %(message)s")
+    level = logging.WARNING if verbose <= 0 else logging.INFO if verbose == 1 else logging.DEBUG
+    logging.getLogger("simtest").setLevel(level)
+
+
+class LazyChoices:
+    """argparse ``choices`` whose names come from a library mapping imported only when needed (a value is
+    checked or the help is shown), e.g. ``LazyChoices("simtest.corrupt", "DEPTH_PRESETS")``."""
+
+    def __init__(self, module: str, attr: str) -> None:
+        self.module, self.attr = module, attr
+
+    def names(self) -> list[str]:
+        return list(getattr(importlib.import_module(self.module), self.attr))
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __contains__(self, value: object) -> bool:
+        return value in self.names()
+
+    def __len__(self) -> int:
+        return len(self.names())
