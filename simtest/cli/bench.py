@@ -10,7 +10,8 @@ from simtest.cli.common import common_parser
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="speed benchmarks (ratios against raw MuJoCo in the same run)")
     bsub = p.add_subparsers(dest="bench_command", metavar="BENCH")
-    g = bsub.add_parser("generate", parents=[common_parser()], help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
+    g = bsub.add_parser("generate", parents=[common_parser()],
+                        help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
     g.add_argument("--width", type=int, default=640)
     g.add_argument("--height", type=int, default=480)
     g.add_argument("--objects-per-scene", type=int, default=10)
@@ -19,10 +20,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
     g.set_defaults(func=_generate)
-    gr = bsub.add_parser("grasp", parents=[common_parser()], help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
+    gr = bsub.add_parser("grasp", parents=[common_parser()],
+                         help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
     gr.add_argument("--episodes", type=int, default=3)
     gr.set_defaults(func=_grasp)
-    m = bsub.add_parser("metrics", help="milliseconds per call of each pose metric on a fixed synthetic model")
+    m = bsub.add_parser("metrics", parents=[common_parser()],
+                        help="milliseconds per call of each pose metric on a fixed synthetic model")
     m.add_argument("--number", type=int, default=5, help="calls per timing (default 5)")
     m.add_argument("--repeat", type=int, default=3, help="timings; the best is reported (default 3)")
     m.set_defaults(func=_metrics)
