@@ -28,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simtest.io.dataset import describe_dataset
     from simtest.sweep import DEMO_SWEEP, SweepConfig, run_sweep
 
     out = Path(args.out)
@@ -44,34 +45,3 @@ def run(args: argparse.Namespace) -> int:
     print(f"dataset: {(out / 'data' / 'clean').resolve()}")
     print(f"report:  {rep.paths['report'].resolve()}")
     return 0
-
-
-def describe_dataset(path: Path) -> str:
-    """A short human summary of a BOP dataset folder: layout, objects, instances, visibility."""
-    from simtest.io.bop import read_scene, scene_dirs
-
-    manifest = json.loads((path / "manifest.json").read_text())
-    split = path / manifest["config"]["split"]
-    n_img = n_inst = 0
-    visib = []
-    per_obj: dict[int, int] = {}
-    for sd in scene_dirs(split):
-        for im in read_scene(sd).values():
-            n_img += 1
-            for g in im["gt"]:
-                n_inst += 1
-                visib.append(g.visib_fract)
-                per_obj[g.obj_id] = per_obj.get(g.obj_id, 0) + 1
-    names = {o["obj_id"]: o["name"] for o in manifest["objects"]}
-    lines = [f"dataset {path}: {n_img} RGB-D images, {n_inst} annotated instances of {len(per_obj)} objects",
-             f"  layout: camera.json, models/ (PLY in mm + models_info.json), "
-             f"{manifest['config']['split']}/<scene>/rgb, depth, mask, mask_visib, scene_camera.json, "
-             f"scene_gt.json, scene_gt_info.json",
-             "  instances per object: " + ", ".join(f"{names.get(k, k)}={v}" for k, v in sorted(per_obj.items()))]
-    if visib:
-        import numpy as np
-
-        v = np.asarray(visib)
-        lines.append(f"  visibility: median visib_fract {np.median(v):.2f}; {np.mean(v < 0.5) * 100:.0f}% of "
-                     f"instances less than half visible")
-    return "\n".join(lines)

@@ -5,12 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from simtest.cli.common import common_parser
 from simtest.errors import AssetError
 
-__all__ = ["register", "object_table", "render_preview"]
+__all__ = ["register", "object_table"]
 
 
 def register(subparsers) -> None:
@@ -86,58 +84,17 @@ def _cmd_export(args) -> int:
     return 0
 
 
-def render_preview(obj, size: int = 256, views: int = 4) -> np.ndarray:
-    """Render ``obj`` alone from ``views`` azimuths (MuJoCo offscreen), side by side: (size, views*size, 3) uint8."""
-    import mujoco
-
-    spec = mujoco.MjSpec()
-    spec.visual.global_.offwidth = max(size, 64)
-    spec.visual.global_.offheight = max(size, 64)
-    mesh = spec.add_mesh()
-    mesh.name = "obj"
-    mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
-    mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
-    body = spec.worldbody.add_body()
-    geom = body.add_geom()
-    geom.type = mujoco.mjtGeom.mjGEOM_MESH
-    geom.meshname = "obj"
-    geom.rgba = list(obj.rgba)
-    geom.contype = 0
-    geom.conaffinity = 0
-    light = spec.worldbody.add_light()
-    light.pos = [0.0, -0.3, 1.0]
-    light.dir = [0.0, 0.3, -1.0]
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.lookat[:] = 0.0
-    cam.distance = 2.2 * max(obj.diameter, 0.02)
-    cam.elevation = -30.0
-    images = []
-    with mujoco.Renderer(model, size, size) as renderer:
-        for k in range(views):
-            cam.azimuth = 45.0 + 360.0 * k / views
-            renderer.update_scene(data, camera=cam)
-            images.append(renderer.render().copy())
-    return np.concatenate(images, axis=1)
-
-
 def _cmd_preview(args) -> int:
     from PIL import Image
 
-    objects = _load(args)
-    obj = objects.get(args.obj_id)
-    try:
-        image = render_preview(obj, size=args.size)
-    except Exception as exc:  # no GL backend, etc.
-        from simtest.errors import RenderError
+    from simtest.objects.preview import render_preview
 
-        raise RenderError(f"cannot render a preview of {obj.name}: {exc} (try MUJOCO_GL=egl or osmesa)") from exc
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         raise AssetError(f"--out must be a .png file, got {out}")
+    objects = _load(args)
+    obj = objects.get(args.obj_id)
+    image = render_preview(obj, size=args.size)
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(out)
     print(f"wrote {out} ({obj.name}, {image.shape[1]}x{image.shape[0]} px)")

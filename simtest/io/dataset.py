@@ -9,10 +9,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from simtest.errors import ConfigError, DatasetError
 from simtest.io import bop
 
-__all__ = ["ImageRef", "select_images", "image_size", "image_targets"]
+__all__ = ["ImageRef", "select_images", "image_size", "image_targets", "describe_dataset"]
 
 
 @dataclass(frozen=True)
@@ -74,3 +76,30 @@ def image_size(dataset_dir: Path) -> tuple[int, int]:
 def image_targets(ref: ImageRef, visib_min: float) -> list[tuple[int, bop.ImageGT]]:
     """``(gt_id, gt)`` of the instances that are scored: ``visib_fract >= visib_min`` (BOP19: 0.1)."""
     return [(j, g) for j, g in enumerate(ref.info["gt"]) if g.visib_fract >= visib_min]
+
+
+def describe_dataset(path: Path) -> str:
+    """A short human summary of a BOP dataset folder: layout, objects, instances, visibility."""
+    manifest = bop.read_json(path / "manifest.json")
+    split = path / manifest["config"]["split"]
+    n_img = n_inst = 0
+    visib = []
+    per_obj: dict[int, int] = {}
+    for sd in bop.scene_dirs(split):
+        for im in bop.read_scene(sd).values():
+            n_img += 1
+            for g in im["gt"]:
+                n_inst += 1
+                visib.append(g.visib_fract)
+                per_obj[g.obj_id] = per_obj.get(g.obj_id, 0) + 1
+    names = {o["obj_id"]: o["name"] for o in manifest["objects"]}
+    lines = [f"dataset {path}: {n_img} RGB-D images, {n_inst} annotated instances of {len(per_obj)} objects",
+             f"  layout: camera.json, models/ (PLY in mm + models_info.json), "
+             f"{manifest['config']['split']}/<scene>/rgb, depth, mask, mask_visib, scene_camera.json, "
+             f"scene_gt.json, scene_gt_info.json",
+             "  instances per object: " + ", ".join(f"{names.get(k, k)}={v}" for k, v in sorted(per_obj.items()))]
+    if visib:
+        v = np.asarray(visib)
+        lines.append(f"  visibility: median visib_fract {np.median(v):.2f}; {np.mean(v < 0.5) * 100:.0f}% of "
+                     f"instances less than half visible")
+    return "\n".join(lines)

@@ -133,3 +133,12 @@ def test_cli_eval_runs_and_scores(small_dataset, tmp_path, capsys):
     assert main(["eval", "--data", str(small_dataset), "--estimator", "oracle", "--opt", "bogus",
                  "--out", str(tmp_path / "x")]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
+
+
+def test_describe_dataset_counts_images_and_instances(small_dataset):
+    from simtest.io import bop
+    from simtest.io.dataset import describe_dataset
+
+    text = describe_dataset(small_dataset)
+    n_img = sum(len(bop.read_scene(d)) for d in bop.scene_dirs(small_dataset / "train_pbr"))
+    assert f"{n_img} RGB-D images" in text and "instances per object" in text
