@@ -45,6 +45,9 @@ class SimScene:
         geom_instance: (ngeom,) instance index of each geom, -1 for geoms that are not annotated objects.
         camera_id: Id of the render camera (moved per view).
         active: Instances still on the table (fallen ones are moved away and excluded).
+        panda: :mod:`simtest.panda` handles when the arm is in the scene.
+        rng: The scene's random stream after sampling its spec; views, wrist configurations and occluder
+            levels continue it (``None`` when the scene was built without one).
     """
 
     model: mujoco.MjModel
@@ -57,7 +60,8 @@ class SimScene:
     geom_instance: np.ndarray
     camera_id: int
     active: list[bool] = field(default_factory=list)
-    panda: object | None = None  # simtest.panda handles when the arm is in the scene
+    panda: object | None = None
+    rng: np.random.Generator | None = None
 
     def object_pose_world(self, instance: int) -> tuple[np.ndarray, np.ndarray]:
         """(R (3x3), t (3,) metres) of an instance's model frame in the world."""
@@ -97,7 +101,9 @@ class SceneBuilder:
         self.camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
 
     # ------------------------------------------------------------------------------------------------------
-    def build(self, spec: SceneSpec) -> SimScene:
+    def build(self, spec: SceneSpec, rng: np.random.Generator | None = None) -> SimScene:
+        """Compile ``spec`` into a :class:`SimScene`; ``rng`` (the stream the spec was sampled from) is kept as
+        the scene's ``rng``."""
         cfg = self.cfg
         ms = mujoco.MjSpec()
         ms.modelname = f"scene_{spec.scene_index:06d}"
@@ -189,7 +195,7 @@ class SceneBuilder:
             reset_arm(model, data, panda)
         mujoco.mj_forward(model, data)
         return SimScene(model, data, spec, [p.obj_id for p in spec.objects], ids, qpos, dofs, geom_instance, cam_id,
-                        [True] * len(spec.objects), panda)
+                        [True] * len(spec.objects), panda, rng)
 
     # ------------------------------------------------------------------------------------------------------
     def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> None:

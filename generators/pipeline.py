@@ -118,12 +118,11 @@ def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
         except PlacementError as exc:
             reasons.append(str(exc))
             continue
-        scene = builder.build(spec)
+        scene = builder.build(spec, rng)  # views and wrist configurations continue this stream
         result = settle(scene, cfg.scene)
         if not any(scene.active):
             reasons.append(f"scene {scene_id} attempt {attempt}: every object fell off the table")
             continue
-        scene.rng = rng  # views and wrist configurations continue this stream
         return scene, result, attempt + 1, reasons
     raise DatasetError(f"scene {scene_id}: no usable scene in {cfg.scene.max_attempts} attempts "
                        f"(scene.max_attempts); reasons: {'; '.join(reasons)}")
