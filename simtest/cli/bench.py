@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp|metrics``: speed figures measured in the same run (ratios against raw MuJoCo)."""
+"""``simtest bench generate|grasp|metrics|corruptions``: speed figures measured in the same run (ratios against raw MuJoCo)."""
 
 from __future__ import annotations
 
@@ -29,6 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--number", type=int, default=5, help="calls per timing (default 5)")
     m.add_argument("--repeat", type=int, default=3, help="timings; the best is reported (default 3)")
     m.set_defaults(func=_metrics)
+    c = bsub.add_parser("corruptions", parents=[common_parser()],
+                        help="milliseconds per call of each ImageNet-C corruption on a 640x480 image")
+    c.add_argument("--severity", type=int, default=4, help="severity 1..5 (default 4)")
+    c.add_argument("--width", type=int, default=640)
+    c.add_argument("--height", type=int, default=480)
+    c.set_defaults(func=_corruptions)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -52,4 +58,11 @@ def _metrics(args: argparse.Namespace) -> int:
     from simtest.benchmarks.metrics import run, table
 
     print(table(run(args.number, args.repeat)))
+    return 0
+
+
+def _corruptions(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.corruptions import run, table
+
+    print(table(run(args.width, args.height, args.severity)))
     return 0

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -76,11 +75,9 @@ def test_concave_flags(builtin):
         assert not builtin.by_name(name).is_concave
 
 
-def test_build_is_fast():
+def test_build_is_cached():
     load_builtin.cache_clear()
-    start = time.perf_counter()
     load_builtin("builtin", seed=11)
-    assert time.perf_counter() - start < 5.0  # ~0.6 s on one core; generous for a shared machine
     assert load_builtin("builtin", seed=11) is load_builtin("builtin", seed=11)
 
 

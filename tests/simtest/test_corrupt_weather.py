@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 
 import cv2
 import numpy as np
@@ -157,17 +156,3 @@ def test_errors_name_bad_values() -> None:
         corrupt_rgb(IMG.astype(np.float32), "fog", 1, rng)
     with pytest.raises(ConfigError, match="shape"):
         corrupt_rgb(IMG[..., 0], "fog", 1, rng)
-
-
-def test_speed_640x480_severity4() -> None:
-    img = make_image(480, 640)
-    slow = {}
-    for name in NAMES:
-        best = np.inf
-        for k in range(2):
-            t = time.perf_counter()
-            corrupt_rgb(img, name, 4, np.random.default_rng(k))
-            best = min(best, time.perf_counter() - t)
-        if best >= 0.2:
-            slow[name] = best
-    assert not slow, slow
