@@ -8,7 +8,7 @@ Every function is pure and takes the caller's ``numpy.random.Generator``; ground
 from __future__ import annotations
 
 from simtest.corrupt.dataset import corrupt_dataset, depth_m_to_png, depth_png_to_m
-from simtest.corrupt.depth import DEPTH_PRESETS, DepthPreset, apply_depth_noise
+from simtest.corrupt.depth_presets import DEPTH_PRESETS, DepthPreset, apply_depth_noise
 from simtest.corrupt.occlusion import (
     OCCLUSION_BANDS,
     OCCLUSION_DEFINITIONS,

@@ -9,7 +9,8 @@ missing). Each model is built from small parts with one signature::
 ``K`` is the 3x3 OpenCV intrinsics matrix (pixels) of the depth image, ``rgb`` an optional registered
 ``(H, W, 3)`` uint8 image of the same scene (clean, i.e. before any image corruption) used by the
 dark/specular dropout parts; parts that need ``rgb`` do nothing without it. Parts are composed into the named
-presets of :data:`DEPTH_PRESETS`, applied by :func:`apply_depth_noise`.
+presets of :data:`simtest.corrupt.depth_presets.DEPTH_PRESETS`, applied by
+:func:`simtest.corrupt.depth_presets.apply_depth_noise`.
 
 Models:
   * Kinect v1 (Nguyen, Izadi & Lovell 2012): axial ``sigma_z = 0.0012 + 0.0019 (z - 0.4)^2`` m, plus
@@ -29,8 +30,7 @@ Models:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -38,9 +38,9 @@ import numpy as np
 from simtest.errors import ConfigError
 
 __all__ = [
-    "DEPTH_PRESETS",
-    "DepthPreset",
-    "apply_depth_noise",
+    "check_rgb",
+    "keep_missing",
+    "require_K",
     "surface_normals",
     "incidence_angle",
     "kinect_axial_sigma",
@@ -74,7 +74,8 @@ MAX_THETA = np.deg2rad(85.0)
 # --------------------------------------------------------------------------------------------------------
 # geometry
 # --------------------------------------------------------------------------------------------------------
-def _require_K(K: np.ndarray | None, part: str) -> np.ndarray:
+def require_K(K: np.ndarray | None, part: str) -> np.ndarray:
+    """``K`` as a checked 3x3 float array; ``part`` names the caller in the error."""
     if K is None:
         raise ConfigError(f"depth noise part {part!r} needs the intrinsics K (3x3, pixels), got None")
     K = np.asarray(K, dtype=np.float64)
@@ -83,7 +84,8 @@ def _require_K(K: np.ndarray | None, part: str) -> np.ndarray:
     return K
 
 
-def _check_rgb(rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray | None:
+def check_rgb(rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray | None:
+    """``rgb`` checked to be an (H, W, 3) uint8 image of the depth's size, or ``None``."""
     if rgb is None:
         return None
     rgb = np.asarray(rgb)
@@ -93,7 +95,7 @@ def _check_rgb(rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray | None:
     return rgb
 
 
-def _keep_missing(out: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def keep_missing(out: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """Zero where the input was missing, and where the output is non-finite or <= 0."""
     out = np.where((depth > 0) & np.isfinite(out) & (out > 0), out, 0.0)
     return out.astype(np.float32)
@@ -113,7 +115,7 @@ def surface_normals(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.nd
         ``(normals, valid)``: ``(H, W, 3)`` float32 unit normals (0 where invalid) and an ``(H, W)`` bool mask,
         false where the pixel or one of its 4-neighbours has no depth.
     """
-    K = _require_K(K, "surface_normals")
+    K = require_K(K, "surface_normals")
     z = np.asarray(depth, dtype=np.float32)
     h, w = z.shape
     u = (np.arange(w, dtype=np.float32) - np.float32(K[0, 2])) / np.float32(K[0, 0])
@@ -142,7 +144,7 @@ def surface_normals(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def incidence_angle(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Angle (radians, 0..pi/2) between the surface normal and the viewing ray; 0 where undefined."""
-    K = _require_K(K, "incidence_angle")
+    K = require_K(K, "incidence_angle")
     n, valid = surface_normals(depth, K)
     h, w = depth.shape
     u = (np.arange(w, dtype=np.float32) - np.float32(K[0, 2])) / np.float32(K[0, 0])
@@ -215,19 +217,19 @@ def pixel_shift(depth: np.ndarray, rng: np.random.Generator, *, sigma_px: float 
     h, w = depth.shape
     d = rng.standard_normal((2, h, w), dtype=np.float32) * np.float32(sigma_px)
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return _keep_missing(_sample(depth, gx + d[0], gy + d[1], bilinear), depth)
+    return keep_missing(_sample(depth, gx + d[0], gy + d[1], bilinear), depth)
 
 
 def kinect_lateral_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np.ndarray | None = None,
                          rgb: np.ndarray | None = None) -> np.ndarray:
     """Kinect v1 lateral noise: nearest-neighbour resampling at offsets ``N(0, sigma_L(theta))`` px."""
-    K = _require_K(K, "kinect_lateral_noise")
+    K = require_K(K, "kinect_lateral_noise")
     depth = np.asarray(depth, dtype=np.float32)
     h, w = depth.shape
     sigma = kinect_lateral_sigma(incidence_angle(depth, K)).astype(np.float32)
     d = rng.standard_normal((2, h, w), dtype=np.float32) * sigma
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return _keep_missing(_sample(depth, gx + d[0], gy + d[1], bilinear=False), depth)
+    return keep_missing(_sample(depth, gx + d[0], gy + d[1], bilinear=False), depth)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -236,11 +238,11 @@ def kinect_lateral_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np.n
 def kinect_axial_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np.ndarray | None = None,
                        rgb: np.ndarray | None = None) -> np.ndarray:
     """Kinect v1 axial noise: ``z + N(0, sigma_z(z, theta))`` with Nguyen's formula (metres)."""
-    K = _require_K(K, "kinect_axial_noise")
+    K = require_K(K, "kinect_axial_noise")
     depth = np.asarray(depth, dtype=np.float32)
     sigma = kinect_axial_sigma(depth, incidence_angle(depth, K)).astype(np.float32)
     noise = rng.standard_normal(depth.shape, dtype=np.float32) * sigma
-    return _keep_missing(depth + noise, depth)
+    return keep_missing(depth + noise, depth)
 
 
 def azure_axial_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np.ndarray | None = None,
@@ -248,7 +250,7 @@ def azure_axial_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np.ndar
     """Azure Kinect-like axial noise: ``z + (0.0005 + max(z - 0.5, 0) 0.001) N(0, 1)`` (metres)."""
     depth = np.asarray(depth, dtype=np.float32)
     noise = rng.standard_normal(depth.shape, dtype=np.float32) * azure_sigma(depth).astype(np.float32)
-    return _keep_missing(depth + noise, depth)
+    return keep_missing(depth + noise, depth)
 
 
 def stereo_axial_noise(depth: np.ndarray, rng: np.random.Generator, *, focal_px: float = 640.0,
@@ -257,7 +259,7 @@ def stereo_axial_noise(depth: np.ndarray, rng: np.random.Generator, *, focal_px:
     """Stereo axial noise ``z + N(0, z^2 sigma_d / (f b))`` (metres; f, sigma_d in pixels, b in metres)."""
     depth = np.asarray(depth, dtype=np.float32)
     sigma = stereo_sigma(depth, focal_px, baseline_m, sigma_disparity_px).astype(np.float32)
-    return _keep_missing(depth + rng.standard_normal(depth.shape, dtype=np.float32) * sigma, depth)
+    return keep_missing(depth + rng.standard_normal(depth.shape, dtype=np.float32) * sigma, depth)
 
 
 def disparity_quantization(depth: np.ndarray, rng: np.random.Generator, *, focal_px: float = 480.0,
@@ -269,7 +271,7 @@ def disparity_quantization(depth: np.ndarray, rng: np.random.Generator, *, focal
     with np.errstate(divide="ignore", invalid="ignore"):
         disp = np.round(fb / depth.astype(np.float64) / step_px) * step_px
         out = fb / disp
-    return _keep_missing(out, depth)
+    return keep_missing(out, depth)
 
 
 def structured_light_edge_filter(depth: np.ndarray, rng: np.random.Generator, *, focal_px: float = 480.0,
@@ -313,7 +315,7 @@ def structured_light_noise(depth: np.ndarray, rng: np.random.Generator, *, K: np
     noise = rng.standard_normal(depth.shape) / 6.0
     with np.errstate(divide="ignore", invalid="ignore"):
         out = 35130.0 / np.round(35130.0 / z_cm + noise + 0.5) / 100.0
-    return _keep_missing(out, depth)
+    return keep_missing(out, depth)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -373,7 +375,7 @@ def dark_dropout(depth: np.ndarray, rng: np.random.Generator, *, grey_threshold:
                  rgb: np.ndarray | None = None) -> np.ndarray:
     """Zero depth on dark surfaces: grey level (0..255) of ``rgb`` below ``grey_threshold``. No-op without rgb."""
     depth = np.asarray(depth, dtype=np.float32)
-    rgb = _check_rgb(rgb, depth)
+    rgb = check_rgb(rgb, depth)
     if rgb is None:
         return depth.copy()
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
@@ -386,7 +388,7 @@ def specular_dropout(depth: np.ndarray, rng: np.random.Generator, *, value_thres
     """Zero depth on specular highlights: near-white, unsaturated ``rgb`` pixels (HSV value >=
     ``value_threshold`` of 255, saturation <= ``max_saturation``), grown by ``grow_px``. No-op without rgb."""
     depth = np.asarray(depth, dtype=np.float32)
-    rgb = _check_rgb(rgb, depth)
+    rgb = check_rgb(rgb, depth)
     if rgb is None:
         return depth.copy()
     v = rgb.max(axis=2).astype(np.float32)
@@ -402,7 +404,7 @@ def grazing_dropout(depth: np.ndarray, rng: np.random.Generator, *, start_deg: f
                     rgb: np.ndarray | None = None) -> np.ndarray:
     """Zero depth on grazing surfaces: drop probability ramps linearly from 0 at ``start_deg`` to 1 at
     ``end_deg`` of incidence angle (normal vs viewing ray)."""
-    K = _require_K(K, "grazing_dropout")
+    K = require_K(K, "grazing_dropout")
     depth = np.asarray(depth, dtype=np.float32)
     theta = np.rad2deg(incidence_angle(depth, K))
     p = np.clip((theta - start_deg) / max(end_deg - start_deg, 1e-6), 0.0, 1.0)
@@ -432,138 +434,4 @@ def quantize_depth(depth: np.ndarray, rng: np.random.Generator, *, step_m: float
                    K: np.ndarray | None = None, rgb: np.ndarray | None = None) -> np.ndarray:
     """Round depth to multiples of ``step_m`` metres (deterministic; a value rounding to 0 becomes missing)."""
     depth = np.asarray(depth, dtype=np.float32)
-    return _keep_missing(np.round(depth / np.float32(step_m)) * np.float32(step_m), depth)
-
-
-# --------------------------------------------------------------------------------------------------------
-# presets
-# --------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class DepthPreset:
-    """A named chain of depth-noise parts, applied in order.
-
-    Attributes:
-        name: Registry name.
-        description: One line: what sensor and which source.
-        steps: ``(part, params)`` pairs; each part is called as ``part(depth, rng, K=K, rgb=rgb, **params)``.
-    """
-
-    name: str
-    description: str
-    steps: tuple[tuple[DepthPart, Mapping[str, Any]], ...] = field(default=())
-
-    def __call__(self, depth: np.ndarray, rng: np.random.Generator, K: np.ndarray | None,
-                 rgb: np.ndarray | None = None) -> np.ndarray:
-        out = np.asarray(depth, dtype=np.float32)
-        for part, params in self.steps:
-            out = part(out, rng, K=K, rgb=rgb, **dict(params))
-        return _keep_missing(out, np.asarray(depth, dtype=np.float32))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able description (part names and parameters)."""
-        return {"name": self.name, "description": self.description,
-                "steps": [{"part": p.__name__, **{k: (list(v) if isinstance(v, tuple) else v)
-                                                  for k, v in params.items()}} for p, params in self.steps]}
-
-
-_ICL_F, _ICL_B = 480.0, 0.075
-
-#: Named sensor presets; see the module docstring for the formulas.
-DEPTH_PRESETS: dict[str, DepthPreset] = {
-    p.name: p
-    for p in (
-        DepthPreset(
-            "kinect-v1",
-            "Kinect v1 (Nguyen et al. 2012): lateral and axial noise from depth and incidence angle, grazing "
-            "and depth-edge dropout, specular dropout, range 0.4-4.0 m",
-            (
-                (kinect_lateral_noise, {}),
-                (kinect_axial_noise, {}),
-                (grazing_dropout, {"start_deg": 70.0, "end_deg": 85.0}),
-                (edge_dropout, {"threshold_m": 0.05, "width_px": 1, "probability": 0.5}),
-                (specular_dropout, {}),
-                (range_limits, {"z_min": 0.4, "z_max": 4.0}),
-            ),
-        ),
-        DepthPreset(
-            "structured-light",
-            "Structured light (Handa et al. 2014, ICL-NUIM): 0.5 px bilinear shifts, 1/8 px disparity "
-            "quantisation (f = 480 px, b = 0.075 m), 9x9 edge invalidation, 35130 / disparity noise",
-            (
-                (pixel_shift, {"sigma_px": 0.5, "bilinear": True}),
-                (disparity_quantization, {"focal_px": _ICL_F, "baseline_m": _ICL_B, "step_px": 0.125}),
-                (structured_light_edge_filter, {"focal_px": _ICL_F, "baseline_m": _ICL_B}),
-                (structured_light_noise, {}),
-            ),
-        ),
-        DepthPreset(
-            "azure-kinect",
-            "Azure Kinect-like: 0.25 px shifts, (0.0005 + max(z - 0.5, 0) 0.001) m Gaussian noise, dropout "
-            "where the 3x3 depth range > 0.8 m and on dark pixels (grey < 15)",
-            (
-                (pixel_shift, {"sigma_px": 0.25, "bilinear": True}),
-                (azure_axial_noise, {}),
-                (discontinuity_dropout, {"threshold_m": 0.8, "window": 3}),
-                (dark_dropout, {"grey_threshold": 15.0}),
-            ),
-        ),
-        DepthPreset(
-            "realsense-d435",
-            "RealSense D435-like active stereo: 0.25 px shifts, z^2 sigma_d / (f b) noise (f = 640 px, "
-            "b = 0.05 m, sigma_d = 0.08 px), 1/32 px disparity steps, missing data at depth edges, on dark, "
-            "specular and grazing surfaces, random holes, range 0.2-10 m",
-            (
-                (pixel_shift, {"sigma_px": 0.25, "bilinear": True}),
-                (stereo_axial_noise, {"focal_px": 640.0, "baseline_m": 0.05, "sigma_disparity_px": 0.08}),
-                (disparity_quantization, {"focal_px": 640.0, "baseline_m": 0.05, "step_px": 1.0 / 32.0}),
-                (edge_dropout, {"threshold_m": 0.03, "width_px": 2, "probability": 0.7}),
-                (dark_dropout, {"grey_threshold": 10.0, "probability": 0.8}),
-                (specular_dropout, {}),
-                (grazing_dropout, {"start_deg": 75.0, "end_deg": 88.0}),
-                (random_holes, {"holes_per_megapixel": 60.0, "radius_px": (1.0, 6.0)}),
-                (range_limits, {"z_min": 0.2, "z_max": 10.0}),
-            ),
-        ),
-        DepthPreset(
-            "stereo-ideal",
-            "Ideal stereo: only disparity quantisation to 1/8 px (f = 480 px, b = 0.075 m); no noise, no dropout",
-            ((disparity_quantization, {"focal_px": _ICL_F, "baseline_m": _ICL_B, "step_px": 0.125}),),
-        ),
-    )
-}
-
-
-def check_depth_preset(preset: str) -> str:
-    """Return ``preset``, or raise :class:`ConfigError` listing the valid preset names."""
-    if preset not in DEPTH_PRESETS:
-        raise ConfigError(f"unknown depth noise preset {preset!r}; valid presets: {', '.join(DEPTH_PRESETS)}")
-    return preset
-
-
-def apply_depth_noise(depth: np.ndarray, preset: str | DepthPreset, rng: np.random.Generator,
-                      K: np.ndarray | None, rgb: np.ndarray | None = None) -> np.ndarray:
-    """Apply a named depth-sensor noise preset.
-
-    Args:
-        depth: ``(H, W)`` planar depth, metres; 0 = missing (stays 0).
-        preset: A name from :data:`DEPTH_PRESETS` or a :class:`DepthPreset`.
-        rng: Source of all randomness.
-        K: 3x3 intrinsics (pixels) of the depth image; needed by the incidence-angle parts.
-        rgb: Optional registered clean ``(H, W, 3)`` uint8 image for dark/specular dropout.
-
-    Returns:
-        A new ``float32 (H, W)`` depth image in metres.
-
-    Raises:
-        ConfigError: Unknown preset name (the valid names are listed), a depth image that is not 2D, or an
-            ``rgb``/``K`` of the wrong shape.
-    """
-    if not isinstance(preset, DepthPreset):
-        preset = DEPTH_PRESETS[check_depth_preset(preset)]
-    depth = np.asarray(depth)
-    if depth.ndim != 2:
-        raise ConfigError(f"depth must be a 2D (H, W) array in metres, got shape {depth.shape}")
-    if K is not None:
-        K = _require_K(K, preset.name)
-    _check_rgb(rgb, depth)
-    return preset(depth.astype(np.float32), rng, K, rgb)
+    return keep_missing(np.round(depth / np.float32(step_m)) * np.float32(step_m), depth)

@@ -7,7 +7,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from simtest.corrupt.depth import DEPTH_PRESETS, apply_depth_noise, check_depth_preset
+from simtest.corrupt.depth_presets import DEPTH_PRESETS, apply_depth_noise, check_depth_preset
 from simtest.corrupt.occlusion import OCCLUSION_BANDS, parse_occlusion_level, paste_occluders
 from simtest.corrupt.weather import check_corruption_name, check_severity, corrupt_rgb
 from simtest.errors import ConfigError
