@@ -80,6 +80,22 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _errors(e: ResultRow, g: bop.ImageGT, obj, syms: np.ndarray, K: np.ndarray, width: int,
+            depth: np.ndarray | None) -> dict[str, float]:
+    """Errors of one matched estimate against its target: metres, degrees, pixels at 640 px width (MSPD), and
+    the mean VSD over BOP19's taus when the test ``depth`` (metres) is given."""
+    R_g, t_g = g.T_cam_obj.R, g.T_cam_obj.t
+    pts = obj.vertices
+    out = {"score": float(e.score), "add": add(e.R, e.t, R_g, t_g, pts), "adi": adi(e.R, e.t, R_g, t_g, pts)}
+    out["add_s_or_add"] = out["adi"] if obj.is_symmetric else out["add"]
+    out.update(re=re(e.R, R_g), re_sym=_re_sym(e.R, R_g, syms), te=te(e.t, t_g),
+               mssd=mssd(e.R, e.t, R_g, t_g, pts, syms),
+               mspd=mspd(e.R, e.t, R_g, t_g, K, pts, syms) * MSPD_REFERENCE_WIDTH / width)
+    if depth is not None:
+        out["vsd"] = float(np.mean(vsd(e.R, e.t, R_g, t_g, depth, K, obj, VSD_DELTA, VSD_TAUS, obj.diameter)))
+    return out
+
+
 def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str = "train_pbr",
                     scenes: Sequence[int] | None = None, max_images: int | None = None, vsd_enabled: bool = True,
                     scales: dict[int, float] | None = None, objects=None, progress: bool = False,
@@ -129,21 +145,12 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
             if g.obj_id not in sym_cache:
                 sym_cache[g.obj_id] = obj.symmetry_transforms()
             syms = sym_cache[g.obj_id]
-            R_g, t_g = g.T_cam_obj.R, g.T_cam_obj.t
             row: dict[str, Any] = {"scene_id": ref.scene_id, "im_id": ref.im_id, "gt_id": gt_id, "obj_id": g.obj_id,
                                    "visib_fract": float(g.visib_fract), "diameter_m": float(obj.diameter),
                                    "symmetric": bool(obj.is_symmetric), "matched": j in match}
             if j in match:
                 e = ests[match[j]]
-                pts = obj.vertices
-                row.update(score=float(e.score), add=add(e.R, e.t, R_g, t_g, pts), adi=adi(e.R, e.t, R_g, t_g, pts))
-                row["add_s_or_add"] = row["adi"] if obj.is_symmetric else row["add"]
-                row.update(re=re(e.R, R_g), re_sym=_re_sym(e.R, R_g, syms), te=te(e.t, t_g),
-                           mssd=mssd(e.R, e.t, R_g, t_g, pts, syms),
-                           mspd=mspd(e.R, e.t, R_g, t_g, K, pts, syms) * MSPD_REFERENCE_WIDTH / width)
-                if vsd_enabled:
-                    row["vsd"] = float(np.mean(vsd(e.R, e.t, R_g, t_g, depth, K, obj, VSD_DELTA, VSD_TAUS,
-                                                   obj.diameter)))
+                row.update(_errors(e, g, obj, syms, K, width, depth if vsd_enabled else None))
                 if scales is not None and id(e) in scales:
                     row["scale"] = float(scales[id(e)])
             rows.append(row)
