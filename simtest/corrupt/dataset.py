@@ -88,8 +88,6 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     """
     from tqdm import tqdm
 
-    from simtest import __version__
-
     if not isinstance(spec, CorruptionSpec):
         raise ConfigError(f"spec must be a CorruptionSpec, got {type(spec).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -145,6 +143,16 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
             if path not in produced:
                 _atomic_copy(path, dst / path.relative_to(src))
 
+    record = _record(src, spec, seed, len(work), change_rgb, occlusion_records)
+    _atomic_write(dst / "corruption.json", json.dumps(record, indent=2).encode("utf-8"))
+    return record
+
+
+def _record(src: Path, spec: CorruptionSpec, seed: int, images: int, change_rgb: bool,
+            occlusion_records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The provenance written to ``corruption.json``: source, seed, RNG scheme, what changed, occlusion stats."""
+    from simtest import __version__
+
     record: dict[str, Any] = {
         "simtest_version": __version__,
         "source": str(src),
@@ -152,7 +160,7 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         "rng": "per image: numpy SeedSequence(seed, spawn_key=(scene_id, im_id)); spec.apply spawns 3 children "
                "(occlusion, image, depth)",
         **spec.describe(),
-        "images": len(work),
+        "images": images,
         "modified": (["rgb"] if change_rgb else []) + (["depth"] if spec.depth_noise is not None else [])
                     + (["mask_visib", "scene_gt_info.json"] if spec.occlusion is not None else []),
         "stale_files": (["scene_gt_coco.json"] if spec.occlusion is not None else []),
@@ -165,7 +173,6 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
             "in_band_fraction": float(np.mean([r["in_band"] for r in occlusion_records])),
             "per_image": occlusion_records,
         })
-    _atomic_write(dst / "corruption.json", json.dumps(record, indent=2).encode("utf-8"))
     return record
 
 
