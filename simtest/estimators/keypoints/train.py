@@ -156,6 +156,45 @@ def validate(net, record: dict[str, Any], val: str, split: str, device: str, max
             "val_median_te_m": float(rep.overall["median_te_m"])}
 
 
+def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoch: int, total_steps: int,
+                 progress: bool) -> tuple[dict[str, float], int]:
+    """One epoch of optimisation (cosine learning rate per step); returns the summed losses and the batch count."""
+    import torch
+    from torch.utils.data import DataLoader
+    from tqdm import tqdm
+
+    from simtest.data import collate
+    from simtest.estimators.keypoints.loss import make_targets, total_loss
+
+    dataset.set_epoch(epoch)
+    loader = DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+                        num_workers=int(cfg.workers), collate_fn=collate, generator=_epoch_generator(cfg.seed, epoch))
+    sums = {"loss": 0.0, "seg": 0.0, "kp": 0.0}
+    n = 0
+    bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
+               dynamic_ncols=True, leave=False)
+    for i, batch in enumerate(bar):
+        step = epoch * steps_per_epoch + i
+        for g in opt.param_groups:
+            g["lr"] = _lr_at(step, total_steps, cfg.lr)
+        x = _pad16(batch["rgb"].to(cfg.device))
+        pred = net(x)
+        batch = {k: (v.to(cfg.device) if torch.is_tensor(v) else v) for k, v in batch.items()}
+        batch["rgb"] = x
+        tg = make_targets(batch, tuple(pred["seg"].shape[-2:]), net.cfg.stride, net.cfg.offset_scale)
+        losses = total_loss(pred, tg, cfg.seg_weight)
+        opt.zero_grad(set_to_none=True)
+        losses["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+        opt.step()
+        for k in sums:
+            sums[k] += float(losses[k].detach())
+        n += 1
+        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", seg=f"{sums['seg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
+    bar.close()
+    return sums, n
+
+
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,
                     log: Callable[[str], None] = print) -> TrainResult:
     """Train the keypoint network on ``cfg.data``; see the module doc for outputs and resuming.
@@ -166,13 +205,10 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
         DatasetError: Missing dataset or split.
     """
     import torch
-    from torch.utils.data import DataLoader
-    from tqdm import tqdm
 
-    from simtest.data import PoseDataset, augmentation, collate
+    from simtest.data import PoseDataset, augmentation
     from simtest.estimators.keypoints.checkpoint import (FORMAT, check_objects, load_checkpoint, object_record,
                                                          save_checkpoint)
-    from simtest.estimators.keypoints.loss import make_targets, total_loss
     from simtest.objects.loaders import load_dataset_objects
     from simtest.io.files import atomic_write_text
 
@@ -222,33 +258,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     net.train()
     for epoch in range(start_epoch, cfg.epochs):
         t0 = time.perf_counter()
-        dataset.set_epoch(epoch)
-        loader = DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-                            num_workers=int(cfg.workers), collate_fn=collate,
-                            generator=_epoch_generator(cfg.seed, epoch))
-        sums = {"loss": 0.0, "seg": 0.0, "kp": 0.0}
-        n = 0
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
-                   dynamic_ncols=True, leave=False)
-        for i, batch in enumerate(bar):
-            step = epoch * steps_per_epoch + i
-            for g in opt.param_groups:
-                g["lr"] = _lr_at(step, total_steps, cfg.lr)
-            x = _pad16(batch["rgb"].to(cfg.device))
-            pred = net(x)
-            batch = {k: (v.to(cfg.device) if torch.is_tensor(v) else v) for k, v in batch.items()}
-            batch["rgb"] = x
-            tg = make_targets(batch, tuple(pred["seg"].shape[-2:]), net.cfg.stride, net.cfg.offset_scale)
-            losses = total_loss(pred, tg, cfg.seg_weight)
-            opt.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-            opt.step()
-            for k in sums:
-                sums[k] += float(losses[k].detach())
-            n += 1
-            bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", seg=f"{sums['seg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
-        bar.close()
+        sums, n = _train_epoch(net, opt, dataset, cfg, epoch, steps_per_epoch, total_steps, progress)
         rec: dict[str, Any] = {"epoch": epoch, **{k: v / max(n, 1) for k, v in sums.items()},
                                "train_seconds": time.perf_counter() - t0}
         if cfg.val is not None:
