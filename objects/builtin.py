@@ -40,7 +40,7 @@ import numpy as np
 import trimesh
 
 from simtest.errors import AssetError
-from simtest.objects import shapes
+import simtest.objects.shapes as shapes
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
 
 __all__ = ["load_builtin", "BUILTIN_SETS", "CATEGORIES", "SMALL_NAMES", "build_object"]
