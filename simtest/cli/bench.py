@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp|metrics``: speed figures measured in the same run (ratios against raw MuJoCo)."""
+"""``simtest bench generate|grasp|metrics|panda``: speed figures measured in the same run (ratios against raw MuJoCo)."""
 
 from __future__ import annotations
 
@@ -29,6 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--number", type=int, default=5, help="calls per timing (default 5)")
     m.add_argument("--repeat", type=int, default=3, help="timings; the best is reported (default 3)")
     m.set_defaults(func=_metrics)
+    pa = bsub.add_parser("panda", parents=[common_parser()],
+                         help="Panda model mj_step/s (at rest and moving) and one scripted grasp, no rendering")
+    pa.add_argument("--steps", type=int, default=5000, help="mj_step calls per timing (default 5000)")
+    pa.set_defaults(func=_panda)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -52,4 +56,11 @@ def _metrics(args: argparse.Namespace) -> int:
     from simtest.benchmarks.metrics import run, table
 
     print(table(run(args.number, args.repeat)))
+    return 0
+
+
+def _panda(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.panda import benchmark, table
+
+    print(table(benchmark(args.steps)))
     return 0
