@@ -217,6 +217,10 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
                   close_time: float = 0.6, hold: float = HOLD_TIME) -> str:
     """Execute a planned grasp on ``env``'s physics: pre-grasp, approach, close, lift, hold.
 
+    The approach, closing and lift are the phases of the scripted grasp (:func:`simtest.robot.approach`,
+    :func:`simtest.robot.close_and_wait`, :func:`simtest.robot.lift_to`); here a collision monitor watches
+    them, the approach is guarded against the table and the hold is checked every control period.
+
     Args:
         env: The (unwrapped) env, its arm at rest.
         plan: From :meth:`GraspPlanner.plan`.

@@ -1,4 +1,5 @@
-"""``simtest bench generate|grasp|metrics|panda``: speed figures measured in the same run (ratios against raw MuJoCo)."""
+"""``simtest bench generate|grasp|metrics|panda``: speed figures measured in the same run (ratios against raw
+MuJoCo)."""
 
 from __future__ import annotations
 

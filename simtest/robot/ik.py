@@ -275,9 +275,10 @@ def solve_ik(
 ) -> IKResult:
     """Joint angles that put the TCP (or the wrist camera) at ``target``.
 
-    :meth:`DiffIK.solve`: damped least squares on the site Jacobian, with joints clamped to their limits (joints pinned at a
-    limit are dropped from the step) and a null-space pull toward ``posture``. Iterates on a scratch
-    MjData: ``data`` is only read (the non-arm state, e.g. a free object's pose, is irrelevant to the arm).
+    :meth:`DiffIK.solve`: damped least squares on the site Jacobian, with joints clamped to their limits
+    (joints pinned at a limit are dropped from the step) and a null-space pull toward ``posture``. Iterates
+    on a scratch MjData: ``data`` is only read (the non-arm state, e.g. a free object's pose, is irrelevant
+    to the arm).
     If the solve from ``q_init`` fails it is retried from ``posture`` and then, if ``rng`` is given, from
     ``restarts`` random configurations.
 
@@ -315,7 +316,8 @@ def solve_ik(
         starts += [rng.uniform(lo, hi) for _ in range(restarts)]
     best: IKResult | None = None
     for start in starts:
-        res = solver.solve(target, start, max_iters=max_iters, pos_tol=pos_tol, rot_tol=rot_tol, max_step=0.5)
+        res = solver.solve(target, start, max_iters=max_iters, pos_tol=pos_tol, rot_tol=rot_tol,
+                           max_step=0.5)
         if res.success:
             return res
         if best is None or res.pos_err + 0.1 * res.rot_err < best.pos_err + 0.1 * best.rot_err:
