@@ -54,13 +54,13 @@ from gymnasium import spaces
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
-from simtest import panda
+from simtest import robot as panda
 from simtest.camera import CameraModel, look_at_pose
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
 from simtest.errors import AssetError, ConfigError
 from simtest.geometry import Pose
-from simtest.envs.control import rotvec_to_matrix
+from simtest.robot import rotvec_to_matrix
 from simtest.render import Frame, Renderer
 
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
@@ -289,7 +289,7 @@ class PandaGraspEnv(gym.Env):
         self._geom_cat[self._target_geoms] = 1
         self._geom_cat[self._left_geoms] = 2
         self._geom_cat[self._right_geoms] = 4
-        from simtest.envs.control import DiffIK
+        from simtest.robot import DiffIK
 
         self._diffik = DiffIK(self.model, self.ids)
         self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
