@@ -268,6 +268,8 @@ def test_intrinsics_match_rendered_pixels(cx_off, cy_off, fy_scale):
     """A small sphere at known camera coordinates renders where K projects it (principal point signs)."""
     import mujoco
 
+    from simtest.geometry import Pose
+
     W, H = 200, 150
     K = intrinsics_matrix(180.0, 180.0 * fy_scale, (W - 1) / 2 + cx_off, (H - 1) / 2 + cy_off)
     cam = CameraModel(K, W, H, Pose(np.eye(3), np.zeros(3)))
