@@ -92,6 +92,7 @@ __all__ = [
     "move_to",
     "open_gripper",
     "panda_asset_dir",
+    "release_scratch",
     "reset_arm",
     "set_gripper",
     "solve_ik",
@@ -602,15 +603,21 @@ def step_for(model: mujoco.MjModel, data: mujoco.MjData, duration: float) -> Non
 
 # --- inverse kinematics -----------------------------------------------------------------------------------
 
+#: The scratch MjData of the last model IK ran on. One entry only: an MjData keeps its model alive, so every
+#: cached entry pins a whole compiled model (tens of MB with its meshes) in memory.
 _SCRATCH: dict[int, tuple[mujoco.MjModel, mujoco.MjData]] = {}
 
 
+def release_scratch() -> None:
+    """Drop the IK scratch data (and with it the reference to its model), e.g. before the model is freed."""
+    _SCRATCH.clear()
+
+
 def _scratch(model: mujoco.MjModel, data: mujoco.MjData) -> mujoco.MjData:
-    """A scratch MjData for ``model`` (cached per model) holding ``data``'s current state."""
+    """A scratch MjData for ``model`` (cached for the last model) holding ``data``'s current state."""
     entry = _SCRATCH.get(id(model))
     if entry is None or entry[0] is not model:
-        if len(_SCRATCH) > 8:
-            _SCRATCH.clear()
+        _SCRATCH.clear()
         entry = (model, mujoco.MjData(model))
         _SCRATCH[id(model)] = entry
     scratch = entry[1]
