@@ -40,6 +40,22 @@ rise above its resting height, m), ``rest_height`` (m), ``occlusion`` (the occlu
 Images are rendered only when an observation is produced (each :meth:`step` and :meth:`reset`, or on
 :meth:`capture` when ``observe_every_step=False``), never per physics step. ``render_mode="rgb_array"``
 renders a third-person view.
+
+For RL clients:
+
+* :meth:`step` rejects an action that is not 7 finite numbers with a :class:`~simtest.errors.ConfigError`
+  (a ``ValueError``) naming the bad entries, before anything changes: the next valid step continues as if the
+  bad call had not been made.
+* :meth:`reset` reuses the compiled model and the renderer while the scene structure stays the same (the same
+  object per instance, distractor count, occluder presence; :mod:`simtest.envs.model_cache`); otherwise it
+  frees the old renderer and model before building the new one. The same seed gives the same observations
+  either way.
+* GL is made lazily, by the first :meth:`reset`, in the process that renders (never in ``__init__``). GL
+  contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
+  :class:`~simtest.errors.RenderError` instead of hanging. For ``gymnasium.make_vec(...,
+  vectorization_mode="async")`` pass ``vector_kwargs={"context": "spawn"}``.
+* With the CUDA wheels of torch, import ``torch._dynamo`` (or call :func:`simtest.gl.prepare_torch`) before
+  the first render; simtest does it itself when torch is already imported (see :mod:`simtest.gl`).
 """
 
 from __future__ import annotations
@@ -79,6 +95,8 @@ HOLD_TIME = 1.0
 
 _RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption", "depth_noise", "placement",
                   "start")
+
+_ACTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz", "g")
 
 _OBJECT_SETS: dict[str, Any] = {}
 
@@ -215,7 +233,10 @@ class PandaGraspEnv(gym.Env):
         self.action_space = spaces.Box(-lim, lim, dtype=np.float32)
         self._act_lo, self._act_hi = -lim.astype(np.float64), lim.astype(np.float64)
         self._builders: dict[str, Any] = {}
-        self._renderer: Renderer | None = None
+        self._models = None  # GraspModelCache of the current object set, made on the first reset
+        self._renderer: Renderer | None = None  # GL resources are made on the first reset, never here
+        self._tp_renderer: Renderer | None = None
+        self._cam_K = np.array(self.camera.K, dtype=np.float64)
         self.grasp_scene = None
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
@@ -254,7 +275,11 @@ class PandaGraspEnv(gym.Env):
         return oid
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
-        """Build and settle a new scene and return the first observation (see the module docstring)."""
+        """Build and settle a new scene and return the first observation (see the module docstring).
+
+        The compiled model and the renderer are reused while the scene structure stays the same
+        (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations either way.
+        """
         super().reset(seed=seed)
         from simtest.envs.scene import build_grasp_scene, tune_occluder
 
@@ -265,35 +290,24 @@ class PandaGraspEnv(gym.Env):
         objects = load_objects(cfg.objects)
         self.objects = objects
         target_id = self._pick_target(objects, cfg.target, scene_rng)
-        builder = self._builder(cfg.objects)
-        self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng, n_distractors=cfg.n_distractors,
-                                     occlusion=cfg.occlusion, placement=cfg.placement)
+        self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,
+                                             n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
+                                             placement=cfg.placement, models=self._model_cache(cfg.objects))
         sim = self.grasp_scene.sim
-        self.model, self.data, self.ids = sim.model, sim.data, sim.panda
+        if sim.model is not self.model:
+            self._bind_model(sim)
+        else:
+            mujoco.mj_resetData(self.model, self._scratch)
+            mujoco.mj_resetData(self.model, self._diffik.data)
         self.target_obj = objects.get(target_id)
-        if self._renderer is not None:
-            self._renderer.close()
-        self._renderer = Renderer(self.model, self.width, self.height)
-        self._scratch = mujoco.MjData(self.model)
-        self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
-            self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
         self._target_body = sim.instance_bodies[self.grasp_scene.target_instance]
         self._instance_bodies = np.asarray(sim.instance_bodies, dtype=np.int64)
         self._target_geoms = np.flatnonzero(sim.geom_instance == self.grasp_scene.target_instance)
-        fb = self.model.geom_bodyid[self.ids.finger_geoms]
-        bodies = sorted(set(fb.tolist()))
-        self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
-        self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
         # Geom category lookup for contact checks: 1 target, 2 left finger, 4 right finger.
         self._geom_cat = np.zeros(self.model.ngeom, np.int8)
         self._geom_cat[self._target_geoms] = 1
         self._geom_cat[self._left_geoms] = 2
         self._geom_cat[self._right_geoms] = 4
-        from simtest.envs.control import DiffIK
-
-        self._diffik = DiffIK(self.model, self.ids)
-        self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
-        self._cam_K = np.array(self.camera.K, dtype=np.float64)
         self.T_world_base = Pose(self.data.xmat[self.ids.base_body].reshape(3, 3),
                                  self.data.xpos[self.ids.base_body])
         self._T_base_world = self.T_world_base.inverse().matrix()
@@ -317,6 +331,49 @@ class PandaGraspEnv(gym.Env):
         obs = self._observe(render=True)
         return obs, self._info()
 
+    def _model_cache(self, objects_name: str):
+        """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
+        from simtest.envs.model_cache import GraspModelCache
+
+        builder = self._builder(objects_name)
+        if self._models is None or self._models.builder is not builder:
+            if self._models is not None:
+                self._models.clear()
+            self._models = GraspModelCache(builder, on_release=self._release_model)
+        return self._models
+
+    def _bind_model(self, sim) -> None:
+        """Make the renderer and the per-model helpers for a newly compiled model."""
+        from simtest.envs.control import DiffIK
+
+        for r in (self._renderer, self._tp_renderer):  # normally closed already, when the cache dropped the model
+            if r is not None:
+                r.close()
+        self._tp_renderer = None
+        self.model, self.data, self.ids = sim.model, sim.data, sim.panda
+        self._renderer = Renderer(self.model, self.width, self.height)
+        self._scratch = mujoco.MjData(self.model)
+        self._diffik = DiffIK(self.model, self.ids)
+        self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
+            self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
+        fb = self.model.geom_bodyid[self.ids.finger_geoms]
+        bodies = sorted(set(fb.tolist()))
+        self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
+        self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
+        self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
+
+    def _release_model(self) -> None:
+        """Close the renderers (their GL resources) and drop every reference to the current model."""
+        for r in (self._renderer, self._tp_renderer):
+            if r is not None:
+                r.close()
+        self._renderer = self._tp_renderer = None
+        self.model = self.data = self.ids = None
+        self.grasp_scene = None
+        self._scratch = self._diffik = None
+        self._frame = self._obs = None
+        panda.release_scratch()
+
     def _observation_q(self) -> np.ndarray:
         from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose,
                                         observation_directions)
@@ -338,10 +395,15 @@ class PandaGraspEnv(gym.Env):
 
     # --- stepping ------------------------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
-        """Apply one 20 Hz control step (see the module docstring for the action)."""
+        """Apply one 20 Hz control step (see the module docstring for the action).
+
+        Raises:
+            ConfigError: Before :meth:`reset`, or when ``action`` is not 7 finite numbers; nothing changes then,
+                so the next valid step continues as if the bad call had not been made.
+        """
         if self.data is None:
             raise ConfigError("call reset() before step()")
-        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(7), self._act_lo), self._act_hi)
+        a = np.minimum(np.maximum(self._checked_action(action), self._act_lo), self._act_hi)
         m, d, ids = self.model, self.data, self.ids
         q_prev = self._q_cmd
         if self.ik == "fast":  # from the commanded TCP pose, one DLS step
@@ -366,6 +428,22 @@ class PandaGraspEnv(gym.Env):
         self._hold_steps = self._hold_steps + 1 if lifted else 0
         terminated = self._hold_steps * CONTROL_DT >= HOLD_TIME - 1e-9
         return obs, float(lifted), bool(terminated), False, info
+
+    def _checked_action(self, action) -> np.ndarray:
+        """``action`` as a (7,) float64 array; ConfigError naming the bad entries if it is not 7 finite numbers."""
+        space = (f"Box(7) [dx, dy, dz, rx, ry, rz, g] with |d*| <= {MAX_STEP_TRANSLATION} m, "
+                 f"|r*| <= {MAX_STEP_ROTATION} rad, g in [-1, 1] (larger values are clipped)")
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"action must be 7 finite numbers, {space}; got {action!r}") from exc
+        if a.shape != (7,):
+            raise ConfigError(f"action must have shape (7,), {space}; got shape {a.shape}")
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            entries = ", ".join(f"action[{i}] ({_ACTION_NAMES[i]}) = {a[i]}" for i in bad)
+            raise ConfigError(f"action has non-finite entries: {entries}; expected finite numbers, {space}")
+        return a
 
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` seconds with the current controls (whole 2 ms steps), then update
@@ -521,7 +599,7 @@ class PandaGraspEnv(gym.Env):
     def _third_person_renderer(self) -> Renderer:
         if (self.render_width, self.render_height) == (self.width, self.height):
             return self._renderer
-        r = getattr(self, "_tp_renderer", None)
+        r = self._tp_renderer
         if r is None or r.model is not self.model:
             if r is not None:
                 r.close()
@@ -532,8 +610,8 @@ class PandaGraspEnv(gym.Env):
         return r
 
     def close(self) -> None:
-        for r in (self._renderer, getattr(self, "_tp_renderer", None)):
-            if r is not None:
-                r.close()
-        self._renderer = None
-        self._tp_renderer = None
+        """Free the renderers (GL resources) and the cached model; a later :meth:`reset` builds them again."""
+        if self._models is not None:
+            self._models.clear()  # calls _release_model
+            self._models = None
+        self._release_model()
