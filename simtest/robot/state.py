@@ -15,7 +15,7 @@ from simtest.robot.asset import GRIPPER_CLOSED, GRIPPER_OPEN, HOME_QPOS, T_TCP_C
 from simtest.robot.ids import PandaIds
 
 __all__ = ["camera_to_tcp_target", "check_arm_q", "close_gripper", "gripper_width", "in_collision",
-           "open_gripper", "reset_arm", "scratch_data", "servo_lead", "set_gripper", "step_for", "tcp_pose",
+           "open_gripper", "release_scratch", "reset_arm", "scratch_data", "servo_lead", "set_gripper", "step_for", "tcp_pose",
            "wrist_camera_model"]
 
 
@@ -98,15 +98,21 @@ def step_for(model: mujoco.MjModel, data: mujoco.MjData, duration: float) -> Non
     mujoco.mj_step(model, data, n)
 
 
+#: The scratch MjData of the last model IK ran on. One entry only: an MjData keeps its model alive, so every
+#: cached entry pins a whole compiled model (tens of MB with its meshes) in memory.
 _SCRATCH: dict[int, tuple[mujoco.MjModel, mujoco.MjData]] = {}
 
 
+def release_scratch() -> None:
+    """Drop the IK scratch data (and with it the reference to its model), e.g. before the model is freed."""
+    _SCRATCH.clear()
+
+
 def scratch_data(model: mujoco.MjModel, data: mujoco.MjData) -> mujoco.MjData:
-    """A scratch MjData for ``model`` (cached per model) holding ``data``'s current state."""
+    """A scratch MjData for ``model`` (cached for the last model) holding ``data``'s current state."""
     entry = _SCRATCH.get(id(model))
     if entry is None or entry[0] is not model:
-        if len(_SCRATCH) > 8:
-            _SCRATCH.clear()
+        _SCRATCH.clear()
         entry = (model, mujoco.MjData(model))
         _SCRATCH[id(model)] = entry
     scratch = entry[1]
