@@ -139,7 +139,7 @@ class _Recorder:
             return
         env = self.env
         tp = env.render_third_person()
-        wrist = env._renderer.render(env.data, env.ids.camera, rgb=True, depth=False, seg=False).rgb
+        wrist = env.render_wrist_rgb()
         if wrist.shape[0] != tp.shape[0]:
             import cv2
 
@@ -177,14 +177,14 @@ class _Monitor:
         robot = np.isin(geoms, self._robot)
         cand = robot[:, 0] ^ robot[:, 1]
         if self.phase == "approach":
-            cand &= ~np.isin(geoms, self.env._target_geoms).any(axis=1)
+            cand &= ~np.isin(geoms, self.env.target_geoms).any(axis=1)
         for i in np.flatnonzero(cand):
             mujoco.mj_contactForce(model, data, int(i), self._force)
             if (self.phase == "approach" and np.isin(geoms[i], self._fingers).any()
                     and np.isin(geoms[i], self._table).any() and abs(self._force[0]) > GUARD_FORCE):
                 raise _TableTouch()
             if abs(self._force[0]) > COLLISION_FORCE or self.phase != "approach" and np.isin(
-                    geoms[i], self.env._target_geoms).any():
+                    geoms[i], self.env.target_geoms).any():
                 a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom {int(g)}"
                         for g in geoms[i])
                 raise _Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
@@ -197,7 +197,7 @@ def _move_joints(env, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float 
     q0 = d.ctrl[ids.arm_actuators].copy()
     duration = max(0.5, float(np.abs(q_goal - q0).max()) / joint_speed * 1.875)  # peak speed of min-jerk
     n = max(1, int(round(duration / CONTROL_DT)))
-    lead = env._lead
+    lead = env.servo_lead
     q_prev = q0
     for k in range(1, n + 1):
         q = q0 + min_jerk(k / n) * (q_goal - q0)
@@ -371,7 +371,7 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
         result.error = str(exc)
         return finish("collision")
     obs = u.capture()
-    info = u._info()
+    info = u.current_info()
     mask = u.target_mask()
     result.visible_pixels = int(mask.sum())
     T_cam_obj_gt = info["T_cam_obj"][u.grasp_scene.target_instance]

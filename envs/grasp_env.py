@@ -329,7 +329,7 @@ class PandaGraspEnv(gym.Env):
         self._frame = None
         self._obs = None
         obs = self._observe(render=True)
-        return obs, self._info()
+        return obs, self.current_info()
 
     def _model_cache(self, objects_name: str):
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
@@ -423,7 +423,7 @@ class PandaGraspEnv(gym.Env):
         mujoco.mj_kinematics(m, d)
         mujoco.mj_camlight(m, d)
         obs = self._observe(render=self.observe_every_step)
-        info = self._info()
+        info = self.current_info()
         lifted = info["is_grasped"] and info["lift_height"] >= SUCCESS_HEIGHT
         self._hold_steps = self._hold_steps + 1 if lifted else 0
         terminated = self._hold_steps * CONTROL_DT >= HOLD_TIME - 1e-9
@@ -549,7 +549,34 @@ class PandaGraspEnv(gym.Env):
         out[:, 3, 3] = 1.0
         return out
 
-    def _info(self) -> dict:
+    @property
+    def target_geoms(self) -> np.ndarray:
+        """Geom ids of the target object's geoms (read-only)."""
+        view = self._target_geoms.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def servo_lead(self) -> np.ndarray:
+        """Per arm joint, the velocity lead (s) added to joint commands so the position servos track a moving
+        command without lag: ``ctrl = q + lead * dq/dt`` (what :meth:`step` does)."""
+        view = self._lead.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def planning_data(self) -> mujoco.MjData:
+        """A scratch ``MjData`` of the current model for planners' collision checks; :meth:`step` never reads it
+        (copy the state in with ``planning_data.qpos[:] = env.data.qpos``)."""
+        return self._scratch
+
+    def render_wrist_rgb(self) -> np.ndarray:
+        """The clean wrist-camera RGB image of the current state (no corruption; for videos), (H, W, 3) uint8."""
+        return self._renderer.render(self.data, self.ids.camera, rgb=True, depth=False, seg=False).rgb
+
+    def current_info(self) -> dict:
+        """The ``info`` dict of the current state (ground truth; see the module docstring), as :meth:`step`
+        returns it."""
         T_world_obj = self.object_poses_world()
         T_world_cam = self._T_world_cam()
         T_cam_world = np.zeros((4, 4))

@@ -272,7 +272,7 @@ class GraspPlanner:
     def _collides(self, env, q: np.ndarray) -> bool:
         """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target."""
         model, ids = env.model, env.ids
-        s = env._scratch
+        s = env.planning_data
         s.qpos[:] = env.data.qpos
         s.qpos[ids.arm_qpos] = q
         s.qpos[ids.finger_qpos] = GRIPPER_OPEN / 2
@@ -283,6 +283,6 @@ class GraspPlanner:
         geoms = np.asarray(s.contact.geom[:n])
         dist = np.asarray(s.contact.dist[:n])
         robot = np.isin(geoms, ids.robot_geoms)
-        target = np.isin(geoms, env._target_geoms)
+        target = np.isin(geoms, env.target_geoms)
         hit = (robot[:, 0] ^ robot[:, 1]) & ~target.any(axis=1) & (dist < -0.001)
         return bool(hit.any())
