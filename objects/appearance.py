@@ -167,20 +167,20 @@ def tint_rgba(amount: float, rng: np.random.Generator) -> tuple[float, float, fl
     return (float(r), float(g), float(b), 1.0)
 
 
-def add_object_visual(spec, obj, mesh_name: str) -> str | None:
+def add_object_visual(spec, obj, mesh_name: str) -> tuple[object, str | None]:
     """Add ``obj``'s visual mesh (named ``mesh_name``) to a ``mujoco.MjSpec``, with texture coordinates and a
     texture named ``mesh_name + "_tex"`` when the object has an appearance.
 
     Returns:
-        The texture name, or None when the object has only a material colour. Materials that show the
-        texture set it in their RGB role (:func:`texture_roles`).
+        ``(the MjsMesh, the texture name or None)``: None when the object has only a material colour.
+        Materials that show the texture set it in their RGB role (:func:`texture_roles`).
     """
     mesh = spec.add_mesh(name=mesh_name)
     mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
     mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
     baked = None if obj.appearance is None else render_texture(obj.appearance, obj.faces)
     if baked is None:
-        return None
+        return mesh, None
     image, face_uv = baked
     # MuJoCo's user texture coordinates put v = 0 at the first image row (the top): flip v.
     corners = np.column_stack([face_uv[..., 0].reshape(-1), 1.0 - face_uv[..., 1].reshape(-1)])
@@ -193,7 +193,7 @@ def add_object_visual(spec, obj, mesh_name: str) -> str | None:
     tex = spec.add_texture(name=f"{mesh_name}_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h,
                            nchannel=3)
     tex.data = np.ascontiguousarray(image, dtype=np.uint8).tobytes()
-    return f"{mesh_name}_tex"
+    return mesh, f"{mesh_name}_tex"
 
 
 def texture_roles(texture: str) -> list[str]:

@@ -132,9 +132,16 @@ def _merged(loaded: trimesh.Trimesh, appearance: Appearance | None) -> tuple[tri
         mesh = trimesh.Trimesh(np.asarray(loaded.vertices, dtype=np.float64), faces, process=False)
         return mesh, appearance
     if appearance is not None and appearance.vertex_colors is not None:
+        corner = appearance.vertex_colors[faces].reshape(-1, 3)
+        merged = np.asarray(mesh.faces).reshape(-1)
         colors = np.zeros((len(mesh.vertices), 3), dtype=np.uint8)
-        colors[np.asarray(mesh.faces).reshape(-1)] = appearance.vertex_colors[faces].reshape(-1, 3)
-        appearance = Appearance(vertex_colors=colors)
+        colors[merged] = corner
+        if np.array_equal(colors[merged], corner):
+            return mesh, Appearance(vertex_colors=colors)
+        # coinciding vertices of different colours (a colour per face, drawn on split vertices): keep the
+        # colour of each face, exact for drawing
+        mean = np.rint(corner.reshape(-1, 3, 3).astype(np.float64).mean(axis=1)).astype(np.uint8)
+        return mesh, Appearance(face_colors=mean)
     return mesh, appearance
 
 
