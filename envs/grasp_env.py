@@ -80,16 +80,18 @@ HOLD_TIME = 1.0
 _RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption", "depth_noise", "placement",
                   "start")
 
-_OBJECT_SETS: dict[str, Any] = {}
+_OBJECT_SETS: dict[tuple, Any] = {}
 
 
-def load_objects(name: str):
-    """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path), loaded once per process."""
+def load_objects(name: str, units: str = "auto", scale: float = 1.0):
+    """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path; mesh files in ``units`` times
+    ``scale``, see :func:`simtest.objects.load_object_set`), loaded once per process."""
     from simtest.objects import load_object_set
 
-    if name not in _OBJECT_SETS:
-        _OBJECT_SETS[name] = load_object_set(name)
-    return _OBJECT_SETS[name]
+    key = (name, units, float(scale))
+    if key not in _OBJECT_SETS:
+        _OBJECT_SETS[key] = load_object_set(name, units=units, scale=scale)
+    return _OBJECT_SETS[key]
 
 
 @dataclass(frozen=True)
@@ -174,6 +176,8 @@ class PandaGraspEnv(gym.Env):
         render_width, render_height: Third-person view size (default: the wrist camera size).
         ik: ``"fast"`` (one damped least-squares step per control period, :class:`simtest.envs.control.DiffIK`)
             or ``"panda"`` (:func:`simtest.panda.ik_step`, three iterations; slower).
+        object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
+            files in the object sets (see :func:`simtest.objects.load_object_set`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
@@ -182,7 +186,8 @@ class PandaGraspEnv(gym.Env):
                  objects: str = "builtin", target: int | str | None = None, n_distractors: int = 2,
                  occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
                  placement: str = "upright", start: str = "home", observe_every_step: bool = True,
-                 render_width: int | None = None, render_height: int | None = None, ik: str = "fast") -> None:
+                 render_width: int | None = None, render_height: int | None = None, ik: str = "fast",
+                 object_units: str = "auto", object_scale: float = 1.0) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         for name, v in (("width", width), ("height", height)):
@@ -192,6 +197,7 @@ class PandaGraspEnv(gym.Env):
             raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.envs.control) or 'panda' "
                               f"(simtest.panda.ik_step), got {ik!r}")
         self.ik = ik
+        self.object_units, self.object_scale = object_units, float(object_scale)
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.render_width = int(render_width or width)
@@ -231,7 +237,7 @@ class PandaGraspEnv(gym.Env):
 
         if objects_name not in self._builders:
             cfg = scene_config(self.width, self.height)
-            self._builders[objects_name] = SceneBuilder(load_objects(objects_name), cfg, panda_physics=True)
+            self._builders[objects_name] = SceneBuilder(load_objects(objects_name, self.object_units, self.object_scale), cfg, panda_physics=True)
         return self._builders[objects_name]
 
     def _pick_target(self, objects, target, rng: np.random.Generator) -> int:
@@ -262,7 +268,7 @@ class PandaGraspEnv(gym.Env):
         self.config = cfg
         # Independent streams: scene layout, occluder, observation corruption.
         scene_rng, occ_rng, self._corrupt_rng = self.np_random.spawn(3)
-        objects = load_objects(cfg.objects)
+        objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = self._pick_target(objects, cfg.target, scene_rng)
         builder = self._builder(cfg.objects)

@@ -68,10 +68,12 @@ def _fitting_hints(diameter: float, scale: float, auto: bool) -> str:
     lo, hi = (AUTO_MIN_DIAMETER_M, AUTO_MAX_DIAMETER_M) if auto else (MIN_DIAMETER_M, MAX_DIAMETER_M)
     units = [u for u in ("m", "cm", "mm") if (auto and u != "m" or not auto) and lo <= diameter * scale * _M_PER_UNIT[u] <= hi]
     powers = sorted(range(-4, 5), key=abs)
-    fit = next((k for k in powers if lo <= diameter * scale * 10.0 ** k <= hi), None)
+    fit = next((10.0 ** k for k in powers if lo <= diameter * scale * 10.0 ** k <= hi), None)
+    if units:  # the scale that reads the file as those units
+        fit = _M_PER_UNIT[units[0]]
     hints = [f"--units {u}" for u in units]
-    if fit is not None:
-        hints.append(f"--scale {10.0 ** fit * scale:g}")
+    if fit is not None and fit * scale != 1.0:
+        hints.append(f"--scale {fit * scale:g}")
     if auto and MIN_DIAMETER_M <= diameter * scale <= MAX_DIAMETER_M:
         hints.append(f"--units m to keep {diameter * scale:.3g} m")
     return " or ".join(hints) or "--scale S with S = metres per file unit"
