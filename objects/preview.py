@@ -50,6 +50,8 @@ def _render(obj, size: int, views: int) -> np.ndarray:
     geom.material = "obj_mat"
     geom.contype = 0
     geom.conaffinity = 0
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]  # textures read at every view, not only the lit side
+    spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
     light = spec.worldbody.add_light()
     light.pos = [0.0, -0.3, 1.0]
     light.dir = [0.0, 0.3, -1.0]
