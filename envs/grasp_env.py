@@ -237,7 +237,8 @@ class PandaGraspEnv(gym.Env):
 
         if objects_name not in self._builders:
             cfg = scene_config(self.width, self.height)
-            self._builders[objects_name] = SceneBuilder(load_objects(objects_name, self.object_units, self.object_scale), cfg, panda_physics=True)
+            objects = load_objects(objects_name, self.object_units, self.object_scale)
+            self._builders[objects_name] = SceneBuilder(objects, cfg, panda_physics=True)
         return self._builders[objects_name]
 
     def _pick_target(self, objects, target, rng: np.random.Generator) -> int:

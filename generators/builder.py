@@ -130,7 +130,8 @@ class SceneBuilder:
                 specular=[light.specular] * 3, castshadow=cfg.render.profile == "quality")
 
         # Object assets, one per distinct obj_id (shared by instances); textured ones get their texture.
-        textures = {oid: self._mesh_assets(ms, self.objects.get(oid)) for oid in sorted({p.obj_id for p in spec.objects})}
+        textures = {oid: self._mesh_assets(ms, self.objects.get(oid))
+                    for oid in sorted({p.obj_id for p in spec.objects})}
 
         bodies = []
         for i, p in enumerate(spec.objects):

@@ -66,7 +66,8 @@ def _fitting_hints(diameter: float, scale: float, auto: bool) -> str:
     """``"--units cm or --scale 0.01"``-style advice for a diameter (file units) outside the plausible range
     (of ``--units auto`` when ``auto``, else of any units)."""
     lo, hi = (AUTO_MIN_DIAMETER_M, AUTO_MAX_DIAMETER_M) if auto else (MIN_DIAMETER_M, MAX_DIAMETER_M)
-    units = [u for u in ("m", "cm", "mm") if (auto and u != "m" or not auto) and lo <= diameter * scale * _M_PER_UNIT[u] <= hi]
+    candidates = ("cm", "mm") if auto else ("m", "cm", "mm")
+    units = [u for u in candidates if lo <= diameter * scale * _M_PER_UNIT[u] <= hi]
     powers = sorted(range(-4, 5), key=abs)
     fit = next((10.0 ** k for k in powers if lo <= diameter * scale * 10.0 ** k <= hi), None)
     if units:  # the scale that reads the file as those units
@@ -236,7 +237,8 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     if e.symmetry is not None:
         extra["symmetry_declared"] = True
     obj = ObjectModel(
-        obj_id=obj_id, name=e.name or name or stem, category=e.category or category or (re.sub(r"_\d+$", "", stem) or stem),
+        obj_id=obj_id, name=e.name or name or stem,
+        category=e.category or category or (re.sub(r"_\d+$", "", stem) or stem),
         instance=0, mesh=mesh, density=e.density or density, rgba=loaded.rgba or (0.7, 0.7, 0.7, 1.0),
         symmetries_discrete=sym_d, symmetries_continuous=sym_c, source=str(path), graspable_override=e.graspable,
         friction=e.friction, extra=extra, appearance=loaded.appearance)
@@ -268,8 +270,8 @@ def _base_name_files(folder: Path) -> tuple[list[tuple[Path, str | None]], list[
     for (parent, _stem), paths in sorted(groups.items()):
         paths.sort(key=lambda q: MESH_EXTENSIONS.index(q.suffix.lower()))
         if len(paths) > 1:
-            notes.append(f"{paths[0].relative_to(folder)} used, {', '.join(str(q.relative_to(folder)) for q in paths[1:])} "
-                         "skipped (same base name)")
+            skipped = ", ".join(str(q.relative_to(folder)) for q in paths[1:])
+            notes.append(f"{paths[0].relative_to(folder)} used, {skipped} skipped (same base name)")
         chosen.append((paths[0], None if parent == folder else parent.name))
     if other:
         notes.append(f"formats simtest does not read skipped: {', '.join(other)}")

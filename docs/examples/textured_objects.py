@@ -91,7 +91,8 @@ def write_box(folder: Path, size=(190.0, 70.0, 260.0)) -> None:
     quads = [(4, 5, 7, 6), (0, 2, 3, 1), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
     verts = np.concatenate([corners[list(q)] for q in quads])
     uv = np.tile([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]], (6, 1))
-    faces = np.array([[4 * i, 4 * i + 1, 4 * i + 2] for i in range(6)] + [[4 * i, 4 * i + 2, 4 * i + 3] for i in range(6)])
+    faces = np.array([[4 * i, 4 * i + 1, 4 * i + 2] for i in range(6)]
+                     + [[4 * i, 4 * i + 2, 4 * i + 3] for i in range(6)])
     visual = trimesh.visual.TextureVisuals(uv=uv, image=img)
     trimesh.Trimesh(verts, faces, visual=visual, process=False).export(folder / "cereal.glb")
 

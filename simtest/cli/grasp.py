@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = GraspRunConfig(
         estimator=args.estimator, estimator_options=options, episodes=args.episodes,
-        seed=args.seed, objects=args.objects, units=args.units, scale=args.scale, targets=_targets(args.target), n_distractors=args.distractors,
+        seed=args.seed, objects=args.objects, units=args.units, scale=args.scale, targets=_targets(args.target),
+        n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout)

@@ -247,3 +247,27 @@ def test_colours_per_face_survive_merging_and_export(tmp_path):
     top = 0  # the first quad is the top face (+z)
     got = pixels_at(frame, camera, centre + back.mesh.triangles_center[[2 * top, 2 * top + 1]])
     np.testing.assert_allclose(got, face_rgb[[0, 1]], atol=8)
+
+
+def test_textures_leave_masks_and_depth_unchanged(textured_cube):
+    import dataclasses
+
+    plain = dataclasses.replace(textured_cube, appearance=None)
+    textured, _, _, _ = render(textured_cube)
+    untextured, _, _, _ = render(plain)
+    np.testing.assert_array_equal(textured.seg, untextured.seg)
+    np.testing.assert_array_equal(textured.depth, untextured.depth)
+    assert not np.array_equal(textured.rgb, untextured.rgb)
+
+
+def test_preview_of_every_object_in_a_folder(tmp_path):
+    from simtest.cli import main
+
+    write_textured_cube(tmp_path)
+    write_vertex_colour_ply(tmp_path / "colours.ply")
+    out = tmp_path / "preview.png"
+    assert main(["objects", "preview", "all", "--set", str(tmp_path), "--units", "m", "--views", "2",
+                 "--size", "32", "--out", str(out), "--quiet"]) == 0
+    image = np.asarray(Image.open(out))
+    assert image.shape == (64, 64, 3)
+    assert np.ptp(image[:32].reshape(-1, 3), axis=0).max() > 50  # the vertex colours show
