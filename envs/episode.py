@@ -37,13 +37,14 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
-from simtest import panda
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner
 from simtest.estimators.base import Observation, PoseEstimate, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
+from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, min_jerk, move_to,
+                           set_gripper, tcp_pose)
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
            "pose_errors"]
@@ -199,9 +200,7 @@ def _move_joints(env, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float 
     lead = env._lead
     q_prev = q0
     for k in range(1, n + 1):
-        s = k / n
-        s = s ** 3 * (10 - 15 * s + 6 * s * s)
-        q = q0 + s * (q_goal - q0)
+        q = q0 + min_jerk(k / n) * (q_goal - q0)
         d.ctrl[ids.arm_actuators] = q + lead * (q - q_prev) / CONTROL_DT
         q_prev = q
         env.advance(CONTROL_DT)
@@ -218,6 +217,10 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
                   close_time: float = 0.6, hold: float = HOLD_TIME) -> str:
     """Execute a planned grasp on ``env``'s physics: pre-grasp, approach, close, lift, hold.
 
+    The approach, closing and lift are the phases of the scripted grasp (:func:`simtest.robot.approach`,
+    :func:`simtest.robot.close_and_wait`, :func:`simtest.robot.lift_to`); here a collision monitor watches
+    them, the approach is guarded against the table and the hold is checked every control period.
+
     Args:
         env: The (unwrapped) env, its arm at rest.
         plan: From :meth:`GraspPlanner.plan`.
@@ -233,37 +236,31 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
     monitor = monitor or _Monitor(env, None)
     try:
         monitor.phase = "free"
-        panda.set_gripper(d, ids, plan.open_width)
+        set_gripper(d, ids, plan.open_width)
         # A straight line from the observation pose (high above the table) to above the pre-grasp keeps the
         # hand over the objects; joint-space interpolation could swing it through them.
-        start = panda.tcp_pose(d, ids)
+        start = tcp_pose(d, ids)
         dist = float(np.linalg.norm(plan.above.t - start.t))
-        q = panda.move_to(m, d, ids, plan.above, max(1.0, dist / 0.2), q_ref=d.ctrl[ids.arm_actuators].copy(),
-                          settle=0.3, callback=monitor)
+        q = move_to(m, d, ids, plan.above, max(1.0, dist / 0.2), q_ref=d.ctrl[ids.arm_actuators].copy(),
+                    settle=0.3, callback=monitor)
         monitor.phase = "descent"
         if float(np.linalg.norm(plan.above.t - plan.pregrasp.t)) > 1e-4:
             dist = float(np.linalg.norm(plan.above.t - plan.pregrasp.t))
-            q = panda.move_to(m, d, ids, plan.pregrasp, max(0.5, dist / 0.15), q_ref=q, settle=0.3,
-                              callback=monitor)
+            q = move_to(m, d, ids, plan.pregrasp, max(0.5, dist / 0.15), q_ref=q, settle=0.3, callback=monitor)
         monitor.phase = "approach"
         dist = float(np.linalg.norm(plan.grasp.t - plan.pregrasp.t))
         try:
-            q = panda.move_to(m, d, ids, plan.grasp, max(1.0, dist / approach_speed), q_ref=q,
-                              settle=0.5, callback=monitor)
+            q = approach(m, d, ids, plan.grasp, dist, approach_speed, q, settle=0.5, callback=monitor)
         except _TableTouch:  # guarded approach: stop where the fingertips met the table
             q = ids.arm_q(d)
             d.ctrl[ids.arm_actuators] = q
             env.advance(0.1)
         monitor.phase = "grasp"
-        panda.close_gripper(d, ids)
-        for _ in range(int(round(close_time / CONTROL_DT))):
-            env.advance(CONTROL_DT)
-            monitor(m, d)
-        if not env.is_grasped() or panda.gripper_width(d, ids) < 0.002:
+        close_and_wait(m, d, ids, close_time, dt=CONTROL_DT, advance=env.advance, callback=monitor)
+        if not env.is_grasped() or gripper_width(d, ids) < 0.002:
             return "missed"
         lift = float(np.linalg.norm(plan.lift.t - plan.grasp.t))
-        panda.move_to(m, d, ids, plan.lift, max(1.0, lift / approach_speed), q_ref=q, settle=0.0,
-                      callback=monitor)
+        lift_to(m, d, ids, plan.lift, lift, approach_speed, q, callback=monitor)
         mujoco.mj_kinematics(m, d)
         for _ in range(int(round(hold / CONTROL_DT))):
             if not (env.touches_gripper() and env.lift_height() >= SUCCESS_HEIGHT):
@@ -276,7 +273,7 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
     except _Collision as exc:
         monitor.note = str(exc)
         return "collision"
-    except panda.UnreachableError as exc:
+    except UnreachableError as exc:
         monitor.note = str(exc)
         return "ik_failure"
     finally:

@@ -1,7 +1,7 @@
 """``PandaGraspEnv``: a Franka Panda with a wrist RGB-D camera, grasping an object from a table.
 
 A gymnasium environment (registered as ``simtest/PandaGrasp-v0``) on the generator's table scenes
-(:mod:`simtest.envs.scene`) with the real Panda model of :mod:`simtest.panda`.
+(:mod:`simtest.envs.scene`) with the real Panda model of :mod:`simtest.robot`.
 
 Observation (a dict):
 
@@ -15,7 +15,7 @@ Observation (a dict):
 Action: ``Box(7)`` float32, ``[dx, dy, dz, rx, ry, rz, g]``: a TCP displacement in the world frame (metres,
 at most :data:`MAX_STEP_TRANSLATION` per axis), a rotation vector applied in the world frame about the TCP
 (radians, at most :data:`MAX_STEP_ROTATION` per axis), and the gripper command ``g`` from -1 (closed) to
-+1 (fully open, 0.08 m), linear in the pad gap. Each step runs differential IK (:func:`simtest.panda.ik_step`)
++1 (fully open, 0.08 m), linear in the pad gap. Each step runs differential IK (:func:`simtest.robot.ik_step`)
 once at 20 Hz and 25 physics steps of 2 ms (500 Hz). The commanded TCP pose integrates from the previous
 *command*, so IK lag does not accumulate; the target is kept inside a workspace box above the table.
 
@@ -40,6 +40,22 @@ rise above its resting height, m), ``rest_height`` (m), ``occlusion`` (the occlu
 Images are rendered only when an observation is produced (each :meth:`step` and :meth:`reset`, or on
 :meth:`capture` when ``observe_every_step=False``), never per physics step. ``render_mode="rgb_array"``
 renders a third-person view.
+
+For RL clients:
+
+* :meth:`step` rejects an action that is not 7 finite numbers with a :class:`~simtest.errors.ConfigError`
+  (a ``ValueError``) naming the bad entries, before anything changes: the next valid step continues as if the
+  bad call had not been made.
+* :meth:`reset` reuses the compiled model and the renderer while the scene structure stays the same (the same
+  object per instance, distractor count, occluder presence; :mod:`simtest.envs.model_cache`); otherwise it
+  frees the old renderer and model before building the new one. The same seed gives the same observations
+  either way.
+* GL is made lazily, by the first :meth:`reset`, in the process that renders (never in ``__init__``). GL
+  contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
+  :class:`~simtest.errors.RenderError` instead of hanging. For ``gymnasium.make_vec(...,
+  vectorization_mode="async")`` pass ``vector_kwargs={"context": "spawn"}``.
+* With the CUDA wheels of torch, import ``torch._dynamo`` (or call :func:`simtest.gl.prepare_torch`) before
+  the first render; simtest does it itself when torch is already imported (see :mod:`simtest.gl`).
 """
 
 from __future__ import annotations
@@ -54,13 +70,13 @@ from gymnasium import spaces
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
-from simtest import panda
+from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
 from simtest.errors import AssetError, ConfigError
 from simtest.geometry import Pose
-from simtest.envs.control import rotvec_to_matrix
+from simtest.robot import rotvec_to_matrix
 from simtest.render import Frame, Renderer
 
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
@@ -79,6 +95,8 @@ HOLD_TIME = 1.0
 
 _RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption", "depth_noise", "placement",
                   "start")
+
+_ACTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz", "g")
 
 _OBJECT_SETS: dict[tuple, Any] = {}
 
@@ -169,13 +187,13 @@ class PandaGraspEnv(gym.Env):
         corruption: Default observation corruption: a dict of :class:`CorruptionSpec` fields, or None.
         depth_noise: Default depth-noise preset, or None.
         placement: ``"upright"`` or ``"random"``.
-        start: ``"home"`` (the arm starts at :data:`simtest.panda.HOME_QPOS`) or ``"observe"`` (at the
+        start: ``"home"`` (the arm starts at :data:`simtest.robot.HOME_QPOS`) or ``"observe"`` (at the
             observation configuration looking at the target).
         observe_every_step: Render a new observation on every :meth:`step` (default). With False, steps
             return the last captured images (call :meth:`capture` to take new ones): physics-only stepping.
         render_width, render_height: Third-person view size (default: the wrist camera size).
-        ik: ``"fast"`` (one damped least-squares step per control period, :class:`simtest.envs.control.DiffIK`)
-            or ``"panda"`` (:func:`simtest.panda.ik_step`, three iterations; slower).
+        ik: ``"fast"`` (one damped least-squares step per control period, :class:`simtest.robot.DiffIK`)
+            or ``"panda"`` (:func:`simtest.robot.ik_step`, three iterations; slower).
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
     """
@@ -194,8 +212,8 @@ class PandaGraspEnv(gym.Env):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
                 raise ConfigError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
         if ik not in ("fast", "panda"):
-            raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.envs.control) or 'panda' "
-                              f"(simtest.panda.ik_step), got {ik!r}")
+            raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.robot.DiffIK) or 'panda' "
+                              f"(simtest.robot.ik_step), got {ik!r}")
         self.ik = ik
         self.object_units, self.object_scale = object_units, float(object_scale)
         self.render_mode = render_mode
@@ -221,11 +239,14 @@ class PandaGraspEnv(gym.Env):
         self.action_space = spaces.Box(-lim, lim, dtype=np.float32)
         self._act_lo, self._act_hi = -lim.astype(np.float64), lim.astype(np.float64)
         self._builders: dict[str, Any] = {}
-        self._renderer: Renderer | None = None
+        self._models = None  # GraspModelCache of the current object set, made on the first reset
+        self._renderer: Renderer | None = None  # GL resources are made on the first reset, never here
+        self._tp_renderer: Renderer | None = None
+        self._cam_K = np.array(self.camera.K, dtype=np.float64)
         self.grasp_scene = None
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
-        self.ids: panda.PandaIds | None = None
+        self.ids: robot.PandaIds | None = None
         self.config = self._defaults
         self._frame: Frame | None = None
         self._obs: dict | None = None
@@ -261,7 +282,11 @@ class PandaGraspEnv(gym.Env):
         return oid
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
-        """Build and settle a new scene and return the first observation (see the module docstring)."""
+        """Build and settle a new scene and return the first observation (see the module docstring).
+
+        The compiled model and the renderer are reused while the scene structure stays the same
+        (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations either way.
+        """
         super().reset(seed=seed)
         from simtest.envs.scene import build_grasp_scene, tune_occluder
 
@@ -272,35 +297,24 @@ class PandaGraspEnv(gym.Env):
         objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = self._pick_target(objects, cfg.target, scene_rng)
-        builder = self._builder(cfg.objects)
-        self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng, n_distractors=cfg.n_distractors,
-                                     occlusion=cfg.occlusion, placement=cfg.placement)
+        self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,
+                                             n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
+                                             placement=cfg.placement, models=self._model_cache(cfg.objects))
         sim = self.grasp_scene.sim
-        self.model, self.data, self.ids = sim.model, sim.data, sim.panda
+        if sim.model is not self.model:
+            self._bind_model(sim)
+        else:
+            mujoco.mj_resetData(self.model, self._scratch)
+            mujoco.mj_resetData(self.model, self._diffik.data)
         self.target_obj = objects.get(target_id)
-        if self._renderer is not None:
-            self._renderer.close()
-        self._renderer = Renderer(self.model, self.width, self.height)
-        self._scratch = mujoco.MjData(self.model)
-        self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
-            self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
         self._target_body = sim.instance_bodies[self.grasp_scene.target_instance]
         self._instance_bodies = np.asarray(sim.instance_bodies, dtype=np.int64)
         self._target_geoms = np.flatnonzero(sim.geom_instance == self.grasp_scene.target_instance)
-        fb = self.model.geom_bodyid[self.ids.finger_geoms]
-        bodies = sorted(set(fb.tolist()))
-        self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
-        self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
         # Geom category lookup for contact checks: 1 target, 2 left finger, 4 right finger.
         self._geom_cat = np.zeros(self.model.ngeom, np.int8)
         self._geom_cat[self._target_geoms] = 1
         self._geom_cat[self._left_geoms] = 2
         self._geom_cat[self._right_geoms] = 4
-        from simtest.envs.control import DiffIK
-
-        self._diffik = DiffIK(self.model, self.ids)
-        self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
-        self._cam_K = np.array(self.camera.K, dtype=np.float64)
         self.T_world_base = Pose(self.data.xmat[self.ids.base_body].reshape(3, 3),
                                  self.data.xpos[self.ids.base_body])
         self._T_base_world = self.T_world_base.inverse().matrix()
@@ -313,7 +327,7 @@ class PandaGraspEnv(gym.Env):
                                        cfg.occlusion, occ_rng) if cfg.occlusion > 0 else None
         if self.occlusion is not None:
             mujoco.mj_step(self.model, self.data, 50)  # the box comes to rest on the table
-        panda.reset_arm(self.model, self.data, self.ids, self.q_observe if cfg.start == "observe" else None)
+        robot.reset_arm(self.model, self.data, self.ids, self.q_observe if cfg.start == "observe" else None)
         self.rest_height = float(self.data.xpos[self._target_body][2])
         self._ws_lo, self._ws_hi = self._workspace()
         self._obj_ids = tuple(int(i) for i in sim.instance_obj_ids)
@@ -323,6 +337,49 @@ class PandaGraspEnv(gym.Env):
         self._obs = None
         obs = self._observe(render=True)
         return obs, self._info()
+
+    def _model_cache(self, objects_name: str):
+        """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
+        from simtest.envs.model_cache import GraspModelCache
+
+        builder = self._builder(objects_name)
+        if self._models is None or self._models.builder is not builder:
+            if self._models is not None:
+                self._models.clear()
+            self._models = GraspModelCache(builder, on_release=self._release_model)
+        return self._models
+
+    def _bind_model(self, sim) -> None:
+        """Make the renderer and the per-model helpers for a newly compiled model."""
+        from simtest.robot import DiffIK
+
+        for r in (self._renderer, self._tp_renderer):  # normally closed already, when the cache dropped the model
+            if r is not None:
+                r.close()
+        self._tp_renderer = None
+        self.model, self.data, self.ids = sim.model, sim.data, sim.panda
+        self._renderer = Renderer(self.model, self.width, self.height)
+        self._scratch = mujoco.MjData(self.model)
+        self._diffik = DiffIK(self.model, self.ids)
+        self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
+            self.model.actuator_gainprm[self.ids.arm_actuators, 0], 1e-9)
+        fb = self.model.geom_bodyid[self.ids.finger_geoms]
+        bodies = sorted(set(fb.tolist()))
+        self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
+        self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
+        self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
+
+    def _release_model(self) -> None:
+        """Close the renderers (their GL resources) and drop every reference to the current model."""
+        for r in (self._renderer, self._tp_renderer):
+            if r is not None:
+                r.close()
+        self._renderer = self._tp_renderer = None
+        self.model = self.data = self.ids = None
+        self.grasp_scene = None
+        self._scratch = self._diffik = None
+        self._frame = self._obs = None
+        robot.release_scratch()
 
     def _observation_q(self) -> np.ndarray:
         from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, observation_camera_pose,
@@ -336,7 +393,7 @@ class PandaGraspEnv(gym.Env):
                             (side_b, OBSERVATION_DISTANCE, OBSERVATION_ELEVATION),
                             (base_side, 0.38, np.deg2rad(65.0)), (base_side, 0.34, np.deg2rad(75.0))):
             T = observation_camera_pose(p, u, dist, el)
-            res = panda.solve_ik(self.model, self.data, self.ids, T, panda.HOME_QPOS, frame="camera")
+            res = robot.solve_ik(self.model, self.data, self.ids, T, robot.HOME_QPOS, frame="camera")
             if res.success:
                 return res.q
             if best is None or res.pos_err < best.pos_err:
@@ -345,10 +402,15 @@ class PandaGraspEnv(gym.Env):
 
     # --- stepping ------------------------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
-        """Apply one 20 Hz control step (see the module docstring for the action)."""
+        """Apply one 20 Hz control step (see the module docstring for the action).
+
+        Raises:
+            ConfigError: Before :meth:`reset`, or when ``action`` is not 7 finite numbers; nothing changes then,
+                so the next valid step continues as if the bad call had not been made.
+        """
         if self.data is None:
             raise ConfigError("call reset() before step()")
-        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(7), self._act_lo), self._act_hi)
+        a = np.minimum(np.maximum(self._checked_action(action), self._act_lo), self._act_hi)
         m, d, ids = self.model, self.data, self.ids
         q_prev = self._q_cmd
         if self.ik == "fast":  # from the commanded TCP pose, one DLS step
@@ -359,10 +421,10 @@ class PandaGraspEnv(gym.Env):
             R = rotvec_to_matrix(a[3:6]) @ R_cur
             max_d = float(np.sqrt(3)) * MAX_STEP_TRANSLATION + 1e-9
             max_a = float(np.sqrt(3)) * MAX_STEP_ROTATION + 1e-9
-            q_new = panda.ik_step(m, d, ids, Pose(R, t), CONTROL_DT, q_ref=q_prev,
+            q_new = robot.ik_step(m, d, ids, Pose(R, t), CONTROL_DT, q_ref=q_prev,
                                   max_lin_speed=max_d / CONTROL_DT, max_ang_speed=max_a / CONTROL_DT)
         d.ctrl[ids.arm_actuators] = q_new + self._lead * (q_new - q_prev) / CONTROL_DT
-        d.ctrl[ids.gripper_actuator] = 0.5 * (a[6] + 1.0) * panda.GRIPPER_OPEN
+        d.ctrl[ids.gripper_actuator] = 0.5 * (a[6] + 1.0) * robot.GRIPPER_OPEN
         self._q_cmd = q_new
         mujoco.mj_step(m, d, self._n_sub)
         mujoco.mj_kinematics(m, d)
@@ -373,6 +435,22 @@ class PandaGraspEnv(gym.Env):
         self._hold_steps = self._hold_steps + 1 if lifted else 0
         terminated = self._hold_steps * CONTROL_DT >= HOLD_TIME - 1e-9
         return obs, float(lifted), bool(terminated), False, info
+
+    def _checked_action(self, action) -> np.ndarray:
+        """``action`` as a (7,) float64 array; ConfigError naming the bad entries if it is not 7 finite numbers."""
+        space = (f"Box(7) [dx, dy, dz, rx, ry, rz, g] with |d*| <= {MAX_STEP_TRANSLATION} m, "
+                 f"|r*| <= {MAX_STEP_ROTATION} rad, g in [-1, 1] (larger values are clipped)")
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"action must be 7 finite numbers, {space}; got {action!r}") from exc
+        if a.shape != (7,):
+            raise ConfigError(f"action must have shape (7,), {space}; got shape {a.shape}")
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            entries = ", ".join(f"action[{i}] ({_ACTION_NAMES[i]}) = {a[i]}" for i in bad)
+            raise ConfigError(f"action has non-finite entries: {entries}; expected finite numbers, {space}")
+        return a
 
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` seconds with the current controls (whole 2 ms steps), then update
@@ -396,7 +474,7 @@ class PandaGraspEnv(gym.Env):
     # --- observations --------------------------------------------------------------------------------------
     def camera_model(self) -> CameraModel:
         """The wrist camera (intrinsics and ``T_world_cam``) at the current state."""
-        return panda.wrist_camera_model(self.data, self.ids)
+        return robot.wrist_camera_model(self.data, self.ids)
 
     def _T_world_cam(self) -> np.ndarray:
         """4x4 ``T_world_cam`` (OpenCV) of the wrist camera at the current state (the MuJoCo->OpenCV flip of
@@ -430,7 +508,7 @@ class PandaGraspEnv(gym.Env):
             "T_base_cam": self._T_base_cam_at_capture.copy(),
             "joint_pos": d.qpos[ids.arm_qpos].copy(),
             "joint_vel": d.qvel[ids.arm_dof].copy(),
-            "gripper_width": np.array([panda.gripper_width(d, ids)], dtype=np.float64),
+            "gripper_width": np.array([robot.gripper_width(d, ids)], dtype=np.float64),
         }
         self._obs = obs
         return obs
@@ -528,7 +606,7 @@ class PandaGraspEnv(gym.Env):
     def _third_person_renderer(self) -> Renderer:
         if (self.render_width, self.render_height) == (self.width, self.height):
             return self._renderer
-        r = getattr(self, "_tp_renderer", None)
+        r = self._tp_renderer
         if r is None or r.model is not self.model:
             if r is not None:
                 r.close()
@@ -539,8 +617,8 @@ class PandaGraspEnv(gym.Env):
         return r
 
     def close(self) -> None:
-        for r in (self._renderer, getattr(self, "_tp_renderer", None)):
-            if r is not None:
-                r.close()
-        self._renderer = None
-        self._tp_renderer = None
+        """Free the renderers (GL resources) and the cached model; a later :meth:`reset` builds them again."""
+        if self._models is not None:
+            self._models.clear()  # calls _release_model
+            self._models = None
+        self._release_model()

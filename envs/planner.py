@@ -1,7 +1,7 @@
 """Grasp planning from an *estimated* object pose.
 
 The object's grasp candidates (:attr:`simtest.objects.ObjectModel.grasps`, ``T_obj_grasp`` in the gripper
-convention of :mod:`simtest.panda`: origin at the TCP, z = approach, y = closing axis) are mapped into the
+convention of :mod:`simtest.robot`: origin at the TCP, z = approach, y = closing axis) are mapped into the
 world through the estimated pose ``T_world_obj = T_world_base @ T_base_cam @ T_cam_obj``. A candidate is
 kept when
 
@@ -20,7 +20,7 @@ kept when
 Candidates are ranked by ``top_down_weight * (-approach_z) + score - shift_weight * contact_shift / 12 mm``
 (top-down grasps preferred, then the sampler's antipodal quality, then contacts on the middle of the pads
 rather than near the fingertips) and checked in that order; for each, the grasp and its twin rotated by pi
-about the approach axis (:func:`simtest.panda.symmetric_grasp`) are tried and the one needing the smaller
+about the approach axis (:func:`simtest.robot.symmetric_grasp`) are tried and the one needing the smaller
 joint motion is taken. The first feasible candidate wins.
 """
 
@@ -33,7 +33,7 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
-from simtest import panda
+from simtest.robot import GRIPPER_OPEN, solve_ik, symmetric_grasp
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.objects.grasps import PANDA, gripper_boxes
@@ -227,7 +227,7 @@ class GraspPlanner:
             for flipped in (False, True):
                 g = Pose.from_matrix(poses[i])
                 if flipped:
-                    g = panda.symmetric_grasp(g)
+                    g = symmetric_grasp(g)
                 res = self._check(model, data, ids, env, g, q_now, top_z)
                 if res is None:
                     continue
@@ -240,7 +240,7 @@ class GraspPlanner:
             if best is not None:
                 _, g, (q_above, q_pre, q_grasp, q_lift, above, pre, lift), flipped = best
                 tilt = float(np.arccos(np.clip(-g.R[2, 2], -1.0, 1.0)))
-                open_w = float(min(panda.GRIPPER_OPEN, widths[i] + self.open_margin))
+                open_w = float(min(GRIPPER_OPEN, widths[i] + self.open_margin))
                 plan = GraspPlan(g, pre, lift, above, q_above, q_pre, q_grasp, q_lift, float(widths[i]), open_w,
                                  int(i), flipped, tilt, float(scores[i]))
                 return PlanResult(plan, "ok", n, len(idx), n_tried)
@@ -253,16 +253,16 @@ class GraspPlanner:
         drop = float(-(self._open_corners @ g.R.T)[:, 2].min())
         above = Pose(g.R, [pre.t[0], pre.t[1], max(pre.t[2], top_z + self.clearance + drop)])
         lift = Pose(g.R, g.t + np.array([0.0, 0.0, self.lift]))
-        r_above = panda.solve_ik(model, data, ids, above, q_now)
+        r_above = solve_ik(model, data, ids, above, q_now)
         if not r_above.success:
             return None
-        r_pre = panda.solve_ik(model, data, ids, pre, r_above.q)
+        r_pre = solve_ik(model, data, ids, pre, r_above.q)
         if not r_pre.success:
             return None
-        r_grasp = panda.solve_ik(model, data, ids, g, r_pre.q)
+        r_grasp = solve_ik(model, data, ids, g, r_pre.q)
         if not r_grasp.success:
             return None
-        r_lift = panda.solve_ik(model, data, ids, lift, r_grasp.q)
+        r_lift = solve_ik(model, data, ids, lift, r_grasp.q)
         if not r_lift.success:
             return None
         if self.check_collisions and (self._collides(env, r_pre.q) or self._collides(env, r_grasp.q)):
@@ -275,7 +275,7 @@ class GraspPlanner:
         s = env._scratch
         s.qpos[:] = env.data.qpos
         s.qpos[ids.arm_qpos] = q
-        s.qpos[ids.finger_qpos] = panda.GRIPPER_OPEN / 2
+        s.qpos[ids.finger_qpos] = GRIPPER_OPEN / 2
         mujoco.mj_fwdPosition(model, s)
         n = s.ncon
         if n == 0:

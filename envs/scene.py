@@ -233,6 +233,7 @@ def build_grasp_scene(
     occlusion: int = 0,
     placement: str = "upright",
     scene_index: int = 0,
+    models: "GraspModelCache | None" = None,
 ) -> GraspScene:
     """Sample, build and settle one grasp scene.
 
@@ -246,9 +247,39 @@ def build_grasp_scene(
         placement: ``"upright"`` (model z up if stable, see :func:`rest_rotation`; random yaw) or ``"random"``
             (random orientation, dropped).
         scene_index: Recorded in the spec (model name).
+        models: A :class:`GraspModelCache` of ``builder`` to reuse the compiled model of the previous scene when
+            the structure is the same; None compiles a new model.
 
     Raises:
         ConfigError: On a bad ``placement`` or ``n_distractors``, or when the target falls off the table.
+    """
+    spec = sample_grasp_spec(builder, objects, target_id, rng, n_distractors=n_distractors, occlusion=occlusion,
+                             placement=placement, scene_index=scene_index)
+    sim = builder.build(spec) if models is None else models.build(spec)
+    _settle(sim, builder.cfg)
+    if not sim.active[0]:
+        raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")
+    occluder = -1
+    if occlusion > 0:
+        occluder = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "distractor_0")
+    return GraspScene(sim, 0, occluder, float(builder.cfg.scene.table_height))
+
+
+def sample_grasp_spec(
+    builder: SceneBuilder,
+    objects: ObjectSet,
+    target_id: int,
+    rng: np.random.Generator,
+    *,
+    n_distractors: int = 0,
+    occlusion: int = 0,
+    placement: str = "upright",
+    scene_index: int = 0,
+) -> SceneSpec:
+    """The :class:`SceneSpec` of one grasp scene (arguments as :func:`build_grasp_scene`); pure sampling.
+
+    Raises:
+        ConfigError: On a bad ``placement`` or ``n_distractors``.
     """
     if placement not in ("upright", "random"):
         raise ConfigError(f"placement must be 'upright' or 'random', got {placement!r}")
@@ -331,14 +362,7 @@ def build_grasp_scene(
     spec = SceneSpec(scene_index=int(scene_index), attempt=0, objects=tuple(placements),
                      distractors=tuple(distractors), lights=lights, ambient=float(rng.uniform(0.3, 0.4)),
                      table=table, floor=floor, walls=walls, views=())
-    sim = builder.build(spec)
-    _settle(sim, builder.cfg)
-    if not sim.active[0]:
-        raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")
-    occluder = -1
-    if occlusion > 0:
-        occluder = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "distractor_0")
-    return GraspScene(sim, 0, occluder, table_z)
+    return spec
 
 
 def _unit(v) -> np.ndarray:

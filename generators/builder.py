@@ -46,7 +46,7 @@ class SimScene:
         geom_instance: (ngeom,) instance index of each geom, -1 for geoms that are not annotated objects.
         camera_id: Id of the render camera (moved per view).
         active: Instances still on the table (fallen ones are moved away and excluded).
-        panda: :mod:`simtest.panda` handles when the arm is in the scene.
+        panda: :mod:`simtest.robot` handles when the arm is in the scene.
         rng: The scene's random stream after sampling its spec; views, wrist configurations and occluder
             levels continue it (``None`` when the scene was built without one).
     """
@@ -71,7 +71,7 @@ class SimScene:
 
     def set_arm(self, q: np.ndarray) -> None:
         """Put the Panda (if present) at joint configuration ``q`` (rad) and update kinematics."""
-        from simtest.panda import reset_arm
+        from simtest.robot import reset_arm
 
         if self.panda is None:
             raise ValueError("this scene has no Panda arm")
@@ -91,7 +91,7 @@ class SceneBuilder:
         objects: The object set (meshes, collision parts, inertia).
         cfg: Generation config (table, timestep, camera intrinsics, render profile).
         panda_physics: When the Panda is in the scene, also apply its tuned contact physics
-            (:func:`simtest.panda.configure_physics`: 2 ms implicitfast steps, elliptic friction cones,
+            (:func:`simtest.robot.configure_physics`: 2 ms implicitfast steps, elliptic friction cones,
             impratio 10), which grasping needs. Off by default: generation keeps its own physics options.
     """
 
@@ -176,7 +176,7 @@ class SceneBuilder:
 
         panda = None
         if cfg.scene.panda or cfg.rig == "wrist":
-            from simtest.panda import attach_panda
+            from simtest.robot import attach_panda
             from simtest.geometry import Pose
 
             panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-cfg.scene.table_size[0] / 2 - 0.1, 0.0,
@@ -193,7 +193,7 @@ class SceneBuilder:
         dofs = [int(model.jnt_dofadr[model.body_jntadr[b]]) for b in ids]
         cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME)
         if panda is not None:
-            from simtest.panda import reset_arm
+            from simtest.robot import reset_arm
 
             panda = panda.bind(model)
             reset_arm(model, data, panda)

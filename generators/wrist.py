@@ -19,7 +19,7 @@ def wrist_cameras(cfg: GenerateConfig, scene, poi: np.ndarray, base: CameraModel
     ``cfg.shell.elevation_deg``. The returned camera is where the wrist camera is at that configuration.
     """
     from simtest.errors import ConfigError
-    from simtest.panda import sample_wrist_views, wrist_camera_model
+    from simtest.robot import sample_wrist_views, wrist_camera_model
 
     ids = scene.panda
     lo = float(np.clip(cfg.shell.distance[0], 0.2, 0.7))

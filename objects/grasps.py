@@ -10,7 +10,7 @@ Gripper frame (all grasp poses are ``T_obj_grasp``: gripper frame -> object mode
 - **x**: ``y x z`` (right-handed), across the finger width.
 
 With :data:`PANDA` the fingertips reach ``tip_offset`` = 0.022 m beyond the origin along +z (the contacts
-sit at the distal pad centres, as the TCP of :mod:`simtest.panda`); the fingers are ``finger_length`` =
+sit at the distal pad centres, as the TCP of :mod:`simtest.robot`); the fingers are ``finger_length`` =
 0.054 m long, so the palm face is at ``z = -0.032`` m and the palm extends further along -z. An object can
 therefore reach 0.032 m past the contacts towards the palm. Most candidates have their contacts at the
 origin; for rims and edges the contacts may instead sit up to ``max(contact_shifts)`` = 0.012 m further

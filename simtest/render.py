@@ -26,7 +26,8 @@ import simtest  # noqa: F401  (selects the GL backend before mujoco is imported)
 import mujoco
 
 from simtest.errors import RenderError
-from simtest.gl import SYSTEM_PACKAGES_HINT, backend
+from simtest.gl import SYSTEM_PACKAGES_HINT, backend, before_first_context, check_fork, context_made, \
+    forked_after_context
 
 __all__ = ["Frame", "Renderer", "Profile"]
 
@@ -40,13 +41,20 @@ _CONTEXT: dict[str, object] = {}
 
 
 def _gl_context(width: int, height: int):
-    """The process's shared GL context, made (or remade larger) on demand."""
+    """The process's shared GL context, made (or remade larger) on demand.
+
+    A context that is replaced by a larger one is not freed here: the renderers made in it keep it alive (it is
+    freed with the last of them), since freeing it would blank their images.
+
+    Raises:
+        RenderError: In a process forked after its parent made a context (see :func:`simtest.gl.check_fork`),
+            or when no context can be made.
+    """
+    before_first_context()
     with _CONTEXT_LOCK:
         ctx = _CONTEXT.get("ctx")
         size = _CONTEXT.get("size", (0, 0))
         if ctx is None or width > size[0] or height > size[1]:
-            if ctx is not None:
-                ctx.free()
             w, h = max(width, size[0]), max(height, size[1])
             try:
                 ctx = mujoco.GLContext(w, h)
@@ -54,6 +62,7 @@ def _gl_context(width: int, height: int):
                 raise RenderError(f"could not create an offscreen OpenGL context with MUJOCO_GL={backend()!r}: "
                                   f"{exc}. {SYSTEM_PACKAGES_HINT}") from exc
             _CONTEXT["ctx"], _CONTEXT["size"] = ctx, (w, h)
+            context_made()
         return ctx
 
 
@@ -141,8 +150,11 @@ class Renderer:
         """
         if self._con is None:
             raise RenderError("render() called after close()")
+        check_fork()
         self._cam.fixedcamid = self._camera_id(camera)
         self._ctx.make_current()
+        # Renderers share the GL context: bind this one's offscreen buffer (another may have been made since).
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
         mujoco.mjv_updateScene(self.model, data, self.option, self._pert, self._cam,
                                mujoco.mjtCatBit.mjCAT_ALL, self._scene)
         out_rgb = out_depth = out_seg = None
@@ -192,9 +204,11 @@ class Renderer:
         return np.where(z < self.zfar * 0.999, z, 0.0).astype(np.float32)
 
     def close(self) -> None:
+        """Free the GL resources of this model (textures, meshes, buffers); the shared context stays."""
         if self._con is not None:
-            self._ctx.make_current()
-            self._con.free()
+            if not forked_after_context():  # the parent's GL objects cannot be freed (or used) after fork
+                self._ctx.make_current()
+                self._con.free()
             self._con = None
 
     def __enter__(self) -> "Renderer":

@@ -1,4 +1,5 @@
-"""``simtest bench generate|grasp|metrics|corruptions``: speed figures measured in the same run (ratios against raw MuJoCo)."""
+"""``simtest bench generate|grasp|metrics|corruptions|panda``: speed figures measured in the same run (ratios
+against raw MuJoCo)."""
 
 from __future__ import annotations
 
@@ -35,6 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--width", type=int, default=640)
     c.add_argument("--height", type=int, default=480)
     c.set_defaults(func=_corruptions)
+    pa = bsub.add_parser("panda", parents=[common_parser()],
+                         help="Panda model mj_step/s (at rest and moving) and one scripted grasp, no rendering")
+    pa.add_argument("--steps", type=int, default=5000, help="mj_step calls per timing (default 5000)")
+    pa.set_defaults(func=_panda)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -65,4 +70,11 @@ def _corruptions(args: argparse.Namespace) -> int:
     from simtest.benchmarks.corruptions import run, table
 
     print(table(run(args.width, args.height, args.severity)))
+    return 0
+
+
+def _panda(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.panda import benchmark, table
+
+    print(table(benchmark(args.steps)))
     return 0

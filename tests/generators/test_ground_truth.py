@@ -21,6 +21,23 @@ def _instances(dataset):
                 yield scene_dir, im_id, im, depth, gt_id, gt
 
 
+
+def _segmentation(spec, cam: CameraModel) -> np.ndarray:
+    """Geom-id segmentation of the MjSpec ``spec`` seen by ``cam`` (added as camera "c"), rendered by MuJoCo."""
+    import mujoco
+
+    from simtest.geometry import Pose
+    from simtest.render import Renderer
+
+    pos, R_mj = cam.mujoco_pose()
+    c = spec.worldbody.add_camera(name="c", pos=pos.tolist(), **cam.mujoco_intrinsics())
+    c.quat = Pose(R_mj, pos).quat_wxyz().tolist()
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with Renderer(model, cam.width, cam.height) as r:
+        return r.render(data, "c", rgb=False, depth=False).seg
+
 def test_dataset_layout_and_json_fields(small_dataset, small_config):
     cam = json.loads((small_dataset / "camera.json").read_text())
     assert set(cam) == {"cx", "cy", "depth_scale", "fx", "fy", "height", "width"}
@@ -95,7 +112,6 @@ def test_pixel_centres_follow_opencv_and_vispy_needs_half_pixel_shift():
     import mujoco
 
     from simtest.geometry import Pose
-    from simtest.render import Renderer
 
     W, H = 120, 90
     K = intrinsics_matrix(150.0, 150.0, (W - 1) / 2, (H - 1) / 2)
@@ -104,14 +120,7 @@ def test_pixel_centres_follow_opencv_and_vispy_needs_half_pixel_shift():
     spec = mujoco.MjSpec()
     spec.visual.global_.offwidth, spec.visual.global_.offheight = W, H
     spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], pos=centre.tolist())
-    pos, R_mj = cam.mujoco_pose()
-    c = spec.worldbody.add_camera(name="c", pos=pos.tolist(), **cam.mujoco_intrinsics())
-    c.quat = Pose(R_mj, pos).quat_wxyz().tolist()
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    with Renderer(model, W, H) as r:
-        seg = r.render(data, "c", rgb=False, depth=False).seg >= 0
+    seg = _segmentation(spec, cam) >= 0
 
     def covered(K_: np.ndarray, offset: float) -> np.ndarray:
         """Pixels whose sample point (u + offset, v + offset) sees the sphere (ray-sphere test)."""
@@ -260,7 +269,6 @@ def test_intrinsics_match_rendered_pixels(cx_off, cy_off, fy_scale):
     import mujoco
 
     from simtest.geometry import Pose
-    from simtest.render import Renderer
 
     W, H = 200, 150
     K = intrinsics_matrix(180.0, 180.0 * fy_scale, (W - 1) / 2 + cx_off, (H - 1) / 2 + cy_off)
@@ -270,14 +278,7 @@ def test_intrinsics_match_rendered_pixels(cx_off, cy_off, fy_scale):
     points = np.array([[0.08, -0.05, 0.6], [-0.1, 0.07, 0.7], [0.0, 0.0, 0.5]])
     for k, p in enumerate(points):
         spec.worldbody.add_geom(name=f"s{k}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.015, 0, 0], pos=p.tolist())
-    pos, R_mj = cam.mujoco_pose()
-    c = spec.worldbody.add_camera(name="c", pos=pos.tolist(), **cam.mujoco_intrinsics())
-    c.quat = Pose(R_mj, pos).quat_wxyz().tolist()
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    with Renderer(model, W, H) as r:
-        seg = r.render(data, "c", rgb=False, depth=False).seg
+    seg = _segmentation(spec, cam)
     uv, _ = cam.project(points)
     for k in range(len(points)):
         ys, xs = np.nonzero(seg == k)

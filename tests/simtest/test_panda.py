@@ -11,8 +11,8 @@ import mujoco
 from simtest.camera import CameraModel
 from simtest.errors import ConfigError
 from simtest.geometry import Pose, rotation_about
-from simtest import panda
-from simtest.panda import (
+from simtest import robot
+from simtest.robot import (
     GRIPPER_OPEN,
     HOME_QPOS,
     T_TCP_CAM,
@@ -71,7 +71,7 @@ def box_scene():
 # --- loading and attaching ---------------------------------------------------------------------------
 
 def test_asset_dir_comes_from_the_wheel():
-    folder = panda.panda_asset_dir()
+    folder = robot.panda_asset_dir()
     assert "gymnasium_robotics" in str(folder)
     assert (folder / "chain.xml").exists()
 
@@ -82,7 +82,7 @@ def test_attach_into_fresh_spec(box_scene):
     assert len(ids.arm_qpos) == 7 and len(ids.finger_qpos) == 2
     assert ids.camera >= 0 and ids.tcp_site >= 0 and len(ids.finger_geoms) > 0
     assert model.opt.timestep == pytest.approx(0.002)
-    np.testing.assert_allclose(ids.arm_limits, panda.ARM_JOINT_LIMITS)
+    np.testing.assert_allclose(ids.arm_limits, robot.ARM_JOINT_LIMITS)
     assert np.all(HOME_QPOS > ids.arm_limits[:, 0]) and np.all(HOME_QPOS < ids.arm_limits[:, 1])
     # The wrist camera carries the requested intrinsics.
     assert model.cam_resolution[ids.camera].tolist() == [64, 48]
@@ -98,7 +98,7 @@ def test_attach_into_fresh_spec(box_scene):
     pads = T_tcp_world.apply(data.geom_xpos[ids.finger_geoms])
     assert np.abs(pads[:, 0]).max() < 1e-6
     tips = pads[:, 2] + model.geom_size[ids.finger_geoms, 0]  # capsule radius beyond the centre line
-    assert tips.max() == pytest.approx(panda.TCP_TO_FINGERTIP, abs=1.5e-3)
+    assert tips.max() == pytest.approx(robot.TCP_TO_FINGERTIP, abs=1.5e-3)
 
 
 def test_attach_honours_base_pose_and_rejects_reused_prefix():
@@ -121,10 +121,10 @@ def test_gripper_opens_and_closes_on_nothing(box_scene):
     model, _, ids = box_scene
     data = mujoco.MjData(model)
     reset_arm(model, data, ids, gripper=GRIPPER_OPEN)
-    panda.close_gripper(data, ids)
+    robot.close_gripper(data, ids)
     step_for(model, data, 0.6)
     assert gripper_width(data, ids) < 1e-3
-    panda.open_gripper(data, ids)
+    robot.open_gripper(data, ids)
     step_for(model, data, 0.6)
     assert gripper_width(data, ids) == pytest.approx(GRIPPER_OPEN, abs=1e-3)
     # The arm holds its posture under gravity (gravity compensation + position servos).

@@ -1,0 +1,179 @@
+"""PandaGraspEnv as RL clients use it: bad actions, many resets (model reuse, memory), vector envs, torch."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import gymnasium
+import numpy as np
+import pytest
+
+import simtest.envs  # noqa: F401  (registers the env)
+from simtest.errors import ConfigError
+
+W, H = 64, 48
+KW = {"width": W, "height": H, "n_distractors": 0, "target": "box_1"}
+
+
+def _make(**kw):
+    return gymnasium.make("simtest/PandaGrasp-v0", **{**KW, **kw})
+
+
+def _assert_same(obs_a: dict, obs_b: dict) -> None:
+    for k in obs_a:
+        np.testing.assert_array_equal(obs_a[k], obs_b[k], err_msg=k)
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+
+
+def _run(script: str, timeout: float = 240.0) -> subprocess.CompletedProcess:
+    """Run ``script`` in a fresh interpreter (a regression that hangs fails on the timeout, not the suite)."""
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(script)], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+
+
+def test_bad_action_is_rejected_and_changes_nothing():
+    a, b = _make(), _make()
+    a.reset(seed=5)
+    b.reset(seed=5)
+    move = np.array([0.01, 0.0, -0.01, 0.0, 0.0, 0.05, 0.5], np.float32)
+    a.step(move)
+    b.step(move)
+    nan = move.copy()
+    nan[2] = np.nan
+    inf = move.copy()
+    inf[6] = -np.inf
+    for bad, match in ((nan, r"action\[2\] \(dz\) = nan"), (inf, r"action\[6\] \(g\) = -inf"),
+                       (move[:6], r"shape \(7,\).*got shape \(6,\)"), (move[None], r"got shape \(1, 7\)"),
+                       ("up", "7 finite numbers")):
+        with pytest.raises(ConfigError, match=match) as exc:
+            a.step(bad)
+        assert isinstance(exc.value, ValueError) and "Box(7) [dx, dy, dz, rx, ry, rz, g]" in str(exc.value)
+    # The env keeps working, exactly as if the bad calls had not been made.
+    for _ in range(2):
+        oa, ra, ta, ua, ia = a.step(move)
+        ob, rb, tb, ub, ib = b.step(move)
+        _assert_same(oa, ob)
+        assert (ra, ta, ua, ia["sim_time"]) == (rb, tb, ub, ib["sim_time"])
+    np.testing.assert_array_equal(a.unwrapped.data.qpos, b.unwrapped.data.qpos)
+    np.testing.assert_array_equal(a.unwrapped.data.ctrl, b.unwrapped.data.ctrl)
+    assert np.isfinite(a.unwrapped.data.ctrl).all()
+    a.close()
+    b.close()
+
+
+def test_resets_reuse_the_model_and_stay_deterministic():
+    """The same seed gives identical observations on a fresh env and on one whose model is reused."""
+    env = _make(render_mode="rgb_array", render_width=80, render_height=60)
+    u = env.unwrapped
+    env.reset(seed=1, options={"occlusion": "L1"})
+    env.step(np.zeros(7, np.float32))
+    env.render()
+    model, renderer, tp = u.model, u._renderer, u._tp_renderer
+    reused, info_reused = env.reset(seed=2, options={"occlusion": "L1"})  # same structure: reused
+    assert u.model is model and u._renderer is renderer and renderer._con is not None
+    env.render()
+    assert u._tp_renderer is tp
+    env.reset(seed=3)  # no occluder: another structure, a new model; the old renderers are freed
+    assert u.model is not model and renderer._con is None and tp._con is None
+    again, _ = env.reset(seed=4)
+    assert u._models.compiles == 2 and u._models.reuses == 2
+
+    fresh = _make(render_mode="rgb_array", render_width=80, render_height=60)
+    obs, info = fresh.reset(seed=2, options={"occlusion": "L1"})
+    _assert_same(obs, reused)
+    assert info["occlusion"] == info_reused["occlusion"]
+    np.testing.assert_array_equal(info["T_world_obj"], info_reused["T_world_obj"])
+    obs, _ = fresh.reset(seed=4)  # a rebuilt model (the structure changed) gives the same scene too
+    _assert_same(obs, again)
+    for _ in range(2):
+        _assert_same(env.step(np.full(7, 0.01, np.float32))[0], fresh.step(np.full(7, 0.01, np.float32))[0])
+    np.testing.assert_array_equal(u.data.qpos, fresh.unwrapped.data.qpos)
+    env.close()
+    fresh.close()
+
+
+def test_memory_stays_bounded_over_resets():
+    """Resident memory after 30 resets (reused and rebuilt models) stays near what it was after 5."""
+    env = _make(n_distractors=1, target=None)  # random targets and distractors: mostly rebuilt models
+    for seed in range(5):
+        env.reset(seed=seed)
+    rss5 = _rss_mb()
+    for seed in range(5, 30):
+        env.reset(seed=seed, options={"target": "box_1", "n_distractors": 0} if seed % 3 else None)
+    rss30 = _rss_mb()
+    env.close()
+    assert rss30 < rss5 + 100.0, f"RSS grew from {rss5:.0f} MB to {rss30:.0f} MB over 25 resets"
+
+
+def test_async_vector_env_with_spawn_context():
+    envs = gymnasium.make_vec("simtest/PandaGrasp-v0", num_envs=2, vectorization_mode="async",
+                              vector_kwargs={"context": "spawn"}, **KW)
+    try:
+        obs, info = envs.reset(seed=0)
+        assert obs["rgb"].shape == (2, H, W, 3) and (obs["depth"] > 0).any()
+        obs, reward, terminated, truncated, info = envs.step(np.zeros((2, 7), np.float32))
+        assert obs["joint_pos"].shape == (2, 7) and reward.shape == (2,)
+    finally:
+        envs.close()
+
+
+def test_fork_after_render_raises_a_clear_error():
+    """Forked workers of a process that has rendered raise RenderError (instead of hanging in GL)."""
+    res = _run(f"""
+        import gymnasium, simtest.envs
+        from simtest.errors import RenderError
+        kw = {KW!r}
+        env = gymnasium.make("simtest/PandaGrasp-v0", **kw)
+        env.reset(seed=0)  # this process now has a GL context
+        envs = gymnasium.make_vec("simtest/PandaGrasp-v0", num_envs=2, vectorization_mode="async",
+                                  vector_kwargs={{"context": "fork"}}, **kw)
+        try:
+            envs.reset(seed=0)
+        except RenderError as exc:
+            print("RenderError:", exc)
+        finally:
+            envs.close(terminate=True)
+        """)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "RenderError: this process was forked" in res.stdout, res.stdout + res.stderr[-2000:]
+    assert "vector_kwargs={'context': 'spawn'}" in res.stdout
+
+
+def test_torch_compiler_stack_imports_after_rendering():
+    """torch imported, then an EGL render, then ``import torch._dynamo``: the renderer imported it first."""
+    pytest.importorskip("torch")
+    res = _run("""
+        import sys
+        import torch
+        import mujoco
+        import simtest.gl
+        from simtest.render import Renderer
+        xml = "<mujoco><worldbody><camera name='c' pos='0 0 1'/><geom type='sphere' size='.1'/></worldbody></mujoco>"
+        model = mujoco.MjModel.from_xml_string(xml)
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        with Renderer(model, 32, 24) as r:
+            assert r.render(data, "c").seg.max() == 0
+        assert "torch._dynamo" in sys.modules  # imported before the first GL context
+        import torch._dynamo  # noqa: F401
+        print("ok", simtest.gl.backend())
+        """)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.startswith("ok")
+
+
+def test_simtest_does_not_import_torch():
+    res = _run("""
+        import sys
+        import simtest.envs.grasp_env, simtest.render, simtest.gl
+        assert "torch" not in sys.modules, "simtest imported torch"
+        print("ok")
+        """)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]
