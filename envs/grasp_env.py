@@ -114,6 +114,8 @@ class PandaGraspEnv(gym.Env):
         render_width, render_height: Third-person view size (default: the wrist camera size).
         ik: ``"fast"`` (one damped least-squares step per control period, :class:`simtest.robot.DiffIK`)
             or ``"panda"`` (:func:`simtest.robot.ik_step`, three iterations; slower).
+        object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
+            files in the object sets (see :func:`simtest.objects.load_object_set`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
@@ -122,7 +124,8 @@ class PandaGraspEnv(gym.Env):
                  objects: str = "builtin", target: int | str | None = None, n_distractors: int = 2,
                  occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
                  placement: str = "upright", start: str = "home", observe_every_step: bool = True,
-                 render_width: int | None = None, render_height: int | None = None, ik: str = "fast") -> None:
+                 render_width: int | None = None, render_height: int | None = None, ik: str = "fast",
+                 object_units: str = "auto", object_scale: float = 1.0) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         for name, v in (("width", width), ("height", height)):
@@ -132,6 +135,7 @@ class PandaGraspEnv(gym.Env):
             raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.robot.DiffIK) or 'panda' "
                               f"(simtest.robot.ik_step), got {ik!r}")
         self.ik = ik
+        self.object_units, self.object_scale = object_units, float(object_scale)
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.render_width = int(render_width or width)
@@ -174,7 +178,8 @@ class PandaGraspEnv(gym.Env):
 
         if objects_name not in self._builders:
             cfg = scene_config(self.width, self.height)
-            self._builders[objects_name] = SceneBuilder(load_objects(objects_name), cfg, panda_physics=True)
+            objects = load_objects(objects_name, self.object_units, self.object_scale)
+            self._builders[objects_name] = SceneBuilder(objects, cfg, panda_physics=True)
         return self._builders[objects_name]
 
     def _pick_target(self, objects, target, rng: np.random.Generator) -> int:
@@ -209,7 +214,7 @@ class PandaGraspEnv(gym.Env):
         self.config = cfg
         # Independent streams: scene layout, occluder, observation corruption.
         scene_rng, occ_rng, self._corrupt_rng = self.np_random.spawn(3)
-        objects = load_objects(cfg.objects)
+        objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = self._pick_target(objects, cfg.target, scene_rng)
         self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,

@@ -20,16 +20,18 @@ RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption"
 
 _ACTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz", "g")
 
-_OBJECT_SETS: dict[str, Any] = {}
+_OBJECT_SETS: dict[tuple, Any] = {}
 
 
-def load_objects(name: str):
-    """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path), loaded once per process."""
+def load_objects(name: str, units: str = "auto", scale: float = 1.0):
+    """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path; mesh files in ``units`` times
+    ``scale``, see :func:`simtest.objects.load_object_set`), loaded once per process."""
     from simtest.objects import load_object_set
 
-    if name not in _OBJECT_SETS:
-        _OBJECT_SETS[name] = load_object_set(name)
-    return _OBJECT_SETS[name]
+    key = (name, units, float(scale))
+    if key not in _OBJECT_SETS:
+        _OBJECT_SETS[key] = load_object_set(name, units=units, scale=scale)
+    return _OBJECT_SETS[key]
 
 
 @dataclass(frozen=True)

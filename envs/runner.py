@@ -60,6 +60,7 @@ class GraspRunConfig:
         episodes: Number of episodes.
         seed: Master seed.
         objects: Object set.
+        units, scale: Units and scale factor of its mesh files (see :func:`simtest.objects.load_object_set`).
         targets: Targets cycled over the episodes (obj_ids or names); empty: a random graspable object per
             episode; ``("all",)``: every graspable object of the set in turn.
         n_distractors: Distractor objects per scene.
@@ -79,6 +80,8 @@ class GraspRunConfig:
     episodes: int = 10
     seed: int = 0
     objects: str = "builtin"
+    units: str = "auto"
+    scale: float = 1.0
     targets: tuple = ()
     n_distractors: int = 0
     occlusion: str = "L0"
@@ -123,7 +126,7 @@ def _resolve_targets(cfg: GraspRunConfig) -> list:
     if tuple(cfg.targets) == ("all",):
         from simtest.envs.grasp_env import load_objects
 
-        return [o.obj_id for o in load_objects(cfg.objects) if o.graspable]
+        return [o.obj_id for o in load_objects(cfg.objects, cfg.units, cfg.scale) if o.graspable]
     return list(cfg.targets)
 
 
@@ -144,7 +147,8 @@ def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     from simtest.envs.grasp_env import PandaGraspEnv
     from simtest.estimators.base import load_estimator
 
-    env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects,
+    env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
+                        object_scale=cfg.scale,
                         render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
     return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir}

@@ -32,10 +32,10 @@ from simtest.camera import look_at_pose
 from simtest.corrupt.occlusion import OCCLUSION_BANDS
 from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder, SimScene
-from simtest.generators.config import GenerateConfig
+from simtest.generators.config import GenerateConfig, MaterialConfig
 from simtest.generators.occlusion import bisect_occlusion
 from simtest.generators.scene_spec import (DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec,
-                                          random_quat_wxyz)
+                                          object_colour, random_quat_wxyz)
 from simtest.geometry import Pose
 from simtest.objects import ObjectSet
 
@@ -124,6 +124,13 @@ def _yaw_quat(yaw: float) -> tuple[float, float, float, float]:
 
 def _jitter(rgb, rng: np.random.Generator, amount: float = 0.08) -> tuple[float, float, float]:
     return tuple(float(np.clip(c + rng.normal(0, amount), 0.02, 0.98)) for c in rgb[:3])
+
+
+def _object_rgba(obj, rng: np.random.Generator) -> tuple[float, float, float, float]:
+    """A plain object's colour jittered; a textured one keeps its texture under a mild tint."""
+    if obj.appearance is None:
+        return (*_jitter(obj.rgba, rng), 1.0)
+    return object_colour(obj, 0.0, MaterialConfig().texture_jitter, rng)
 
 
 def observation_directions(target_xy: np.ndarray, base_xy: np.ndarray) -> list[np.ndarray]:
@@ -299,7 +306,7 @@ def sample_grasp_spec(
     def placement_of(obj, xy: np.ndarray) -> ObjectPlacement:
         pos, quat = pose_for(obj, xy)
         return ObjectPlacement(obj_id=int(obj.obj_id), position=pos, quat_wxyz=quat,
-                               rgba=(*_jitter(obj.rgba, rng), 1.0), specular=float(rng.uniform(0.0, 0.4)),
+                               rgba=_object_rgba(obj, rng), specular=float(rng.uniform(0.0, 0.4)),
                                shininess=float(rng.uniform(0.0, 0.5)), reflectance=0.0)
 
     (x0, x1), (y0, y1) = TARGET_REGION

@@ -18,6 +18,7 @@ from simtest.camera import CameraModel
 from simtest.generators.config import GenerateConfig
 from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
+from simtest.objects.appearance import add_object_visual, texture_roles
 
 __all__ = ["SimScene", "SceneBuilder", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
 
@@ -128,9 +129,9 @@ class SceneBuilder:
                 name=f"light_{i}", pos=list(light.position), dir=list(light.direction), diffuse=list(light.diffuse),
                 specular=[light.specular] * 3, castshadow=cfg.render.profile == "quality")
 
-        # Object assets, one per distinct obj_id (shared by instances).
-        for oid in sorted({p.obj_id for p in spec.objects}):
-            self._mesh_assets(ms, self.objects.get(oid))
+        # Object assets, one per distinct obj_id (shared by instances); textured ones get their texture.
+        textures = {oid: self._mesh_assets(ms, self.objects.get(oid))
+                    for oid in sorted({p.obj_id for p in spec.objects})}
 
         bodies = []
         for i, p in enumerate(spec.objects):
@@ -141,15 +142,18 @@ class SceneBuilder:
             body.mass = obj.mass
             body.ipos = obj.center_of_mass.tolist()
             body.fullinertia = _full_inertia(obj.inertia)
-            ms.add_material(name=f"obj_{i}_mat", rgba=list(p.rgba), specular=p.specular, shininess=p.shininess,
-                            reflectance=p.reflectance)
+            mat = ms.add_material(name=f"obj_{i}_mat", rgba=list(p.rgba), specular=p.specular,
+                                  shininess=p.shininess, reflectance=p.reflectance)
+            if textures[p.obj_id] is not None:  # the texture times the material colour (a tint)
+                mat.textures = texture_roles(textures[p.obj_id])
+            friction = list(OBJECT_FRICTION) if obj.friction is None else [obj.friction, *OBJECT_FRICTION[1:]]
             body.add_geom(name=f"obj_{i}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"mesh_{p.obj_id}",
                           material=f"obj_{i}_mat", group=VISUAL_GROUP, contype=0, conaffinity=0, density=0,
                           mass=0)
             for k in range(len(obj.collision_parts)):
                 body.add_geom(name=f"obj_{i}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH,
                               meshname=f"mesh_{p.obj_id}_col{k}", group=COLLISION_GROUP, density=0, mass=0,
-                              friction=list(OBJECT_FRICTION), condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
+                              friction=friction, condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
                               solref=[0.004, 1.0])
             bodies.append(body)
 
@@ -198,16 +202,16 @@ class SceneBuilder:
                         [True] * len(spec.objects), panda, rng)
 
     # ------------------------------------------------------------------------------------------------------
-    def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> None:
-        mesh = ms.add_mesh(name=f"mesh_{obj.obj_id}")
-        mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
-        mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
-        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # robust for open meshes; mass comes from obj
+    def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> str | None:
+        """Add the object's visual and collision meshes; returns the name of its texture (None if untextured)."""
+        mesh, texture = add_object_visual(ms, obj, f"mesh_{obj.obj_id}")
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # robust for open meshes; mass: obj
         for k, part in enumerate(obj.collision_parts):
             m = ms.add_mesh(name=f"mesh_{obj.obj_id}_col{k}")
             m.uservert = np.asarray(part.vertices, dtype=np.float64).reshape(-1).tolist()
             m.userface = np.asarray(part.faces, dtype=np.int32).reshape(-1).tolist()
             m.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+        return texture
 
     def _texture_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
         builtin = {"checker": mujoco.mjtBuiltin.mjBUILTIN_CHECKER, "gradient": mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,

@@ -95,6 +95,9 @@ class MaterialConfig:
 
     randomize_object_colour: bool = True
     colour_jitter: float = field(default=0.15, metadata=_bounds(0.0, 1.0))  # around each object's own colour
+    # textured / vertex-coloured objects keep their texture, times a tint: brightness 1 - [0, jitter], saturation
+    # [0, jitter / 2] (simtest.objects.appearance.tint_rgba)
+    texture_jitter: float = field(default=0.15, metadata=_bounds(0.0, 1.0))
     specular: tuple[float, float] = field(default=(0.0, 0.7), metadata=_rng_pair(0.0, 1.0))
     shininess: tuple[float, float] = field(default=(0.0, 0.8), metadata=_rng_pair(0.0, 1.0))
     reflectance: tuple[float, float] = field(default=(0.0, 0.15), metadata=_rng_pair(0.0, 1.0))
@@ -130,7 +133,10 @@ class GenerateConfig:
     """Everything ``simtest generate`` needs. See the module docstring for units."""
 
     objects: str = "builtin"  # "builtin", "builtin-small", or a path (mesh folder, mesh file, BOP models/)
-    units: Literal["m", "mm", "auto"] = field(default="auto", metadata=_bounds(choices=("m", "mm", "auto")))
+    # units of mesh files; auto: metres, refusing a diameter outside 1 cm .. 1.5 m
+    units: Literal["m", "cm", "mm", "auto"] = field(default="auto",
+                                                   metadata=_bounds(choices=("m", "cm", "mm", "auto")))
+    scale: float = field(default=1.0, metadata=_bounds(1e-6, 1e6))  # times the units: metres per file unit
     scenes: int = field(default=10, metadata=_bounds(1, 10_000_000))
     frames_per_scene: int = field(default=10, metadata=_bounds(1, 100_000))
     rig: Literal["shell", "wrist", "sequence"] = field(

@@ -79,7 +79,7 @@ def _versions() -> dict[str, str]:
 def _load_objects(cfg: GenerateConfig):
     from simtest.objects import load_object_set
 
-    return load_object_set(cfg.objects, units=cfg.units)
+    return load_object_set(cfg.objects, units=cfg.units, scale=cfg.scale)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -14,11 +14,12 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.generators.config import GenerateConfig
-from simtest.objects import ObjectSet
+from simtest.objects import ObjectModel, ObjectSet
+from simtest.objects.appearance import tint_rgba
 
 __all__ = [
     "ObjectPlacement", "DistractorSpec", "random_quat_wxyz", "LightSpec", "SurfaceSpec", "ViewSpec", "SceneSpec", "PlacementError",
-    "sample_scene_spec",
+    "sample_scene_spec", "object_colour",
 ]
 
 
@@ -119,6 +120,17 @@ def _jitter_colour(rgba, amount: float, rng: np.random.Generator) -> tuple[float
     return (float(rgb[0]), float(rgb[1]), float(rgb[2]), 1.0)
 
 
+def object_colour(obj: ObjectModel, colour_jitter: float, texture_jitter: float,
+                  rng: np.random.Generator) -> tuple[float, float, float, float]:
+    """The material colour of one instance: a textured (or vertex-coloured) object keeps its texture, tinted
+    around its own material colour by up to ``texture_jitter`` (never replaced); a plain one gets its colour
+    jittered by ``colour_jitter`` (standard deviation per channel)."""
+    if obj.appearance is None:
+        return _jitter_colour(obj.rgba, colour_jitter, rng)
+    tint = tint_rgba(texture_jitter, rng)
+    return (*(float(a * b) for a, b in zip(obj.rgba[:3], tint[:3])), 1.0)
+
+
 def random_quat_wxyz(rng: np.random.Generator) -> tuple[float, float, float, float]:
     """A uniformly random unit quaternion (w, x, y, z) with w >= 0, drawn with ``rng``."""
     q = rng.normal(size=4)
@@ -177,7 +189,8 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
     for oid in chosen:
         obj = objects.get(int(oid))
         pos = place(obj.diameter / 2.0)
-        rgba = _jitter_colour(obj.rgba, mat.colour_jitter, rng) if mat.randomize_object_colour else obj.rgba
+        rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, rng) if mat.randomize_object_colour
+                else obj.rgba)
         placements.append(ObjectPlacement(
             obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=random_quat_wxyz(rng), rgba=rgba,
             specular=float(rng.uniform(*mat.specular)), shininess=float(rng.uniform(*mat.shininess)),

@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from simtest.errors import AssetError
+from simtest.objects.appearance import Appearance
 
 __all__ = [
     "ContinuousSymmetry",
@@ -25,6 +26,7 @@ __all__ = [
     "ObjectSet",
     "farthest_point_sampling",
     "cache_dir",
+    "mesh_diameter",
 ]
 
 #: Mesh vertices are rounded to this many decimals (metres) before hashing, so equal geometry hashes equal.
@@ -77,13 +79,15 @@ class ObjectModel:
         instance: Index of this instance within its category (0-based).
         mesh: Triangle mesh in metres, origin at the bbox centre, Z up. Treated as read-only.
         density: kg/m^3, used for mass and inertia (a closed, watertight mesh is assumed solid).
-        rgba: Base colour (4,), each in [0, 1].
+        rgba: Material colour (4,), each in [0, 1]; it multiplies the texture of a textured object.
+        appearance: Texture and UVs, or colours per vertex or face (``None``: the material colour only).
         symmetries_discrete: 4x4 transforms (metres) mapping the mesh onto itself, identity excluded.
         symmetries_continuous: Continuous rotational symmetries.
         source: Where the geometry came from (``"builtin:<category>:<seed>"`` or a file path).
         num_keypoints: How many farthest-point-sampled surface keypoints :attr:`keypoints_fps` holds.
         concave: Whether collision geometry needs a convex decomposition (``None``: decide from the mesh).
         graspable_override: Force :attr:`graspable` (``None``: decide from the grasp candidates).
+        friction: Sliding friction coefficient of the collision geoms (``None``: the scene's default).
     """
 
     obj_id: int
@@ -100,6 +104,8 @@ class ObjectModel:
     concave: bool | None = None
     graspable_override: bool | None = None
     extra: dict = field(default_factory=dict)
+    appearance: Appearance | None = None
+    friction: float | None = None
 
     def __post_init__(self) -> None:
         where = self.source or self.name
@@ -114,6 +120,10 @@ class ObjectModel:
         sym = tuple(np.asarray(s, dtype=np.float64).reshape(4, 4) for s in self.symmetries_discrete)
         object.__setattr__(self, "symmetries_discrete", sym)
         object.__setattr__(self, "rgba", tuple(float(c) for c in self.rgba))
+        if self.appearance is not None:
+            self.appearance.check(len(self.mesh.vertices), len(self.mesh.faces), where)
+        if self.friction is not None and not (0.0 < self.friction <= 10.0):
+            raise AssetError(f"{where}: friction must be in (0, 10], got {self.friction!r}")
 
     # --- geometry ----------------------------------------------------------------------------------------
     @functools.cached_property
@@ -139,12 +149,7 @@ class ObjectModel:
     @functools.cached_property
     def diameter(self) -> float:
         """Largest distance between two mesh vertices (metres), exact: computed on the convex hull."""
-        hull = self.mesh.convex_hull.vertices
-        best = 0.0
-        for start in range(0, len(hull), 512):
-            d = np.linalg.norm(hull[start:start + 512, None, :] - hull[None, :, :], axis=-1)
-            best = max(best, float(d.max()))
-        return best
+        return mesh_diameter(self.mesh)
 
     @functools.cached_property
     def mesh_hash(self) -> str:
@@ -279,6 +284,19 @@ class ObjectModel:
     def __repr__(self) -> str:
         return (f"ObjectModel(obj_id={self.obj_id}, name={self.name!r}, category={self.category!r}, "
                 f"diameter={self.diameter * 1000:.1f} mm)")
+
+
+def mesh_diameter(mesh: trimesh.Trimesh) -> float:
+    """Largest distance between two vertices of ``mesh`` (its units), exact: computed on the convex hull."""
+    try:
+        hull = np.asarray(mesh.convex_hull.vertices)
+    except Exception:  # flat or tiny meshes: every vertex
+        hull = np.asarray(mesh.vertices)
+    best = 0.0
+    for start in range(0, len(hull), 512):
+        d = np.linalg.norm(hull[start:start + 512, None, :] - hull[None, :, :], axis=-1)
+        best = max(best, float(d.max()))
+    return best
 
 
 def validate_mesh(mesh: trimesh.Trimesh, where: str) -> None:

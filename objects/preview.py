@@ -8,6 +8,7 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.errors import RenderError
+from simtest.objects.appearance import add_object_visual, texture_roles
 
 __all__ = ["render_preview"]
 
@@ -38,17 +39,19 @@ def _render(obj, size: int, views: int) -> np.ndarray:
     spec = mujoco.MjSpec()
     spec.visual.global_.offwidth = max(size, 64)
     spec.visual.global_.offheight = max(size, 64)
-    mesh = spec.add_mesh()
-    mesh.name = "obj"
-    mesh.uservert = np.asarray(obj.vertices, dtype=np.float64).reshape(-1).tolist()
-    mesh.userface = np.asarray(obj.faces, dtype=np.int32).reshape(-1).tolist()
+    _mesh, texture = add_object_visual(spec, obj, "obj")
+    material = spec.add_material(name="obj_mat", rgba=list(obj.rgba))
+    if texture is not None:
+        material.textures = texture_roles(texture)
     body = spec.worldbody.add_body()
     geom = body.add_geom()
     geom.type = mujoco.mjtGeom.mjGEOM_MESH
     geom.meshname = "obj"
-    geom.rgba = list(obj.rgba)
+    geom.material = "obj_mat"
     geom.contype = 0
     geom.conaffinity = 0
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]  # textures read at every view, not only the lit side
+    spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
     light = spec.worldbody.add_light()
     light.pos = [0.0, -0.3, 1.0]
     light.dir = [0.0, 0.3, -1.0]

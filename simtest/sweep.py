@@ -66,6 +66,8 @@ class GraspSection:
 
     episodes: int = field(default=0, metadata=bounds(0, 100_000))
     objects: str = "builtin-small"
+    units: str = field(default="auto", metadata=bounds(choices=("m", "cm", "mm", "auto")))  # of mesh files
+    scale: float = field(default=1.0, metadata=bounds(1e-6, 1e6))  # times the units: metres per file unit
     targets: tuple[str, ...] = ()
     width: int = field(default=320, metadata=bounds(32, 4096))
     height: int = field(default=240, metadata=bounds(24, 4096))
@@ -328,7 +330,8 @@ def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir
     t0 = time.perf_counter()
     g = cfg.grasp
     run = GraspRunConfig(estimator=est.estimator, estimator_options=dict(est.options), episodes=g.episodes,
-                         seed=cfg.seed, objects=g.objects, targets=tuple(g.targets), n_distractors=g.n_distractors,
+                         seed=cfg.seed, objects=g.objects, units=g.units, scale=g.scale,
+                         targets=tuple(g.targets), n_distractors=g.n_distractors,
                          width=g.width, height=g.height, workers=cfg.workers, timeout=cfg.timeout,
                          **cond.grasp_settings())
     rep = run_grasp_episodes(run, cdir, progress=False, overwrite=True)

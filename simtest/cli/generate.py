@@ -16,7 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "config file; every other value keeps its default (`simtest generate --print-config` shows them all).")
     p.add_argument("--config", help="TOML or JSON config file")
     p.add_argument("--objects", help="object set: builtin, builtin-small, or a path (mesh folder/file, BOP models/)")
-    p.add_argument("--units", choices=["m", "mm", "auto"], help="units of user meshes (default auto)")
+    p.add_argument("--units", choices=["m", "cm", "mm", "auto"],
+                   help="units of user meshes (default auto: metres, refusing a diameter outside 1 cm .. 1.5 m)")
+    p.add_argument("--scale", type=float, help="factor on top of --units (metres = file units x units x scale)")
     p.add_argument("--scenes", type=int, help="number of scenes")
     p.add_argument("--frames-per-scene", type=int, help="images per scene")
     p.add_argument("--objects-per-scene", type=int, nargs=2, metavar=("MIN", "MAX"))
@@ -47,7 +49,7 @@ def config_from_args(args: argparse.Namespace):
 
     cfg = load_config(args.config) if args.config else GenerateConfig()
     overrides = {
-        "objects": args.objects, "units": args.units, "scenes": args.scenes,
+        "objects": args.objects, "units": args.units, "scale": args.scale, "scenes": args.scenes,
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
         "render.rgb_format": args.rgb_format,

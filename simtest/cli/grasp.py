@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="estimator option (repeatable), parsed as for simtest eval; e.g. --opt trans_noise_mm=10")
     p.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
     p.add_argument("--objects", default="builtin", help="object set: builtin, builtin-small, or a path")
+    p.add_argument("--units", default="auto", choices=["m", "cm", "mm", "auto"],
+                   help="units of mesh files (auto: metres, refusing a diameter outside 1 cm .. 1.5 m)")
+    p.add_argument("--scale", type=float, default=1.0, help="factor on top of --units (default 1)")
     p.add_argument("--target", default=None,
                    help="targets cycled over the episodes: comma-separated obj_ids or names, or 'all' (every "
                         "graspable object in turn); default a random graspable object per episode")
@@ -67,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = GraspRunConfig(
         estimator=args.estimator, estimator_options=options, episodes=args.episodes,
-        seed=args.seed, objects=args.objects, targets=_targets(args.target), n_distractors=args.distractors,
+        seed=args.seed, objects=args.objects, units=args.units, scale=args.scale, targets=_targets(args.target),
+        n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout)

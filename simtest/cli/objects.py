@@ -19,7 +19,10 @@ def register(subparsers) -> None:
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--set", dest="set", default="builtin",
                        help="builtin, builtin-small, a BOP models folder, a mesh folder or a mesh file")
-        p.add_argument("--units", default="auto", choices=["m", "mm", "auto"], help="units of mesh files")
+        p.add_argument("--units", default="auto", choices=["m", "cm", "mm", "auto"],
+                       help="units of mesh files (auto: metres, refusing a diameter outside 1 cm .. 1.5 m)")
+        p.add_argument("--scale", type=float, default=1.0,
+                       help="factor on top of --units (metres = file units x units x scale; default 1)")
         p.add_argument("--seed", type=int, default=0, help="seed of the built-in sets")
 
     p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
@@ -33,11 +36,13 @@ def register(subparsers) -> None:
     p_exp.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     p_exp.set_defaults(func=_cmd_export)
 
-    p_prev = sub.add_parser("preview", parents=[common_parser()], help="render one object from a few views into a PNG")
+    p_prev = sub.add_parser("preview", parents=[common_parser()],
+                            help="render objects from a few views into a PNG (one row per object)")
     common(p_prev)
-    p_prev.add_argument("obj_id", type=int, help="object id")
+    p_prev.add_argument("obj_id", help="object id, comma-separated ids, or 'all'")
     p_prev.add_argument("--out", required=True, help="PNG file to write")
     p_prev.add_argument("--size", type=int, default=256, help="pixels per view (square)")
+    p_prev.add_argument("--views", type=int, default=4, help="views per object, at evenly spaced azimuths")
     p_prev.set_defaults(func=_cmd_preview)
 
     parser.set_defaults(func=lambda args: (parser.print_help(), 2)[1])
@@ -62,7 +67,7 @@ def object_table(objects, grasps: bool = True) -> str:
 def _load(args):
     from simtest.objects import load_object_set
 
-    return load_object_set(args.set, units=args.units, seed=args.seed)
+    return load_object_set(args.set, units=args.units, seed=args.seed, scale=args.scale)
 
 
 def _cmd_list(args) -> int:
@@ -92,10 +97,27 @@ def _cmd_preview(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         raise AssetError(f"--out must be a .png file, got {out}")
+    import numpy as np
+
+    if not 1 <= args.views <= 16 or not 16 <= args.size <= 2048:
+        raise AssetError(f"--views must be 1..16 and --size 16..2048 pixels, got {args.views} and {args.size}")
     objects = _load(args)
-    obj = objects.get(args.obj_id)
-    image = render_preview(obj, size=args.size)
+    chosen = _preview_objects(objects, args.obj_id)
+    image = np.concatenate([render_preview(o, size=args.size, views=args.views) for o in chosen], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(out)
-    print(f"wrote {out} ({obj.name}, {image.shape[1]}x{image.shape[0]} px)")
+    print(f"wrote {out} ({', '.join(o.name for o in chosen)}, {image.shape[1]}x{image.shape[0]} px)")
     return 0
+
+
+def _preview_objects(objects, text: str) -> list:
+    """The objects named by ``text``: ``all``, an id, or comma-separated ids (unknown ids list the known)."""
+    if text.strip() == "all":
+        return list(objects)
+    try:
+        ids = [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise AssetError(f"obj_id must be an id, comma-separated ids or 'all', got {text!r}") from None
+    if not ids:
+        raise AssetError(f"obj_id must be an id, comma-separated ids or 'all', got {text!r}")
+    return [objects.get(i) for i in ids]

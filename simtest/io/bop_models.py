@@ -6,7 +6,9 @@ in simtest) and the millimetres of the BOP format, through :data:`MM_PER_M`.
 Written layout (what the BOP toolkit's ``inout.load_ply`` and ``load_json`` read)::
 
     models/obj_000001.ply      binary little-endian PLY: x y z nx ny nz (float32, mm), red green blue
-                               (uchar), faces as "list uchar int vertex_indices"
+                               (uchar) or, for a textured object, texture_u texture_v (float32, v up) with
+                               "comment TextureFile obj_000001.png"; faces as "list uchar int vertex_indices"
+    models/obj_000001.png      the texture of a textured object (as BOP's textured models)
     models/models_info.json    {"1": {diameter, min_x, min_y, min_z, size_x, size_y, size_z,
                                       symmetries_discrete?: [[16 floats, translation in mm]],
                                       symmetries_continuous?: [{axis: [3], offset: [3] (mm)}]}}
@@ -38,12 +40,15 @@ META_FILE = "simtest_objects.json"
 
 
 def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, rgb: np.ndarray | None,
-              comment: str = "") -> bytes:
-    """A binary little-endian PLY (float32 positions in mm and normals, optional uchar colours)."""
+              comment: str = "", uv: np.ndarray | None = None) -> bytes:
+    """A binary little-endian PLY (float32 positions in mm and normals, optional uchar colours, optional
+    float32 ``texture_u texture_v`` per vertex)."""
     n = len(vertices_mm)
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
     if rgb is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if uv is not None:
+        fields += [("texture_u", "<f4"), ("texture_v", "<f4")]
     vert = np.zeros(n, dtype=fields)
     for i, key in enumerate("xyz"):
         vert[key] = vertices_mm[:, i]
@@ -51,6 +56,8 @@ def ply_bytes(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray, r
     if rgb is not None:
         for i, key in enumerate(("red", "green", "blue")):
             vert[key] = rgb[:, i]
+    if uv is not None:
+        vert["texture_u"], vert["texture_v"] = uv[:, 0], uv[:, 1]
     face = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
     face["n"] = 3
     face["v"] = faces
@@ -82,6 +89,44 @@ def models_info_entry(obj) -> dict:
     return info
 
 
+def _png_bytes(image: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _model_ply(obj, out: Path) -> bytes:
+    """The PLY of one object with its appearance: vertex colours (the material colour when it has none,
+    colours per face on vertices split per face) or texture coordinates, the texture written next to it."""
+    mesh, app = obj.mesh, obj.appearance
+    verts, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    normals = np.asarray(mesh.vertex_normals)
+    comment = f"simtest obj_id {obj.obj_id} {obj.name}\nunits mm, origin at bbox centre, Z up"
+    rgb = uv = None
+    kind = "none" if app is None else app.kind
+    if kind == "none":
+        rgb = np.tile(np.round(np.asarray(obj.rgba[:3]) * 255).astype(np.uint8), (len(verts), 1))
+    elif kind == "vertex":
+        rgb = app.vertex_colors
+    elif kind == "face":  # BOP has colours per vertex only: every face gets its own three vertices
+        idx = faces.reshape(-1)
+        verts, normals = verts[idx], np.repeat(np.asarray(mesh.face_normals), 3, axis=0)
+        rgb, faces = np.repeat(app.face_colors, 3, axis=0), np.arange(len(idx)).reshape(-1, 3)
+    else:  # texture: one vertex per (position, uv) pair, as the file format needs
+        corners = np.column_stack([faces.reshape(-1), app.face_uv.reshape(-1, 2)])
+        unique, inverse = np.unique(corners, axis=0, return_inverse=True)
+        idx = unique[:, 0].astype(np.int64)
+        verts, normals, uv, faces = verts[idx], normals[idx], unique[:, 1:], inverse.reshape(-1, 3)
+        texture = f"obj_{obj.obj_id:06d}.png"
+        _atomic_write(out / texture, _png_bytes(app.texture))
+        comment = f"TextureFile {texture}\n{comment}"
+    return ply_bytes(verts * MM_PER_M, faces, normals, rgb, comment=comment, uv=uv)
+
+
 def write_bop_models(objects, out_dir: str | Path) -> Path:
     """Write an object set as a BOP ``models/`` folder (millimetres).
 
@@ -97,12 +142,7 @@ def write_bop_models(objects, out_dir: str | Path) -> Path:
     info: dict[str, dict] = {}
     meta: dict[str, dict] = {}
     for obj in objects:
-        mesh = obj.mesh
-        rgb = np.tile(np.round(np.asarray(obj.rgba[:3]) * 255).astype(np.uint8), (len(mesh.vertices), 1))
-        data = ply_bytes(np.asarray(mesh.vertices) * MM_PER_M, np.asarray(mesh.faces),
-                         np.asarray(mesh.vertex_normals), rgb,
-                         comment=f"simtest obj_id {obj.obj_id} {obj.name}\nunits mm, origin at bbox centre, Z up")
-        _atomic_write(out / f"obj_{obj.obj_id:06d}.ply", data)
+        _atomic_write(out / f"obj_{obj.obj_id:06d}.ply", _model_ply(obj, out))
         info[str(obj.obj_id)] = models_info_entry(obj)
         meta[str(obj.obj_id)] = {"name": obj.name, "category": obj.category, "instance": int(obj.instance),
                                  "density": float(obj.density), "rgba": [float(c) for c in obj.rgba],
