@@ -107,11 +107,14 @@ class MaterialConfig:
 
 @dataclass(frozen=True)
 class RenderConfig:
-    profile: Literal["fast", "quality"] = field(default="fast", metadata=_bounds(choices=("fast", "quality")))
+    profile: Literal["fast", "quality", "pbr"] = field(default="fast",
+                                                       metadata=_bounds(choices=("fast", "quality", "pbr")))
     depth_scale: float = field(default=0.1, metadata=_bounds(1e-3, 100.0))  # mm per depth PNG unit (BOP)
     rgb_format: Literal["png", "jpg"] = field(default="png", metadata=_bounds(choices=("png", "jpg")))
     jpg_quality: int = field(default=95, metadata=_bounds(1, 100))
     coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
+    pbr_spp: int = field(default=16, metadata=_bounds(1, 65536))  # path-traced samples per pixel (pbr profile)
+    pbr_denoise: bool = True  # denoise pbr images with Open Image Denoise (albedo + normal guides)
 
 
 @dataclass(frozen=True)

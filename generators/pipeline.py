@@ -6,6 +6,7 @@ which worker ran it, on how many workers there were, or on whether the run was r
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import os
 import platform
@@ -154,7 +155,9 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
-    with Renderer(scene.model, cfg.camera.width, cfg.camera.height, profile=cfg.render.profile) as renderer:
+    pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
+    with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
+                  profile="fast" if pbr is not None else cfg.render.profile) as renderer:
         for im_id, (cam, arm_q) in enumerate(cameras):
             if arm_q is not None:
                 scene.set_arm(arm_q)
@@ -170,7 +173,12 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
                 record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
                                       amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
                                       occ_cfg.standing_first)
-            frame = renderer.render(scene.data, scene.camera_id)
+            frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
+            if pbr is not None:
+                from simtest.render_pbr import frame_seed
+
+                rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
+                frame = dataclasses.replace(frame, rgb=rgb)
             anns = annotate(scene, frame, cam, objects)
             writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
                        [a.mask_visib for a in anns])
@@ -192,6 +200,16 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
         "spec": scene.spec.to_dict()})
     writer.close()
     return report
+
+
+def _pbr_renderer(cfg: GenerateConfig, scene):
+    """The path tracer of the ``pbr`` profile for ``scene``, or ``None`` for the rasterized profiles."""
+    if cfg.render.profile != "pbr":
+        return None
+    from simtest.render_pbr import PbrRenderer
+
+    camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+    return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:
@@ -251,6 +269,10 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         DatasetError: Non-empty output without ``resume``/``overwrite``, or a resume with another config.
     """
     out = Path(out_dir)
+    if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
+        from simtest.render_pbr import require_pbr
+
+        require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = _load_objects(cfg)

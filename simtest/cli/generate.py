@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", choices=["shell", "wrist", "sequence"], help="camera rig")
     p.add_argument("--width", type=int, help="image width (pixels)")
     p.add_argument("--height", type=int, help="image height (pixels)")
-    p.add_argument("--profile", choices=["fast", "quality"], help="render profile (quality: shadows, MSAA)")
+    p.add_argument("--profile", choices=["fast", "quality", "pbr"],
+                   help="render profile (quality: shadows, MSAA; pbr: path-traced RGB, needs simtest[pbr])")
     p.add_argument("--occlusion", choices=["L0", "L1", "L2", "L3", "mixed"],
                    help="physical occluders so a target per image lands in this level's band")
     p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
