@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from simtest.generators.config import GenerateConfig
 
-__all__ = ["bench_generate", "GenerateBench"]
+__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench"]
 
 
 @dataclass
@@ -118,3 +118,42 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
             fps2_wall = rep2.frames_per_second
     raw = _raw_fps(cfg)
     return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2, fps2_wall)
+
+
+@dataclass
+class ProfileBench:
+    """Seconds per annotated frame of the whole pipeline for each render profile and image size (rows of
+    ``(profile, width, height, seconds_per_frame)``), one worker, the same seed and scenes for every profile."""
+
+    rows: list[tuple[str, int, int, float]]
+    scenes: int
+    frames_per_scene: int
+    pbr_spp: int
+
+    def table(self) -> str:
+        lines = ["| profile | image size | s/frame | frames/s |", "|---|---|---|---|"]
+        for profile, w, h, spf in self.rows:
+            name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
+            lines.append(f"| {name} | {w}x{h} | {spf:.3f} | {1.0 / spf:.2f} |")
+        return "\n".join(lines)
+
+
+def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,
+                   scenes: int = 2, frames_per_scene: int = 3, objects: str = "builtin", pbr_spp: int = 16,
+                   seed: int = 0) -> ProfileBench:
+    """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading excluded) of each
+    profile at each ``(width, height)``, measured in one run."""
+    from simtest.generators.pipeline import _load_objects, generate
+
+    rows = []
+    for w, h in sizes:
+        for profile in profiles:
+            cfg = GenerateConfig().replace(**{
+                "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": w,
+                "camera.height": h, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
+                "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
+            _load_objects(cfg)
+            with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+                rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
+            rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written))
+    return ProfileBench(rows, scenes, frames_per_scene, pbr_spp)

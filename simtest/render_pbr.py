@@ -10,9 +10,10 @@ read from the compiled model and data every frame, so it is what MuJoCo would dr
   texture coordinates of their 2D texture);
 * materials: a two-sided principled BSDF per geom; base colour = material (or geom) rgba, read as sRGB, or
   its 2D texture times rgba; roughness = 1 - shininess, specular = specular, metallic = reflectance;
-* lights: each MuJoCo spot / point light becomes a spherical area light (soft shadows) whose irradiance at the
-  scene centre (``model.stat.center``) equals MuJoCo's unattenuated ``diffuse``; directional lights stay
-  directional; the ambient (headlight + lights) becomes a constant environment;
+* lights: a MuJoCo spot light becomes a cluster of spots over a small disk (its cutoff and falloff, soft
+  shadows), a point light a spherical area light, a directional light stays directional; each is calibrated so
+  its irradiance at the scene centre (``model.stat.center``) matches MuJoCo's unattenuated ``diffuse``; the
+  ambient (headlight + lights) becomes a constant environment;
 * camera: a ``perspective`` sensor with the exact OpenCV intrinsics (fov from fx, principal point offset from
   cx, cy; OpenCV pixel centres at integer coordinates), box pixel filter.
 
@@ -39,8 +40,10 @@ from simtest.rng import child_sequence
 __all__ = ["PbrRenderer", "require_pbr", "frame_seed", "srgb_to_linear", "linear_to_srgb8", "INSTALL_HINT"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
-#: Radius of the spherical area light that stands in for each MuJoCo spot / point light (metres).
+#: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
 LIGHT_RADIUS = 0.08
+#: Point spots that stand in for each MuJoCo spot light, spread over a disk of radius LIGHT_RADIUS.
+SPOT_SAMPLES = 8
 #: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
 INFINITE_PLANE = 50.0
 #: Longest light path (bounces) of the path tracer.
@@ -382,11 +385,15 @@ class PbrRenderer:
 
     # --- lights -------------------------------------------------------------------------------------------
     def _emitters(self, data: mujoco.MjData) -> dict:
-        """The constant environment (MuJoCo's ambient) and one emitter per active light.
+        """The constant environment (MuJoCo's ambient) and the emitters of every active light.
 
-        A spot / point light of ``diffuse`` D becomes a sphere of radius ``LIGHT_RADIUS`` r and radiance
-        ``D d^2 / r^2``, ``d`` its distance to ``model.stat.center``: its irradiance there is ``pi D``, so a
-        white Lambertian surface facing it reflects radiance ``D``, as MuJoCo's unattenuated light does.
+        MuJoCo's light colours, like its material colours, are display (sRGB) values: they are linearized, so
+        a surface lit by them keeps about the brightness the rasterizer gives it. Each light is calibrated at
+        its distance ``d`` to ``model.stat.center``: there its irradiance is ``pi D`` (D the linearized
+        ``diffuse``), so a white Lambertian surface facing it reflects radiance ``D``, as MuJoCo's unattenuated
+        light does. A spot light becomes ``SPOT_SAMPLES`` spots spread over a disk of radius ``LIGHT_RADIUS``
+        across its axis (soft shadows) with MuJoCo's cutoff and a beam width where ``cos^exponent`` halves; a
+        point light becomes a sphere of that radius; a directional light stays directional.
         """
         m = self.model
         ambient = np.asarray(m.vis.headlight.ambient, dtype=np.float64).copy()
@@ -396,17 +403,45 @@ class PbrRenderer:
             if not m.light_active[i]:
                 continue
             ambient += m.light_ambient[i]
-            diffuse = np.asarray(m.light_diffuse[i], dtype=np.float64)
-            if int(m.light_type[i]) == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL):
-                out[f"light_{i}"] = {"type": "directional", "direction": data.light_xdir[i].tolist(),
-                                     "irradiance": {"type": "rgb", "value": (np.pi * diffuse).tolist()}}
-                continue
+            diffuse = srgb_to_linear(m.light_diffuse[i])
             pos = np.asarray(data.light_xpos[i], dtype=np.float64)
+            axis = np.asarray(data.light_xdir[i], dtype=np.float64)
             d2 = max(float(np.sum((pos - centre) ** 2)), LIGHT_RADIUS ** 2)
-            out[f"light_{i}"] = {"type": "sphere", "center": pos.tolist(), "radius": LIGHT_RADIUS,
-                                 "emitter": {"type": "area", "radiance": {
-                                     "type": "rgb", "value": (diffuse * d2 / LIGHT_RADIUS ** 2).tolist()}}}
-        out["environment"] = {"type": "constant", "radiance": {"type": "rgb", "value": ambient.tolist()}}
+            kind = int(m.light_type[i])
+            if kind == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL):
+                out[f"light_{i}"] = {"type": "directional", "direction": axis.tolist(),
+                                     "irradiance": {"type": "rgb", "value": (np.pi * diffuse).tolist()}}
+            elif kind == int(mujoco.mjtLightType.mjLIGHT_SPOT):
+                out.update(self._spot(i, pos, axis, np.pi * diffuse * d2))
+            else:
+                out[f"light_{i}"] = {"type": "sphere", "center": pos.tolist(), "radius": LIGHT_RADIUS,
+                                     "emitter": {"type": "area", "radiance": {
+                                         "type": "rgb", "value": (diffuse * d2 / LIGHT_RADIUS ** 2).tolist()}}}
+        out["environment"] = {"type": "constant",
+                              "radiance": {"type": "rgb", "value": srgb_to_linear(ambient).tolist()}}
+        return out
+
+    def _spot(self, i: int, pos: np.ndarray, axis: np.ndarray, intensity: np.ndarray) -> dict:
+        """Light ``i`` as ``SPOT_SAMPLES`` Mitsuba spots (total on-axis ``intensity``, W/sr) on a Vogel disk."""
+        m = self.model
+        cutoff = float(np.clip(m.light_cutoff[i], 1.0, 89.0))
+        exponent = float(m.light_exponent[i])
+        half = float(np.degrees(np.arccos(0.5 ** (1.0 / exponent)))) if exponent > 0 else cutoff
+        beam = min(half, 0.95 * cutoff)
+        axis = axis / max(np.linalg.norm(axis), 1e-12)
+        u = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(axis, u)
+        out = {}
+        for k in range(SPOT_SAMPLES):
+            r = LIGHT_RADIUS * np.sqrt((k + 0.5) / SPOT_SAMPLES)
+            a = k * np.pi * (3.0 - np.sqrt(5.0))  # golden angle
+            p = pos + r * (np.cos(a) * u + np.sin(a) * v)
+            out[f"light_{i}_{k}"] = {
+                "type": "spot", "cutoff_angle": cutoff, "beam_width": beam,
+                "to_world": self._mi.ScalarTransform4f().look_at(origin=p.tolist(), target=(p + axis).tolist(),
+                                                                 up=u.tolist()),
+                "intensity": {"type": "rgb", "value": (intensity / SPOT_SAMPLES).tolist()}}
         return out
 
     def close(self) -> None:
