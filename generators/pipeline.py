@@ -67,11 +67,16 @@ class GenerateReport:
         return [s for s in self.scenes if s.attempts > 1]
 
 
-def _versions() -> dict[str, str]:
+def _versions(cfg: GenerateConfig) -> dict[str, str]:
     import mujoco
 
-    return {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
-            "python": platform.python_version()}
+    out = {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+           "python": platform.python_version()}
+    if cfg.render.profile == "pbr":
+        from simtest.render_pbr import renderer_versions
+
+        out.update(renderer_versions())
+    return out
 
 
 def _load_objects(cfg: GenerateConfig):
@@ -282,7 +287,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
     if not (out / MANIFEST).exists():
         atomic_write_json(out / MANIFEST, {
-            "format": "bop-scenewise", "generator": "simtest", "versions": _versions(), "seed": cfg.seed,
+            "format": "bop-scenewise", "generator": "simtest", "versions": _versions(cfg), "seed": cfg.seed,
             "config": cfg.to_dict(), "object_set": objects.name, "objects": [
                 {"obj_id": o.obj_id, "name": o.name, "category": o.category, "source": o.source} for o in objects],
             "command_line": list(command_line if command_line is not None else sys.argv),

@@ -37,7 +37,7 @@ from simtest.errors import RenderError
 from simtest.render import Frame
 from simtest.rng import child_sequence
 
-__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "srgb_to_linear", "linear_to_srgb8", "INSTALL_HINT"]
+__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "srgb_to_linear", "linear_to_srgb8", "INSTALL_HINT"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
@@ -47,7 +47,7 @@ SPOT_SAMPLES = 8
 #: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
 INFINITE_PLANE = 50.0
 #: Longest light path (bounces) of the path tracer.
-MAX_DEPTH = 6
+MAX_DEPTH = 4
 #: Samples per pixel of the albedo / normal guide pass (at most the colour pass's).
 AUX_SPP = 4
 #: Mitsuba camera frame (x left, y up, z forward) from the OpenCV camera frame (x right, y down, z forward).
@@ -98,6 +98,14 @@ def require_pbr(camera: CameraModel) -> None:
     """
     mi, _ = _modules()
     camera_sensor(mi, camera, 1)
+
+
+def renderer_versions() -> dict[str, str]:
+    """Versions of the path tracer and denoiser, and the Mitsuba variant in use (recorded in the manifest)."""
+    from importlib.metadata import version
+
+    mi, _ = _modules()
+    return {"mitsuba": mi.__version__, "mitsuba_variant": mi.variant(), "pyoidn": version("pyoidn")}
 
 
 def frame_seed(seed: int, scene_id: int, im_id: int) -> int:

@@ -54,6 +54,9 @@ def test_pbr_and_fast_differ_only_in_rgb(runs):
         m = read_json(runs / name / "manifest.json")
         m.pop("command_line")
         m["config"]["render"].pop("profile")
+        for key in ("mitsuba", "mitsuba_variant", "pyoidn"):
+            assert (key in m["versions"]) == (name == "pbr")
+            m["versions"].pop(key, None)
         manifests.append(m)
     assert manifests[0] == manifests[1]
 
