@@ -103,6 +103,7 @@ class MaterialConfig:
     shininess: tuple[float, float] = field(default=(0.0, 0.8), metadata=_rng_pair(0.0, 1.0))
     reflectance: tuple[float, float] = field(default=(0.0, 0.15), metadata=_rng_pair(0.0, 1.0))
     background_textures: bool = True  # procedural table / floor / wall textures
+    textures: str | None = None  # folder of images (png / jpg) for the table, floor, walls and distractors
 
 
 @dataclass(frozen=True)

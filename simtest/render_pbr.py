@@ -133,6 +133,15 @@ def _finite(img) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
+    """The colour MuJoCo draws geom ``g`` with: its material's rgba when it has a material and its own rgba is
+    MuJoCo's default (0.5, 0.5, 0.5, 1), else its own rgba."""
+    own = m.geom_rgba[g]
+    if m.geom_matid[g] >= 0 and np.allclose(own, (0.5, 0.5, 0.5, 1.0)):
+        return m.mat_rgba[m.geom_matid[g]]
+    return own
+
+
 def _transform(mi, R: np.ndarray, t: np.ndarray, scale: np.ndarray | None = None):
     """Mitsuba 4x4 transform ``[R diag(scale) | t]``."""
     M = np.eye(4)
@@ -287,7 +296,7 @@ class PbrRenderer:
         }
         m = self.model
         for g in range(m.ngeom):
-            rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
+            rgba = _geom_rgba(m, g)
             if int(m.geom_group[g]) not in self._groups or rgba[3] <= 0.0:
                 continue
             bsdf = self._bsdf(g, rgba)

@@ -28,6 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="physical occluders so a target per image lands in this level's band")
     p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
                    help="level bands used by --occlusion (default pascal3d+)")
+    p.add_argument("--textures", metavar="DIR",
+                   help="folder of png/jpg images for the table, floor, walls and distractors (default: procedural)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--workers", type=int, help="worker processes (each owns whole scenes)")
     p.add_argument("--seed", type=int, help="master seed (default 0)")
@@ -50,7 +52,7 @@ def config_from_args(args: argparse.Namespace):
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
         "workers": args.workers, "seed": args.seed, "occlusion.level": args.occlusion,
-        "occlusion.definition": args.occlusion_definition,
+        "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
