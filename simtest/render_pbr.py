@@ -46,10 +46,12 @@ LIGHT_RADIUS = 0.08
 SPOT_SAMPLES = 8
 #: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
 INFINITE_PLANE = 50.0
-#: Longest light path (bounces) of the path tracer.
-MAX_DEPTH = 4
-#: Samples per pixel of the albedo / normal guide pass (at most the colour pass's).
-AUX_SPP = 4
+#: Longest light path of the path tracer (3: direct light plus one indirect bounce, which carries most of the
+#: interreflection in these rooms at a fraction of the cost of more bounces).
+MAX_DEPTH = 3
+#: Samples per pixel of the albedo / normal guide pass: its samples are jittered within the pixel, so one gives
+#: noisy rather than aliased edges, which the denoiser prefilters.
+AUX_SPP = 1
 #: Mitsuba camera frame (x left, y up, z forward) from the OpenCV camera frame (x right, y down, z forward).
 _R_CV_MI = np.diag([-1.0, -1.0, 1.0])
 #: First spawn key of the sampler seeds (scene spawn keys start with the scene index, < 10^7).
