@@ -122,20 +122,28 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
 
 @dataclass
 class ProfileBench:
-    """Seconds per annotated frame of the whole pipeline for each render profile and image size (rows of
-    ``(profile, width, height, seconds_per_frame)``), one worker, the same seed and scenes for every profile."""
+    """Seconds per annotated frame of the whole pipeline for each render profile and image size, one worker,
+    the same seed and scenes for every profile. Rows: ``(profile, width, height, wall s/frame, CPU s/frame)``;
+    CPU seconds (all threads of the process) are what a loaded machine changes least."""
 
-    rows: list[tuple[str, int, int, float]]
+    rows: list[tuple[str, int, int, float, float]]
     scenes: int
     frames_per_scene: int
     pbr_spp: int
 
     def table(self) -> str:
-        lines = ["| profile | image size | s/frame | frames/s |", "|---|---|---|---|"]
-        for profile, w, h, spf in self.rows:
+        lines = ["| profile | image size | s/frame (wall) | CPU s/frame |", "|---|---|---|---|"]
+        for profile, w, h, wall, cpu in self.rows:
             name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
-            lines.append(f"| {name} | {w}x{h} | {spf:.3f} | {1.0 / spf:.2f} |")
+            lines.append(f"| {name} | {w}x{h} | {wall:.2f} | {cpu:.2f} |")
         return "\n".join(lines)
+
+
+def _cpu_seconds() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,
@@ -154,6 +162,8 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
                 "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
             _load_objects(cfg)
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+                cpu0 = _cpu_seconds()
                 rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
-            rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written))
+                cpu = (_cpu_seconds() - cpu0) / rep.frames_written
+            rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu))
     return ProfileBench(rows, scenes, frames_per_scene, pbr_spp)

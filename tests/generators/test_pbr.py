@@ -136,3 +136,14 @@ def test_generate_without_extra_fails_before_writing(tmp_path):
     assert out.returncode == 2, out.stderr
     assert "pip install 'simtest[pbr]'" in out.stderr
     assert not out_dir.exists()
+
+
+def test_bench_profiles_reports_each_profile_and_size():
+    pytest.importorskip("mitsuba")
+    from simtest.bench import bench_profiles
+
+    res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
+                         objects="builtin-small", pbr_spp=2)
+    assert [(r[0], r[1], r[2]) for r in res.rows] == [("fast", 48, 36), ("pbr", 48, 36)]
+    assert all(r[3] > 0 and r[4] > 0 for r in res.rows)
+    assert "pbr (2 spp, denoised) | 48x36" in res.table()
