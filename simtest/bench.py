@@ -149,8 +149,8 @@ def _cpu_seconds() -> float:
 def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,
                    scenes: int = 2, frames_per_scene: int = 3, objects: str = "builtin", pbr_spp: int = 16,
                    seed: int = 0) -> ProfileBench:
-    """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading excluded) of each
-    profile at each ``(width, height)``, measured in one run."""
+    """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading and one warm-up
+    frame per profile excluded) of each profile at each ``(width, height)``, measured in one run."""
     from simtest.generators.pipeline import _load_objects, generate
 
     rows = []
@@ -162,6 +162,8 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
                 "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
             _load_objects(cfg)
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+                # warm-up outside the timing: GL context, path tracer and denoiser start-up
+                generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
                 cpu0 = _cpu_seconds()
                 rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
                 cpu = (_cpu_seconds() - cpu0) / rep.frames_written
