@@ -214,7 +214,9 @@ def _pbr_renderer(cfg: GenerateConfig, scene):
     from simtest.render_pbr import PbrRenderer
 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
-    return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise)
+    threads = max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.workers > 1 else None  # each worker its share
+    return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
+                       threads=threads)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:

@@ -237,16 +237,22 @@ class PbrRenderer:
         spp: Samples per pixel (>= 1).
         denoise: Denoise with Open Image Denoise (albedo and normal AOVs as guides).
         geomgroups: Which geom groups (0-5) are drawn, as for :class:`simtest.render.Renderer`.
+        threads: Size of the path tracer's thread pool (process-wide); ``None`` keeps Mitsuba's default (all
+            cores). Several generation workers each take their share of the cores.
 
     Raises:
         RenderError: If the ``pbr`` extra is not installed (the message names it), or ``fx != fy``.
     """
 
     def __init__(self, model: mujoco.MjModel, camera: CameraModel, spp: int = 16, denoise: bool = True,
-                 geomgroups: tuple[int, ...] = (0, 1, 2)) -> None:
+                 geomgroups: tuple[int, ...] = (0, 1, 2), threads: int | None = None) -> None:
         if int(spp) < 1:
             raise RenderError(f"samples per pixel must be >= 1, got {spp!r}")
         self._mi, self._oidn = _modules()
+        if threads is not None:
+            import drjit
+
+            drjit.set_thread_count(max(1, int(threads)))
         self.model, self.camera = model, camera
         self.spp, self.denoise = int(spp), bool(denoise)
         camera_sensor(self._mi, camera, self.spp)  # fail early on unsupported intrinsics

@@ -147,3 +147,12 @@ def test_bench_profiles_reports_each_profile_and_size():
     assert [(r[0], r[1], r[2]) for r in res.rows] == [("fast", 48, 36), ("pbr", 48, 36)]
     assert all(r[3] > 0 and r[4] > 0 for r in res.rows)
     assert "pbr (2 spp, denoised) | 48x36" in res.table()
+
+
+def test_pbr_same_bytes_with_1_or_2_workers(tmp_path, small_config):
+    pytest.importorskip("mitsuba")
+    cfg = small_config.replace(**{"scenes": 2, "frames_per_scene": 1, "camera.width": 48, "camera.height": 36,
+                                  "render.profile": "pbr", "render.pbr_spp": 2})
+    generate(cfg, tmp_path / "w1", progress=False)
+    generate(cfg.replace(workers=2), tmp_path / "w2", progress=False)
+    assert _digest(tmp_path / "w1") == _digest(tmp_path / "w2")
