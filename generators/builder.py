@@ -7,6 +7,7 @@ Distractors and the room (floor, walls, table or bin) are in group 0 / 2.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,7 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.camera import CameraModel
+from simtest.errors import AssetError
 from simtest.generators.config import GenerateConfig
 from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
@@ -162,8 +164,11 @@ class SceneBuilder:
             b.add_freejoint()
             gtype = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
                      "sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE}[d.shape]
-            b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=list(d.rgba), density=400,
-                       friction=list(OBJECT_FRICTION), condim=6, group=0)
+            textured = {} if d.image is None else {"material": self._texture_material(
+                ms, f"distractor_{j}", SurfaceSpec("flat", (1.0,) * 3, (1.0,) * 3, 1.0, 0.0, d.image), 1.0)}
+            rgba = list(d.rgba) if d.image is None else [1.0, 1.0, 1.0, 1.0]  # images are not tinted
+            b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=rgba, density=400,
+                       friction=list(OBJECT_FRICTION), condim=6, group=0, **textured)
 
         if cfg.occlusion.level is not None:
             for k in range(N_OCCLUDERS):
@@ -214,12 +219,21 @@ class SceneBuilder:
         return texture
 
     def _texture_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
+        if s.image is not None:
+            pixels = load_texture_image(s.image)
+            ms.add_texture(name=f"{name}_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, width=pixels.shape[1],
+                           height=pixels.shape[0], nchannel=3).data = pixels.tobytes()
+            return self._material(ms, name, s, size)
         builtin = {"checker": mujoco.mjtBuiltin.mjBUILTIN_CHECKER, "gradient": mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
                    "flat": mujoco.mjtBuiltin.mjBUILTIN_FLAT}[s.pattern]
         ms.add_texture(name=f"{name}_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=builtin,
                        rgb1=list(s.rgb1), rgb2=list(s.rgb2), width=128, height=128,
                        mark=mujoco.mjtMark.mjMARK_RANDOM if s.noise > 0 else mujoco.mjtMark.mjMARK_NONE,
                        random=s.noise, markrgb=list(s.rgb2))
+        return self._material(ms, name, s, size)
+
+    def _material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
+        """Material ``{name}_mat`` showing texture ``{name}_tex`` ``s.repeat * size`` times across a face."""
         mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False)
         textures = [""] * int(mujoco.mjtTextureRole.mjNTEXROLE)
         textures[int(mujoco.mjtTextureRole.mjTEXROLE_RGB)] = f"{name}_tex"
@@ -256,6 +270,28 @@ class SceneBuilder:
                                               ([0, -hy + t, h + wall_h / 2], [hx, t, wall_h / 2])]):
                 ms.worldbody.add_geom(name=f"bin_wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,
                                       material=table_mat, group=2, friction=list(OBJECT_FRICTION))
+
+
+#: Longest side (pixels) of an image texture; larger images are downsampled.
+MAX_TEXTURE_SIZE = 512
+
+
+@functools.lru_cache(maxsize=32)
+def load_texture_image(path: str) -> np.ndarray:
+    """An image file as an RGB uint8 array (H, W, 3), downsampled to at most ``MAX_TEXTURE_SIZE`` pixels.
+
+    Raises:
+        AssetError: If the file cannot be read as an image.
+    """
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im = im.convert("RGB")
+            im.thumbnail((MAX_TEXTURE_SIZE, MAX_TEXTURE_SIZE))
+            return np.asarray(im, dtype=np.uint8).copy()
+    except (OSError, ValueError) as exc:
+        raise AssetError(f"texture image {path!r} could not be read ({exc}); use a png or jpg file") from None
 
 
 def _full_inertia(I: np.ndarray) -> list[float]:

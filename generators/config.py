@@ -102,11 +102,13 @@ class MaterialConfig:
     shininess: tuple[float, float] = field(default=(0.0, 0.8), metadata=_rng_pair(0.0, 1.0))
     reflectance: tuple[float, float] = field(default=(0.0, 0.15), metadata=_rng_pair(0.0, 1.0))
     background_textures: bool = True  # procedural table / floor / wall textures
+    textures: str | None = None  # folder of images (png / jpg) for the table, floor, walls and distractors
 
 
 @dataclass(frozen=True)
 class RenderConfig:
-    profile: Literal["fast", "quality"] = field(default="fast", metadata=_bounds(choices=("fast", "quality")))
+    profile: Literal["fast", "quality", "pbr"] = field(default="fast",
+                                                       metadata=_bounds(choices=("fast", "quality", "pbr")))
     depth_scale: float = field(default=0.1, metadata=_bounds(1e-3, 100.0))  # mm per depth PNG unit (BOP)
     # rgb/ images: JPEG as in BOP's PBR layout, or lossless PNG; JPEG quality 1-100.
     rgb_format: Literal["jpg", "png"] = field(default="jpg", metadata=_bounds(choices=("jpg", "png")))
@@ -114,6 +116,8 @@ class RenderConfig:
     coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
     # box of each COCO annotation: whole object in the image (BOP toolkit default) or its visible part
     coco_bbox: Literal["amodal", "modal"] = field(default="amodal", metadata=_bounds(choices=("amodal", "modal")))
+    pbr_spp: int = field(default=16, metadata=_bounds(1, 65536))  # path-traced samples per pixel (pbr profile)
+    pbr_denoise: bool = True  # denoise pbr images with Open Image Denoise (albedo + normal guides)
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ which worker ran it, on how many workers there were, or on whether the run was r
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import multiprocessing as mp
 import os
@@ -69,11 +70,16 @@ class GenerateReport:
         return [s for s in self.scenes if s.attempts > 1]
 
 
-def _versions() -> dict[str, str]:
+def _versions(cfg: GenerateConfig) -> dict[str, str]:
     import mujoco
 
-    return {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
-            "python": platform.python_version()}
+    out = {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+           "python": platform.python_version()}
+    if cfg.render.profile == "pbr":
+        from simtest.render_pbr import renderer_versions
+
+        out.update(renderer_versions())
+    return out
 
 
 def _load_objects(cfg: GenerateConfig):
@@ -157,7 +163,9 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
                          coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
-    with Renderer(scene.model, cfg.camera.width, cfg.camera.height, profile=cfg.render.profile) as renderer:
+    pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
+    with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
+                  profile="fast" if pbr is not None else cfg.render.profile) as renderer:
         for im_id, (cam, arm_q) in enumerate(cameras):
             if arm_q is not None:
                 scene.set_arm(arm_q)
@@ -173,7 +181,12 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
                 record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
                                       amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
                                       occ_cfg.standing_first)
-            frame = renderer.render(scene.data, scene.camera_id)
+            frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
+            if pbr is not None:
+                from simtest.render_pbr import frame_seed
+
+                rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
+                frame = dataclasses.replace(frame, rgb=rgb)
             anns = annotate(scene, frame, cam, objects)
             writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
                        [a.mask_visib for a in anns])
@@ -195,6 +208,18 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
         "spec": scene.spec.to_dict()})
     writer.close()
     return report
+
+
+def _pbr_renderer(cfg: GenerateConfig, scene):
+    """The path tracer of the ``pbr`` profile for ``scene``, or ``None`` for the rasterized profiles."""
+    if cfg.render.profile != "pbr":
+        return None
+    from simtest.render_pbr import PbrRenderer
+
+    camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+    threads = max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.workers > 1 else None  # each worker its share
+    return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
+                       threads=threads)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:
@@ -273,6 +298,10 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         DatasetError: Non-empty output without ``resume``/``overwrite``, or a resume with another config.
     """
     out = Path(out_dir)
+    if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
+        from simtest.render_pbr import require_pbr
+
+        require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = _load_objects(cfg)
@@ -282,7 +311,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
     if not (out / MANIFEST).exists():
         atomic_write_json(out / MANIFEST, {
-            "format": "bop-scenewise", "generator": "simtest", "versions": _versions(), "seed": cfg.seed,
+            "format": "bop-scenewise", "generator": "simtest", "versions": _versions(cfg), "seed": cfg.seed,
             "config": cfg.to_dict(), "object_set": objects.name, "objects": [
                 {"obj_id": o.obj_id, "name": o.name, "category": o.category, "source": o.source} for o in objects],
             "command_line": list(command_line if command_line is not None else sys.argv),

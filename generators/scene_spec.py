@@ -8,7 +8,9 @@ point of interest (the centre of the settled objects), which is only known after
 from __future__ import annotations
 
 import colorsys
-from dataclasses import asdict, dataclass
+import functools
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -49,6 +51,7 @@ class DistractorSpec:
     position: tuple[float, float, float]
     quat_wxyz: tuple[float, float, float, float]
     rgba: tuple[float, float, float, float]
+    image: str | None = None  # an image texture instead of the flat colour (``materials.textures``)
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,7 @@ class SurfaceSpec:
     rgb2: tuple[float, float, float]
     repeat: float  # texture repeats per metre
     noise: float  # fraction of randomly coloured texels ("random" marks), 0..1
+    image: str | None = None  # an image file used instead of the pattern (``materials.textures``)
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,34 @@ def _surface(rng: np.random.Generator, randomize: bool, base: tuple[float, float
     c1 = _colour(rng)
     c2 = tuple(float(np.clip(c + rng.normal(0, 0.15), 0, 1)) for c in c1)
     return SurfaceSpec(pattern, c1, c2, float(rng.uniform(1.0, 8.0)), float(rng.uniform(0.0, 0.3)))
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+@functools.lru_cache(maxsize=8)
+def texture_images(folder: str | None) -> tuple[str, ...]:
+    """The image files (``.png``, ``.jpg``, ``.jpeg``; sorted absolute paths) of ``materials.textures``.
+
+    Raises:
+        ConfigError: If the folder does not exist or holds no image.
+    """
+    if folder is None:
+        return ()
+    root = Path(folder).expanduser()
+    if not root.is_dir():
+        raise ConfigError(f"materials.textures = {folder!r} is not a folder; give a folder of "
+                          f"{'/'.join(IMAGE_SUFFIXES)} images")
+    files = tuple(str(p.resolve()) for p in sorted(root.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise ConfigError(f"materials.textures = {folder!r} holds no {'/'.join(IMAGE_SUFFIXES)} image")
+    return files
+
+
+def _with_image(s: SurfaceSpec, images: tuple[str, ...], rng: np.random.Generator) -> SurfaceSpec:
+    """``s`` textured with a random image of ``images``, repeated 0.5-2 times per metre, untinted."""
+    return SurfaceSpec("flat", (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), float(rng.uniform(0.5, 2.0)), 0.0,
+                       images[int(rng.integers(len(images)))])
 
 
 def _jitter_colour(rgba, amount: float, rng: np.random.Generator) -> tuple[float, float, float, float]:
@@ -226,6 +258,11 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
     table = _surface(rng, tex, (0.55, 0.45, 0.35))
     floor = _surface(rng, tex, (0.35, 0.35, 0.35))
     walls = _surface(rng, tex, (0.6, 0.6, 0.62))
+
+    images = texture_images(mat.textures)
+    if images:  # drawn only with a texture folder, so the default stream is unchanged
+        table, floor, walls = (_with_image(srf, images, rng) for srf in (table, floor, walls))
+        distractors = [replace(d, image=images[int(rng.integers(len(images)))]) for d in distractors]
 
     views = tuple(_sample_views(cfg, rng))
     return SceneSpec(scene_index, attempt, tuple(placements), tuple(distractors), tuple(lights), ambient,

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from simtest.generators.config import GenerateConfig
 
-__all__ = ["bench_generate", "GenerateBench"]
+__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench"]
 
 
 @dataclass
@@ -118,3 +118,54 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
             fps2_wall = rep2.frames_per_second
     raw = _raw_fps(cfg)
     return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2, fps2_wall)
+
+
+@dataclass
+class ProfileBench:
+    """Seconds per annotated frame of the whole pipeline for each render profile and image size, one worker,
+    the same seed and scenes for every profile. Rows: ``(profile, width, height, wall s/frame, CPU s/frame)``;
+    CPU seconds (all threads of the process) are what a loaded machine changes least."""
+
+    rows: list[tuple[str, int, int, float, float]]
+    scenes: int
+    frames_per_scene: int
+    pbr_spp: int
+
+    def table(self) -> str:
+        lines = ["| profile | image size | s/frame (wall) | CPU s/frame |", "|---|---|---|---|"]
+        for profile, w, h, wall, cpu in self.rows:
+            name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
+            lines.append(f"| {name} | {w}x{h} | {wall:.2f} | {cpu:.2f} |")
+        return "\n".join(lines)
+
+
+def _cpu_seconds() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,
+                   scenes: int = 2, frames_per_scene: int = 3, objects: str = "builtin", pbr_spp: int = 16,
+                   seed: int = 0) -> ProfileBench:
+    """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading and one warm-up
+    frame per profile excluded) of each profile at each ``(width, height)``, measured in one run."""
+    from simtest.generators.pipeline import _load_objects, generate
+
+    rows = []
+    for w, h in sizes:
+        for profile in profiles:
+            cfg = GenerateConfig().replace(**{
+                "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": w,
+                "camera.height": h, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
+                "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
+            _load_objects(cfg)
+            with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+                # warm-up outside the timing: GL context, path tracer and denoiser start-up
+                generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
+                cpu0 = _cpu_seconds()
+                rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
+                cpu = (_cpu_seconds() - cpu0) / rep.frames_written
+            rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu))
+    return ProfileBench(rows, scenes, frames_per_scene, pbr_spp)

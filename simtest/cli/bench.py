@@ -20,6 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--frames-per-scene", type=int, default=10)
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
+    g.add_argument("--profiles", help="instead: seconds per frame of these render profiles, e.g. fast,quality,pbr")
+    g.add_argument("--sizes", help="image sizes for --profiles, e.g. 320x240,640x480 (default --width x --height)")
+    g.add_argument("--pbr-spp", type=int, default=16, help="samples per pixel of the pbr profile (--profiles)")
     g.set_defaults(func=_generate)
     gr = bsub.add_parser("grasp", parents=[common_parser()],
                          help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
@@ -46,9 +49,31 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _generate(args: argparse.Namespace) -> int:
     from simtest.benchmarks.generate import bench_generate
 
+    if args.profiles:
+        return _profiles(args)
     res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
                          args.objects, two_workers=not args.no_workers)
     print(res.table())
+    return 0
+
+
+def _profiles(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.generate import bench_profiles
+    from simtest.errors import ConfigError
+
+    profiles = [p.strip() for p in args.profiles.split(",") if p.strip()]
+    bad = [p for p in profiles if p not in ("fast", "quality", "pbr")]
+    if bad or not profiles:
+        raise ConfigError(f"--profiles: unknown profile(s) {bad}; choose from fast, quality, pbr")
+    try:
+        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes.split(",")] if args.sizes \
+            else [(args.width, args.height)]
+    except ValueError:
+        sizes = [()]
+    if any(len(s) != 2 for s in sizes):
+        raise ConfigError(f"--sizes: expected WIDTHxHEIGHT[,WIDTHxHEIGHT...], got {args.sizes!r}")
+    print(bench_profiles(profiles, sizes, args.objects_per_scene, args.scenes, args.frames_per_scene,
+                         args.objects, pbr_spp=args.pbr_spp).table())
     return 0
 
 

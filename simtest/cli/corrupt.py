@@ -28,7 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--weather", metavar="NAME", help="image corruption (any of the 19 ImageNet-C names)")
     p.add_argument("--severity", type=int, default=4, metavar="S", help="severity 1..5 (default: 4)")
     p.add_argument("--occlusion", metavar="L1|L2|L3", help="paste-occlusion level")
-    p.add_argument("--occlusion-kind", default="paste", metavar="KIND", help="occlusion kind (default: paste)")
+    p.add_argument("--occlusion-kind", default="paste", metavar="KIND",
+                   help="paste (noise/crop ellipses and polygons, default) or objects (cutouts of the dataset's "
+                        "unoccluded rendered objects)")
     p.add_argument("--occlusion-definition", default="pascal3d+", metavar="DEF",
                    help="level bands: pascal3d+ (default) or objectcentric")
     p.add_argument("--depth-noise", choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),

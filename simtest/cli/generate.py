@@ -25,11 +25,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", choices=["shell", "wrist", "sequence"], help="camera rig")
     p.add_argument("--width", type=int, help="image width (pixels)")
     p.add_argument("--height", type=int, help="image height (pixels)")
-    p.add_argument("--profile", choices=["fast", "quality"], help="render profile (quality: shadows, MSAA)")
+    p.add_argument("--profile", choices=["fast", "quality", "pbr"],
+                   help="render profile (quality: shadows, MSAA; pbr: path-traced RGB, needs simtest[pbr])")
     p.add_argument("--occlusion", choices=["L0", "L1", "L2", "L3", "mixed"],
                    help="physical occluders so a target per image lands in this level's band")
     p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
                    help="level bands used by --occlusion (default pascal3d+)")
+    p.add_argument("--textures", metavar="DIR",
+                   help="folder of png/jpg images for the table, floor, walls and distractors (default: procedural)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--rgb-format", choices=["jpg", "png"],
                    help="rgb/ image format: jpg (BOP's PBR layout, default) or png (lossless)")
@@ -54,7 +57,7 @@ def config_from_args(args: argparse.Namespace):
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
         "render.rgb_format": args.rgb_format,
         "workers": args.workers, "seed": args.seed, "occlusion.level": args.occlusion,
-        "occlusion.definition": args.occlusion_definition,
+        "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}

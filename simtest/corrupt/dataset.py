@@ -6,7 +6,8 @@ Everything that is ground truth is copied byte-identically: ``camera.json``, ``m
 * ``rgb/`` images, when an image corruption or an occlusion is asked (written in the same format and file
   name; JPEG files are re-encoded at quality 95);
 * ``depth/`` PNGs, only when a depth-noise preset is asked (same ``depth_scale`` as in ``scene_camera.json``);
-* with a paste occlusion, the ``mask_visib/`` files of occluded instances and ``scene_gt_info.json``
+* with a paste occlusion (procedural shapes, or with the ``objects`` kind cutouts of the dataset's own
+  unoccluded objects, :mod:`simtest.corrupt.cutouts`), the ``mask_visib/`` files of occluded instances and ``scene_gt_info.json``
   (``px_count_visib``, ``visib_fract``, ``bbox_visib``): in the occluded copy the visible masks and
   visibility fractions include the pasted occluders, while amodal masks, poses, ``px_count_all`` and
   ``px_count_valid`` (clean depth) are unchanged. ``scene_gt_coco.json``, if present, is copied unchanged and
@@ -113,6 +114,11 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         if rgb_dir.is_dir():
             work.extend((scene, p) for p in sorted(rgb_dir.iterdir()) if p.is_file() and p.stem.isdigit())
     change_rgb = spec.weather is not None or spec.occlusion is not None
+    bank = None
+    if spec.occlusion is not None and spec.occlusion_kind == "objects":
+        from simtest.corrupt.cutouts import object_cutouts
+
+        bank = object_cutouts(scenes)
 
     produced: set[Path] = set()  # source files whose output was written by the corruption
     occlusion_records: list[dict[str, Any]] = []
@@ -122,7 +128,8 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         for scene, rgb_path in work:
             meta = cache[scene]
             scene_id, im_id = int(scene.name), int(rgb_path.stem)
-            rec = _corrupt_image(src, dst, scene, rgb_path, scene_id, im_id, meta, spec, seed, change_rgb, produced)
+            rec = _corrupt_image(src, dst, scene, rgb_path, scene_id, im_id, meta, spec, seed, change_rgb, produced,
+                                 bank)
             if rec is not None:
                 occlusion_records.append(rec)
                 gt_info_dirty.add(scene)
@@ -178,7 +185,7 @@ def _record(src: Path, spec: CorruptionSpec, seed: int, images: int, change_rgb:
 
 def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: int, im_id: int,
                    meta: dict[str, Any], spec: CorruptionSpec, seed: int, change_rgb: bool,
-                   produced: set[Path]) -> dict[str, Any] | None:
+                   produced: set[Path], bank: list[np.ndarray] | None = None) -> dict[str, Any] | None:
     cam = meta["camera"].get(str(im_id))
     if cam is None:
         raise DatasetError(f"image id {im_id} of {rgb_path} has no entry in {scene / 'scene_camera.json'}")
@@ -203,7 +210,8 @@ def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: 
                  for g, p in enumerate(visib_paths)]
 
     rng = child_rng(seed, scene_id, im_id)
-    out_rgb, out_depth, occ, info = spec.apply_with_info(rgb, depth, masks if masks is not None else [], rng, K)
+    out_rgb, out_depth, occ, info = spec.apply_with_info(rgb, depth, masks if masks is not None else [], rng, K,
+                                                         occluder_bank=bank)
 
     if change_rgb:
         _atomic_write(dst / rgb_path.relative_to(src),

@@ -16,7 +16,7 @@ __all__ = ["CorruptionSpec", "OCCLUSION_KINDS", "union_mask"]
 
 #: Occlusion kinds a 2D transform can apply. Physical occluders (objects placed between camera and target)
 #: are a scene-generation option, measured from the renderer, not a post-hoc corruption.
-OCCLUSION_KINDS: tuple[str, ...] = ("paste",)
+OCCLUSION_KINDS: tuple[str, ...] = ("paste", "objects")
 
 
 def union_mask(masks: np.ndarray | Sequence[np.ndarray] | None, shape: tuple[int, int]) -> np.ndarray:
@@ -43,7 +43,8 @@ class CorruptionSpec:
         severity: 1..5 for ``weather``.
         depth_noise: A preset name from :data:`simtest.corrupt.DEPTH_PRESETS`, or None.
         occlusion: Occlusion level 1..3 (``"L1".."L3"`` accepted and stored as an int), or None (0 -> None).
-        occlusion_kind: ``"paste"`` (2D textured occluders; depth untouched).
+        occlusion_kind: ``"paste"`` (2D textured occluders; depth untouched) or ``"objects"`` (2D cutouts of
+            rendered objects, :mod:`simtest.corrupt.cutouts`, passed as ``occluder_bank``; depth untouched).
         occlusion_definition: ``"pascal3d+"`` or ``"objectcentric"`` level bands.
     """
 
@@ -100,7 +101,8 @@ class CorruptionSpec:
         return CorruptionSpec(**dict(d))
 
     def apply(self, rgb: np.ndarray, depth: np.ndarray | None, masks: np.ndarray | Sequence[np.ndarray] | None,
-              rng: np.random.Generator, K: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+              rng: np.random.Generator, K: np.ndarray | None, occluder_bank: Sequence[np.ndarray] | None = None
+              ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """Corrupt one observation.
 
         Order: paste occlusion on the clean image, then the image corruption (so fog or frost also covers the
@@ -115,18 +117,20 @@ class CorruptionSpec:
                 ``occlusion`` is set. Typically the visible masks of the annotated objects.
             rng: Source of all randomness.
             K: 3x3 intrinsics (pixels); required by the Kinect-v1 and D435 depth presets.
+            occluder_bank: RGBA patches pasted by the ``objects`` occlusion kind (required by it).
 
         Returns:
             ``(rgb, depth, occluder_mask)``: new arrays (``depth`` is returned as given, as float32, when no
             depth noise is asked, or None if it was None); ``occluder_mask`` is ``(H, W)`` bool, all False
             without occlusion. Update visible masks with :func:`simtest.corrupt.update_visible_masks`.
         """
-        out_rgb, out_depth, occ, _ = self.apply_with_info(rgb, depth, masks, rng, K)
+        out_rgb, out_depth, occ, _ = self.apply_with_info(rgb, depth, masks, rng, K, occluder_bank)
         return out_rgb, out_depth, occ
 
     def apply_with_info(self, rgb: np.ndarray, depth: np.ndarray | None,
                         masks: np.ndarray | Sequence[np.ndarray] | None, rng: np.random.Generator,
-                        K: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, dict[str, Any] | None]:
+                        K: np.ndarray | None, occluder_bank: Sequence[np.ndarray] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, dict[str, Any] | None]:
         """As :meth:`apply`, plus the occlusion info dict (achieved FG/BG fractions) or None."""
         rgb = np.asarray(rgb)
         if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -140,7 +144,13 @@ class CorruptionSpec:
             if masks is None:
                 raise ConfigError("occlusion needs the object masks (masks=None was given)")
             obj = union_mask(masks, (h, w))
-            out, occ, occ_info = paste_occluders(out, obj, self.occlusion, occ_rng,
+            bank = None
+            if self.occlusion_kind == "objects":
+                if not occluder_bank:
+                    raise ConfigError("the 'objects' occlusion kind needs object cutouts (occluder_bank, see "
+                                      "simtest.corrupt.cutouts.object_cutouts); none were given")
+                bank = occluder_bank
+            out, occ, occ_info = paste_occluders(out, obj, self.occlusion, occ_rng, occluder_bank=bank,
                                                  definition=self.occlusion_definition)
             info = occ_info.to_dict()
         if self.weather is not None:

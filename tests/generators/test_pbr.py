@@ -1,0 +1,158 @@
+"""The path-traced ``pbr`` profile: only ``rgb/`` differs from the fast profile, the image is registered with the
+exact masks, a fixed seed repeats its bytes, and a missing extra says what to install."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from simtest.errors import ConfigError
+from simtest.generators.config import GenerateConfig
+from simtest.generators.pipeline import generate
+from simtest.io.bop import read_image, read_json, read_mask, scene_dirs
+
+W, H = 96, 72
+
+
+def _digest(root: Path) -> dict[str, str]:
+    """sha1 of every file under ``root`` except the manifest (compared separately)."""
+    return {str(p.relative_to(root)): hashlib.sha1(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != "manifest.json"}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory, small_config):
+    """The same seed made with the fast profile and twice with the pbr profile (4 spp, denoised), with the
+    principal point well off the image centre so a registration error would show."""
+    pytest.importorskip("mitsuba")
+    pytest.importorskip("pyoidn")
+    cfg = small_config.replace(**{
+        "scenes": 1, "frames_per_scene": 2, "camera.width": W, "camera.height": H,
+        "camera.cx": (W - 1) / 2 + 6.0, "camera.cy": (H - 1) / 2 - 4.0, "render.pbr_spp": 4})
+    root = tmp_path_factory.mktemp("pbr")
+    generate(cfg, root / "fast", progress=False)
+    generate(cfg.replace(**{"render.profile": "pbr"}), root / "pbr", progress=False)
+    generate(cfg.replace(**{"render.profile": "pbr"}), root / "pbr_again", progress=False)
+    return root
+
+
+def test_pbr_and_fast_differ_only_in_rgb(runs):
+    fast, pbr = _digest(runs / "fast"), _digest(runs / "pbr")
+    assert fast.keys() == pbr.keys() and len(fast) > 10
+    rgb = {k for k in fast if "/rgb/" in k}
+    assert len(rgb) == 2
+    assert {k: v for k, v in fast.items() if k not in rgb} == {k: v for k, v in pbr.items() if k not in rgb}
+    assert all(fast[k] != pbr[k] for k in rgb)
+    manifests = []
+    for name in ("fast", "pbr"):
+        m = read_json(runs / name / "manifest.json")
+        m.pop("command_line")
+        m["config"]["render"].pop("profile")
+        for key in ("mitsuba", "mitsuba_variant", "pyoidn"):
+            assert (key in m["versions"]) == (name == "pbr")
+            m["versions"].pop(key, None)
+        manifests.append(m)
+    assert manifests[0] == manifests[1]
+
+
+def test_pbr_same_seed_same_bytes(runs):
+    assert _digest(runs / "pbr") == _digest(runs / "pbr_again")
+
+
+def _shifted_gradients(grey: np.ndarray, labels: np.ndarray, axis: int, shifts: range) -> dict[int, float]:
+    """Mean |difference of neighbouring pixels| along ``axis`` at the label boundaries moved by each shift."""
+    n = grey.shape[axis]
+    diff = np.abs(np.diff(grey, axis=axis))
+    edge = np.diff(labels, axis=axis) != 0
+    out = {}
+    for s in shifts:
+        lo, hi = max(0, -s), min(n - 1, n - 1 - s)  # keep the shifted pairs inside the image
+        src = np.take(edge, range(lo, hi), axis=axis)
+        dst = np.take(diff, range(lo + s, hi + s), axis=axis)
+        out[s] = float(dst[src].mean())
+    return out
+
+
+def test_pbr_object_boundaries_coincide_with_masks(runs):
+    """Image gradients peak on the exact visible-mask boundaries, not 1-3 px off (both axes, off-centre K)."""
+    scene = scene_dirs(runs / "pbr" / "train_pbr")[0]
+    gt = read_json(scene / "scene_gt.json")
+    totals: dict[tuple[int, int], list[float]] = {}
+    for im_key, anns in gt.items():
+        im_id = int(im_key)
+        grey = read_image(scene, im_id).astype(np.float64).mean(axis=-1)
+        labels = np.zeros((H, W), dtype=np.int32)
+        for gt_id in range(len(anns)):
+            labels[read_mask(scene, im_id, gt_id, visible=True) > 0] = gt_id + 1
+        assert labels.any()
+        for axis in (0, 1):
+            for s, g in _shifted_gradients(grey, labels, axis, range(-3, 4)).items():
+                totals.setdefault((axis, s), []).append(g)
+    for axis in (0, 1):
+        g = {s: float(np.mean(totals[(axis, s)])) for s in range(-3, 4)}
+        assert g[0] > max(g[-1], g[1]), (axis, g)
+        assert g[0] > 1.8 * max(g[-3], g[-2], g[2], g[3]), (axis, g)
+
+
+def test_pbr_config_fields_are_validated():
+    with pytest.raises(ConfigError, match="pbr_spp"):
+        GenerateConfig().replace(**{"render.pbr_spp": 0})
+    with pytest.raises(ConfigError, match="profile"):
+        GenerateConfig().replace(**{"render.profile": "raytraced"})
+
+
+_WITHOUT_MITSUBA = "import sys; sys.modules['mitsuba'] = None\n"
+
+
+def test_missing_extra_names_the_install_command():
+    code = _WITHOUT_MITSUBA + (
+        "import mujoco\n"
+        "from simtest.camera import CameraModel\n"
+        "from simtest.errors import RenderError\n"
+        "from simtest.render_pbr import PbrRenderer\n"
+        "model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
+        "try:\n"
+        "    PbrRenderer(model, CameraModel.default(32, 24))\n"
+        "except RenderError as exc:\n"
+        "    print(exc)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "pip install 'simtest[pbr]'" in out.stdout and "pbr" in out.stdout
+
+
+def test_generate_without_extra_fails_before_writing(tmp_path):
+    out_dir = tmp_path / "ds"
+    code = _WITHOUT_MITSUBA + (
+        "from simtest.cli import main\n"
+        f"sys.exit(main(['generate', '--profile', 'pbr', '--scenes', '1', '--width', '32', '--out', "
+        f"{json.dumps(str(out_dir))}, '--quiet']))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    assert "pip install 'simtest[pbr]'" in out.stderr
+    assert not out_dir.exists()
+
+
+def test_bench_profiles_reports_each_profile_and_size():
+    pytest.importorskip("mitsuba")
+    from simtest.bench import bench_profiles
+
+    res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
+                         objects="builtin-small", pbr_spp=2)
+    assert [(r[0], r[1], r[2]) for r in res.rows] == [("fast", 48, 36), ("pbr", 48, 36)]
+    assert all(r[3] > 0 and r[4] > 0 for r in res.rows)
+    assert "pbr (2 spp, denoised) | 48x36" in res.table()
+
+
+def test_pbr_same_bytes_with_1_or_2_workers(tmp_path, small_config):
+    pytest.importorskip("mitsuba")
+    cfg = small_config.replace(**{"scenes": 2, "frames_per_scene": 1, "camera.width": 48, "camera.height": 36,
+                                  "render.profile": "pbr", "render.pbr_spp": 2})
+    generate(cfg, tmp_path / "w1", progress=False)
+    generate(cfg.replace(workers=2), tmp_path / "w2", progress=False)
+    assert _digest(tmp_path / "w1") == _digest(tmp_path / "w2")
