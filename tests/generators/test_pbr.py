@@ -140,7 +140,7 @@ def test_generate_without_extra_fails_before_writing(tmp_path):
 
 def test_bench_profiles_reports_each_profile_and_size():
     pytest.importorskip("mitsuba")
-    from simtest.bench import bench_profiles
+    from simtest.benchmarks.generate import bench_profiles
 
     res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
                          objects="builtin-small", pbr_spp=2)
