@@ -13,7 +13,8 @@ Units (``units=``): ``"m"``, ``"mm"``, or ``"auto"`` (metres unless the mesh is 
 :data:`MAX_SIZE_M` across, then millimetres). Whatever the units, the size in metres must lie between
 :data:`MIN_SIZE_M` and :data:`MAX_SIZE_M`, else an :class:`AssetError` says which units would fit.
 Meshes from files are re-centred at their bbox centre; the subtracted centre (metres, file frame) is
-recorded in ``extra["origin_offset"]``. Loaded meshes have no known symmetries.
+recorded in ``extra["origin_offset"]``. Mesh files carry no symmetries; ``load_object_set`` detects them
+(``symmetry="auto"``, see :mod:`simtest.objects.symmetry_detect`) unless told ``symmetry="none"``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from simtest.io.bop import read_json
 from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_models_info,
                                     read_symmetries)
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, validate_mesh
+from simtest.objects.symmetry_detect import SYMMETRY_POLICIES, apply_symmetry_policy
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
            "read_bop_models", "load_dataset_objects", "MESH_EXTENSIONS", "UNITS", "MIN_SIZE_M", "MAX_SIZE_M"]
@@ -186,7 +188,8 @@ def load_mesh_folder(folder: str | Path, units: str = "auto") -> ObjectSet:
     return ObjectSet(objects, name=str(folder))
 
 
-def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int = 0) -> ObjectSet:
+def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int = 0,
+                    symmetry: str = "auto") -> ObjectSet:
     """An object set by name or path.
 
     Args:
@@ -195,6 +198,9 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
         units: ``"m"``, ``"mm"`` or ``"auto"`` for files; BOP folders read ``"auto"`` as millimetres.
             Ignored for built-in sets.
         seed: Seed of the built-in sets (ignored for files).
+        symmetry: ``"auto"``: mesh files that declare no symmetry get the detected ones
+            (:func:`~simtest.objects.symmetry_detect.apply_symmetry_policy`); ``"none"``: they get none.
+            Built-in sets and BOP models folders keep their own symmetries.
 
     Raises:
         AssetError: Unknown name or missing path (listing the built-in names), or any loading error.
@@ -203,6 +209,8 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
 
     if units not in UNITS:
         raise AssetError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
+    if symmetry not in SYMMETRY_POLICIES:
+        raise AssetError(f"symmetry must be one of {', '.join(SYMMETRY_POLICIES)}, got {symmetry!r}")
     text = str(spec)
     if text in BUILTIN_SETS:
         return load_builtin(text, seed)
@@ -210,9 +218,9 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
     if path.is_dir():
         if (path / INFO_FILE).exists() or (path / "models" / INFO_FILE).exists():
             return read_bop_models(path, units="mm" if units == "auto" else units)
-        return load_mesh_folder(path, units)
+        return apply_symmetry_policy(load_mesh_folder(path, units), symmetry)
     if path.is_file():
-        return ObjectSet([load_mesh_file(path, units=units)], name=str(path))
+        return apply_symmetry_policy(ObjectSet([load_mesh_file(path, units=units)], name=str(path)), symmetry)
     raise AssetError(f"object set {text!r} not found: not a built-in set ({', '.join(BUILTIN_SETS)}) and no such "
                      "file or folder")
 
