@@ -30,6 +30,7 @@ from simtest.errors import AssetError, DatasetError
 from simtest.io.bop import read_json
 from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_models_info,
                                     read_symmetries)
+from simtest.objects.collision import open_mesh_note
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, validate_mesh
 from simtest.objects.symmetry_detect import SYMMETRY_POLICIES, apply_symmetry_policy
 
@@ -146,17 +147,17 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     verts = np.asarray(mesh.vertices) * scale
     center = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     mesh = trimesh.Trimesh(verts - center, np.asarray(mesh.faces), process=False)
-    if not mesh.is_watertight:
-        warnings.warn(f"{path}: mesh is not watertight; mass, inertia and collision use its convex hull",
-                      stacklevel=2)
     if obj_id is None:
         match = _BOP_NAME.fullmatch(path.stem)
         obj_id = int(match.group(1)) if match else 1
     stem = path.stem
-    return ObjectModel(
+    obj = ObjectModel(
         obj_id=obj_id, name=name or stem, category=category or (re.sub(r"_\d+$", "", stem) or stem),
         instance=0, mesh=mesh, density=density, rgba=rgba or (0.7, 0.7, 0.7, 1.0), source=str(path),
         extra={"units": unit, "scale": scale, "origin_offset": center.tolist()})
+    if not mesh.is_watertight:
+        warnings.warn(f"{path}: {open_mesh_note(obj)}", stacklevel=2)
+    return obj
 
 
 def load_mesh_folder(folder: str | Path, units: str = "auto") -> ObjectSet:
