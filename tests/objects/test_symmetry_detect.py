@@ -206,3 +206,14 @@ def test_results_are_cached_and_copies():
 def test_detects_on_object_models():
     obj = ObjectModel(1, "hex", "nut", 0, _prism(6))
     assert len(detect_symmetries(obj)[0]) == 11
+
+
+def test_detected_symmetries_are_exported_as_bop_models(mesh_folder, tmp_path):
+    """``objects export`` writes what was detected into models_info.json, and reading it back keeps it."""
+    out = tmp_path / "models"
+    assert main(["objects", "export", "--set", str(mesh_folder), "--out", str(out)]) == 0
+    exported = load_object_set(out)
+    original = load_object_set(mesh_folder)
+    for a, b in zip(original, exported):
+        assert b.symmetry_label() == a.symmetry_label(), a.name
+        assert same_transforms(list(b.symmetries_discrete), list(a.symmetries_discrete))
