@@ -328,7 +328,10 @@ def penetrating(grasps: GraspSet, parts, gripper: Gripper = PANDA, margin: float
         for chunk in np.array_split(near, max(1, len(near) // 16)):
             if len(chunk) == 0:
                 continue
-            signed = world[chunk] @ normals.T + offsets  # (C, P, F): <= 0 inside every face plane
+            w = world[chunk]
+            # (C, P, F) plane distances, <= 0 inside every face; elementwise (no BLAS threads: predictable
+            # on a busy machine)
+            signed = w[..., 0:1] * normals[:, 0] + w[..., 1:2] * normals[:, 1] + w[..., 2:3] * normals[:, 2] + offsets
             hit[chunk] |= (signed.max(axis=2) < -margin).any(axis=1)
             v = np.einsum("cji,cvj->cvi", R[chunk], verts[None] - t[chunk, None, :])  # vertices, gripper frame
             b = boxes[chunk]  # (C, 3, 2, 3)

@@ -11,7 +11,7 @@ Every rotational symmetry fixes the surface centroid and permutes the principal 
 second moment, so the candidate axes pass through the centroid: the model's x, y and z axes (most meshes
 are modelled axis-aligned), the principal axes, and for an axis with a 3-fold or higher symmetry the
 perpendicular directions towards the farthest surface point (the flip axes of a prism). On each axis a
-continuous symmetry is tried first (several unrelated angles), else the 2, 3, 4 and 6-fold rotations.
+continuous symmetry is tried first (several unrelated angles), else the 2, 3, 4, 5 and 6-fold rotations.
 The discrete rotations found generate a group, whose elements are all checked and returned.
 
 Results are cached in-process per mesh hash and tolerance.
@@ -42,13 +42,14 @@ __all__ = ["detect_symmetries", "apply_symmetry_policy", "symmetry_status", "SYM
 SYMMETRY_POLICIES = ("auto", "none")
 #: Largest surface deviation of a symmetry, as a fraction of the object diameter.
 DEFAULT_TOLERANCE = 0.01
-#: Angles (radians) tried for a continuous symmetry: none is a multiple of 2 pi / n for n <= 12.
+#: Angles (radians) tried for a continuous symmetry: unrelated to each other, so that no discrete n-fold
+#: symmetry (n <= 12) passes them all.
 _CONTINUOUS_ANGLES = (1.37, 0.41, 2.29, 3.61, 5.03)
 #: n of the discrete rotations tried about each axis.
-_FOLDS = (2, 3, 4, 6)
+_FOLDS = (2, 3, 4, 5, 6)
 #: Surface samples moved by each candidate, and the reference sample they are compared with.
 _NUM_PROBES = 1500
-_NUM_REFERENCE = 30000
+_NUM_REFERENCE = 100_000
 #: Reference neighbours of a moved probe; the nearest tangent plane among them counts (robust at edges).
 _NEIGHBOURS = 6
 #: Most elements of a detected discrete group (the icosahedral group has 60).
@@ -65,7 +66,7 @@ class _Surface:
     probes: np.ndarray          # (P, 3) points moved by candidate symmetries
     tree: cKDTree               # over the reference points
     normals: np.ndarray         # (R, 3) unit normals of the reference points
-    spacing: float              # allowance for the gaps between reference points (metres)
+    spacing: float              # allowance for the gaps between reference points: twice the median (metres)
     centroid: np.ndarray        # area-weighted surface centroid (3,)
     bbox_center: np.ndarray     # (3,)
     diameter: float
@@ -96,7 +97,7 @@ def _surface(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float) -> _Surface
     tri = np.asarray(mesh.triangles)
     area = np.asarray(mesh.area_faces)
     centroid = (area[:, None] * tri.mean(axis=1)).sum(axis=0) / area.sum()
-    return _Surface(np.asarray(probes), tree, normals, 1.5 * float(gap.max()), centroid,
+    return _Surface(np.asarray(probes), tree, normals, 2.0 * float(np.median(gap)), centroid,
                     0.5 * (mesh.bounds[0] + mesh.bounds[1]), diameter, np.asarray(mesh.vertices))
 
 

@@ -69,7 +69,9 @@ def _rotated(mesh: trimesh.Trimesh, euler_deg) -> trimesh.Trimesh:
 
 @pytest.mark.parametrize("name,mesh,n_discrete,n_continuous", [
     ("triangular prism", _prism(3), 5, 0),                 # D3
+    ("pentagonal prism", _prism(5), 9, 0),                 # D5
     ("hexagonal prism", _prism(6), 11, 0),                 # D6
+    ("nonagonal prism", _prism(9), 17, 0),                 # D9: from the 3-fold axis and the flips
     ("cube", trimesh.creation.box([0.05] * 3), 23, 0),     # the rotation group of the cube
     ("tilted box", _rotated(trimesh.creation.box([0.04, 0.07, 0.12]), (20, 35, 10)), 3, 0),
     ("tilted cylinder", _rotated(_prism(64), (20, 35, 10)), 1, 1),
