@@ -1,5 +1,5 @@
 """Objects: ``ObjectModel`` / ``ObjectSet``, built-in procedural categories, mesh and BOP-model loaders,
-symmetries, grasp candidates and collision geometry.
+symmetries (declared or detected), grasp candidates and collision geometry.
 
 Typical use::
 
@@ -13,6 +13,7 @@ from simtest.objects.builtin import BUILTIN_SETS, load_builtin
 from simtest.objects.grasps import PANDA, Gripper, GraspSet, sample_grasps
 from simtest.objects.loaders import load_mesh_file, load_mesh_folder, load_object_set, read_bop_models
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
+from simtest.objects.symmetry_detect import detect_symmetries
 
 __all__ = [
     "BUILTIN_SETS",
@@ -22,6 +23,7 @@ __all__ = [
     "ObjectModel",
     "ObjectSet",
     "PANDA",
+    "detect_symmetries",
     "load_builtin",
     "load_mesh_file",
     "load_mesh_folder",

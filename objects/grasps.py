@@ -25,7 +25,10 @@ contact (so a cup is grasped across a wall or around its whole body); a pair is 
 normal lies within the friction cone (``mu``) of the closing axis and the width fits the opening; several
 approach directions are tried around each closing axis; candidates whose fingers (swept from the open to
 the closed width) or palm would cut the surface are rejected; the rest are scored by antipodality and
-closeness to the centre of mass, and de-duplicated. The set is cached in-process per mesh hash.
+closeness to the centre of mass, and de-duplicated. Finally candidates whose open gripper (the fingers at
+the opening they have before closing, and the palm) would sit inside the object's collision geometry (the
+convex parts MuJoCo collides, which can be larger than the mesh: a hull, or the parts of a decomposition)
+are dropped, so every candidate can be reached in simulation. The set is cached in-process per mesh hash.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from scipy.spatial import cKDTree
 if TYPE_CHECKING:
     from simtest.objects.model import ObjectModel
 
-__all__ = ["Gripper", "PANDA", "GraspSet", "sample_grasps", "gripper_boxes"]
+__all__ = ["Gripper", "PANDA", "GraspSet", "sample_grasps", "gripper_boxes", "penetrating"]
 
 
 @dataclass(frozen=True)
@@ -184,12 +187,17 @@ def sample_grasps(obj: "ObjectModel", gripper: Gripper = PANDA, *, mu: float = 0
     Returns:
         The candidates sorted by score, best first; empty when nothing fits the gripper.
     """
-    key = (obj.mesh_hash, gripper, float(mu), int(num_points), int(num_approaches), int(max_grasps), int(max_pairs))
+    concave = bool(getattr(obj, "is_concave", False))
+    key = (obj.mesh_hash, gripper, float(mu), int(num_points), int(num_approaches), int(max_grasps), int(max_pairs),
+           concave)
     hit = _CACHE.get(key)
     if hit is not None:
         return hit
     result = _sample(obj.mesh, obj.mesh_hash, np.asarray(obj.center_of_mass), float(obj.diameter), gripper,
                      mu, num_points, num_approaches, max_grasps, max_pairs)
+    parts = getattr(obj, "collision_parts", None)
+    if parts is not None and len(result):
+        result = result[~penetrating(result, parts, gripper)]
     if len(_CACHE) >= _CACHE_MAX:
         _CACHE.pop(next(iter(_CACHE)))
     _CACHE[key] = result
@@ -280,6 +288,56 @@ def _sample(mesh: trimesh.Trimesh, mesh_hash: str, com: np.ndarray, diameter: fl
     poses_a, w_a, s_a, c_a = np.stack(poses), np.asarray(out_w), np.asarray(out_s), np.asarray(out_c)
     keep_idx = _dedupe(poses_a, s_a, max_grasps)
     return GraspSet(poses_a[keep_idx], w_a[keep_idx], s_a[keep_idx], c_a[keep_idx])
+
+
+def _box_points(box: np.ndarray, counts: tuple[int, int, int]) -> np.ndarray:
+    """A grid of points (N, 3) through a box ``[[lo], [hi]]``, its faces included."""
+    axes = [np.linspace(box[0, i], box[1, i], counts[i]) for i in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def penetrating(grasps: GraspSet, parts, gripper: Gripper = PANDA, margin: float = 0.001) -> np.ndarray:
+    """Which candidates (bool (N,)) put the open gripper more than ``margin`` metres into a convex part.
+
+    The gripper is the palm and the two fingers opened to ``gripper.open_width(width)`` (its pose before
+    closing). A box and a part overlap when a grid point of the box lies inside the part or a vertex of
+    the part inside the box, each by more than ``margin``.
+
+    Args:
+        grasps: Candidates in the model frame.
+        parts: Convex meshes in the model frame (e.g. :attr:`ObjectModel.collision_parts`), metres.
+        gripper: Gripper geometry.
+        margin: Penetration tolerated (metres): touching is not penetrating.
+    """
+    n = len(grasps)
+    hit = np.zeros(n, dtype=bool)
+    if n == 0:
+        return hit
+    open_w = np.asarray(gripper.open_width(grasps.widths), dtype=np.float64)
+    boxes = np.stack([gripper_boxes(float(w), gripper) for w in open_w])  # (N, 3, 2, 3)
+    counts = ((3, 3, 7), (3, 3, 7), (5, 11, 4))
+    local = np.concatenate([np.stack([_box_points(b[k], counts[k]) for b in boxes]) for k in range(3)], axis=1)
+    R, t = grasps.poses[:, :3, :3], grasps.poses[:, :3, 3]
+    world = np.einsum("nij,npj->npi", R, local) + t[:, None, :]  # (N, P, 3), model frame
+    for part in parts:
+        normals = np.asarray(part.face_normals)
+        offsets = -np.einsum("ij,ij->i", normals, np.asarray(part.triangles)[:, 0])
+        verts = np.asarray(part.vertices)
+        lo, hi = part.bounds
+        near = np.flatnonzero(~hit & np.all((world.max(axis=1) >= lo) & (world.min(axis=1) <= hi), axis=1))
+        for chunk in np.array_split(near, max(1, len(near) // 16)):
+            if len(chunk) == 0:
+                continue
+            w = world[chunk]
+            # (C, P, F) plane distances, <= 0 inside every face; elementwise (no BLAS threads: predictable
+            # on a busy machine)
+            signed = w[..., 0:1] * normals[:, 0] + w[..., 1:2] * normals[:, 1] + w[..., 2:3] * normals[:, 2] + offsets
+            hit[chunk] |= (signed.max(axis=2) < -margin).any(axis=1)
+            v = np.einsum("cji,cvj->cvi", R[chunk], verts[None] - t[chunk, None, :])  # vertices, gripper frame
+            b = boxes[chunk]  # (C, 3, 2, 3)
+            inside = (v[:, :, None, :] > b[:, None, :, 0] + margin) & (v[:, :, None, :] < b[:, None, :, 1] - margin)
+            hit[chunk] |= inside.all(axis=3).any(axis=(1, 2))
+    return hit
 
 
 def _perpendicular(a: np.ndarray) -> np.ndarray:

@@ -20,6 +20,8 @@ refused with the measured size and the ``--units`` / ``--scale`` that would fit)
 Meshes from files are re-centred at their bbox centre; the subtracted centre (metres, file frame) is
 recorded in ``extra["origin_offset"]``. Appearance (UV texture, colours per vertex or face, material colour)
 is read with the mesh (:mod:`simtest.objects.appearance`).
+Mesh files carry no symmetries unless a manifest declares them; ``load_object_set`` detects them
+(``symmetry="auto"``, see :mod:`simtest.objects.symmetry_detect`) unless told ``symmetry="none"``.
 """
 
 from __future__ import annotations
@@ -37,8 +39,10 @@ from simtest.io.bop import read_json
 from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_models_info,
                                     read_symmetries)
 from simtest.objects.appearance import Appearance, appearance_from_visual
+from simtest.objects.collision import open_mesh_note
 from simtest.objects.manifest import Manifest, ManifestEntry, read_manifest
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, mesh_diameter, validate_mesh
+from simtest.objects.symmetry_detect import SYMMETRY_POLICIES, apply_symmetry_policy
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
            "read_bop_models", "load_dataset_objects", "MESH_EXTENSIONS", "UNITS", "MIN_DIAMETER_M",
@@ -225,9 +229,6 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     verts = np.asarray(loaded.mesh.vertices) * factor
     center = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     mesh = trimesh.Trimesh(verts - center, np.asarray(loaded.mesh.faces), process=False)
-    if not mesh.is_watertight:
-        warnings.warn(f"{path}: mesh is not watertight; mass, inertia and collision use its convex hull",
-                      stacklevel=2)
     if obj_id is None:
         match = _BOP_NAME.fullmatch(path.stem)
         obj_id = e.obj_id or (int(match.group(1)) if match else 1)
@@ -236,6 +237,7 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     extra = {"units": unit, "scale": factor, "origin_offset": center.tolist()}
     if e.symmetry is not None:
         extra["symmetry_declared"] = True
+        extra["symmetry"] = "declared"  # detection leaves it alone, even a declared "none"
     obj = ObjectModel(
         obj_id=obj_id, name=e.name or name or stem,
         category=e.category or category or (re.sub(r"_\d+$", "", stem) or stem),
@@ -244,6 +246,8 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
         friction=e.friction, extra=extra, appearance=loaded.appearance)
     if e.mass is not None:
         obj = dataclasses.replace(obj, density=e.mass / (obj.mass / obj.density))
+    if not mesh.is_watertight:
+        warnings.warn(f"{path}: {open_mesh_note(obj)}", stacklevel=2)
     return obj
 
 
@@ -367,7 +371,7 @@ def _unique_names(objects: list[ObjectModel]) -> None:
 
 
 def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int = 0,
-                    scale: float = 1.0) -> ObjectSet:
+                    scale: float = 1.0, symmetry: str = "auto") -> ObjectSet:
     """An object set by name or path.
 
     Args:
@@ -378,6 +382,9 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
         seed: Seed of the built-in sets (ignored for files).
         scale: Factor on top of the units (metres = file units x units factor x scale); ignored for
             built-in sets.
+        symmetry: ``"auto"``: mesh files that declare no symmetry get the detected ones
+            (:func:`~simtest.objects.symmetry_detect.apply_symmetry_policy`); ``"none"``: they get none.
+            Built-in sets and BOP models folders keep their own symmetries.
 
     Raises:
         AssetError: Unknown name or missing path (listing the built-in names), or any loading error.
@@ -386,6 +393,8 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
 
     if units not in UNITS:
         raise AssetError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
+    if symmetry not in SYMMETRY_POLICIES:
+        raise AssetError(f"symmetry must be one of {', '.join(SYMMETRY_POLICIES)}, got {symmetry!r}")
     text = str(spec)
     if text in BUILTIN_SETS:
         return load_builtin(text, seed)
@@ -393,9 +402,10 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
     if path.is_dir():
         if (path / INFO_FILE).exists() or (path / "models" / INFO_FILE).exists():
             return read_bop_models(path, units="mm" if units == "auto" else units, scale=scale)
-        return load_mesh_folder(path, units, scale)
+        return apply_symmetry_policy(load_mesh_folder(path, units, scale), symmetry)
     if path.is_file():
-        return ObjectSet([load_mesh_file(path, units=units, scale=scale)], name=str(path))
+        return apply_symmetry_policy(ObjectSet([load_mesh_file(path, units=units, scale=scale)], name=str(path)),
+                                     symmetry)
     raise AssetError(f"object set {text!r} not found: not a built-in set ({', '.join(BUILTIN_SETS)}) and no such "
                      "file or folder")
 

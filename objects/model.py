@@ -192,10 +192,15 @@ class ObjectModel:
 
     @functools.cached_property
     def is_concave(self) -> bool:
-        """Whether the collision geometry needs a convex decomposition (hull volume exceeds mesh by > 5%)."""
+        """Whether the collision geometry needs a convex decomposition (hull volume exceeds mesh by > 5%; for
+        a mesh that is not watertight, the solid its surface encloses, see :mod:`simtest.objects.collision`)."""
         if self.concave is not None:
             return bool(self.concave)
-        if not self.mesh.is_watertight or self.mesh.volume <= 0:
+        if not self.mesh.is_watertight:
+            from simtest.objects.collision import open_mesh_is_concave
+
+            return open_mesh_is_concave(self.mesh)
+        if self.mesh.volume <= 0:
             return False
         return bool(self.mesh.convex_hull.volume > 1.05 * self.mesh.volume)
 

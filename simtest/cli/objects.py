@@ -24,6 +24,8 @@ def register(subparsers) -> None:
         p.add_argument("--scale", type=float, default=1.0,
                        help="factor on top of --units (metres = file units x units x scale; default 1)")
         p.add_argument("--seed", type=int, default=0, help="seed of the built-in sets")
+        p.add_argument("--symmetry", default="auto", choices=["auto", "none"],
+                       help="symmetries of mesh files that declare none: detect and use them (auto) or not (none)")
 
     p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
     common(p_list)
@@ -49,13 +51,19 @@ def register(subparsers) -> None:
 
 
 def object_table(objects, grasps: bool = True) -> str:
-    """A fixed-width text table: id, name, category, diameter/size (mm), mass (g), symmetry, grasps."""
+    """A fixed-width text table: id, name, category, diameter/size (mm), mass (g), symmetry, grasps.
+
+    The symmetry column says where a symmetry comes from: ``continuous(z)`` (declared), ``continuous(z)
+    detected`` (detected and used) or ``... detected, not used`` (``--symmetry none``).
+    """
+    from simtest.objects.symmetry_detect import symmetry_status
+
     header = ["id", "name", "category", "diam_mm", "size_mm", "mass_g", "symmetry", "graspable", "grasps"]
     rows = []
     for o in objects:
         n = len(o.grasps) if grasps else None
         rows.append([str(o.obj_id), o.name, o.category, f"{o.diameter * 1000:.1f}",
-                     "x".join(f"{s * 1000:.0f}" for s in o.size), f"{o.mass * 1000:.0f}", o.symmetry_label(),
+                     "x".join(f"{s * 1000:.0f}" for s in o.size), f"{o.mass * 1000:.0f}", symmetry_status(o),
                      "-" if n is None else ("yes" if (o.graspable if o.graspable_override is not None else n > 0)
                                             else "no"),
                      "-" if n is None else str(n)])
@@ -67,7 +75,7 @@ def object_table(objects, grasps: bool = True) -> str:
 def _load(args):
     from simtest.objects import load_object_set
 
-    return load_object_set(args.set, units=args.units, seed=args.seed, scale=args.scale)
+    return load_object_set(args.set, units=args.units, seed=args.seed, scale=args.scale, symmetry=args.symmetry)
 
 
 def _cmd_list(args) -> int:
