@@ -71,8 +71,9 @@ import mujoco
 
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
-from simtest.envs.options import EpisodeConfig, load_objects
-from simtest.errors import AssetError, ConfigError
+from simtest.envs.options import (CONTROL_DT, HOLD_TIME, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
+                                  EpisodeConfig, check_action, load_objects, pick_target)
+from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.robot import rotvec_to_matrix
 from simtest.render import Frame, Renderer
@@ -80,18 +81,6 @@ from simtest.render import Frame, Renderer
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
            "SUCCESS_HEIGHT", "HOLD_TIME", "load_objects"]
 
-#: Control period, s (20 Hz).
-CONTROL_DT = 0.05
-#: Largest TCP displacement per step and axis, m (0.4 m/s).
-MAX_STEP_TRANSLATION = 0.02
-#: Largest rotation-vector component per step, rad (2 rad/s).
-MAX_STEP_ROTATION = 0.1
-#: Success: the target at least this high above its resting height (m) ...
-SUCCESS_HEIGHT = 0.10
-#: ... for at least this long (s), held in the gripper.
-HOLD_TIME = 1.0
-
-_ACTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz", "g")
 
 
 class PandaGraspEnv(gym.Env):
@@ -182,25 +171,6 @@ class PandaGraspEnv(gym.Env):
             self._builders[objects_name] = SceneBuilder(objects, cfg, panda_physics=True)
         return self._builders[objects_name]
 
-    def _pick_target(self, objects, target, rng: np.random.Generator) -> int:
-        if target is None:
-            # Objects in a random order, the first graspable one (grasp sets are computed only as needed).
-            for i in rng.permutation(len(objects)):
-                if objects[int(i)].graspable:
-                    return int(objects[int(i)].obj_id)
-            raise ConfigError(f"object set {objects.name!r} has no graspable object")
-        if isinstance(target, str) and not target.lstrip("-").isdigit():
-            try:
-                return int(objects.by_name(target).obj_id)
-            except AssetError as exc:
-                names = ", ".join(o.name for o in objects)
-                raise ConfigError(f"unknown target {target!r} in object set {objects.name!r}; names: {names}"
-                                  ) from exc
-        oid = int(target)
-        if oid not in objects.ids:
-            raise ConfigError(f"unknown target obj_id {oid} in object set {objects.name!r}; ids: {objects.ids}")
-        return oid
-
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build and settle a new scene and return the first observation (see the module docstring).
 
@@ -216,7 +186,7 @@ class PandaGraspEnv(gym.Env):
         scene_rng, occ_rng, self._corrupt_rng = self.np_random.spawn(3)
         objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
-        target_id = self._pick_target(objects, cfg.target, scene_rng)
+        target_id = pick_target(objects, cfg.target, scene_rng)
         self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,
                                              n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
                                              placement=cfg.placement, models=self._model_cache(cfg.objects))
@@ -330,7 +300,7 @@ class PandaGraspEnv(gym.Env):
         """
         if self.data is None:
             raise ConfigError("call reset() before step()")
-        a = np.minimum(np.maximum(self._checked_action(action), self._act_lo), self._act_hi)
+        a = np.minimum(np.maximum(check_action(action), self._act_lo), self._act_hi)
         m, d, ids = self.model, self.data, self.ids
         q_prev = self._q_cmd
         if self.ik == "fast":  # from the commanded TCP pose, one DLS step
@@ -355,22 +325,6 @@ class PandaGraspEnv(gym.Env):
         self._hold_steps = self._hold_steps + 1 if lifted else 0
         terminated = self._hold_steps * CONTROL_DT >= HOLD_TIME - 1e-9
         return obs, float(lifted), bool(terminated), False, info
-
-    def _checked_action(self, action) -> np.ndarray:
-        """``action`` as a (7,) float64 array; ConfigError naming the bad entries if it is not 7 finite numbers."""
-        space = (f"Box(7) [dx, dy, dz, rx, ry, rz, g] with |d*| <= {MAX_STEP_TRANSLATION} m, "
-                 f"|r*| <= {MAX_STEP_ROTATION} rad, g in [-1, 1] (larger values are clipped)")
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"action must be 7 finite numbers, {space}; got {action!r}") from exc
-        if a.shape != (7,):
-            raise ConfigError(f"action must have shape (7,), {space}; got shape {a.shape}")
-        bad = np.flatnonzero(~np.isfinite(a))
-        if bad.size:
-            entries = ", ".join(f"action[{i}] ({_ACTION_NAMES[i]}) = {a[i]}" for i in bad)
-            raise ConfigError(f"action has non-finite entries: {entries}; expected finite numbers, {space}")
-        return a
 
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` seconds with the current controls (whole 2 ms steps), then update

@@ -1,5 +1,5 @@
-"""The options of one grasp episode (constructor defaults merged with ``reset(options=...)``), validated, and the
-per-process cache of object sets the env loads."""
+"""The grasp env's constants, the options of one episode (constructor defaults merged with ``reset(options=...)``)
+and the checks of targets and actions, validated; and the per-process cache of object sets the env loads."""
 
 from __future__ import annotations
 
@@ -10,9 +10,22 @@ import numpy as np
 
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
-from simtest.errors import ConfigError
+from simtest.errors import AssetError, ConfigError
 
-__all__ = ["EpisodeConfig", "RESET_OPTIONS", "load_objects"]
+__all__ = ["EpisodeConfig", "RESET_OPTIONS", "load_objects", "pick_target", "check_action", "CONTROL_DT",
+           "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION", "SUCCESS_HEIGHT", "HOLD_TIME"]
+
+#: Control period, s (20 Hz).
+CONTROL_DT = 0.05
+#: Largest TCP displacement per step and axis, m (0.4 m/s).
+MAX_STEP_TRANSLATION = 0.02
+#: Largest rotation-vector component per step, rad (2 rad/s).
+MAX_STEP_ROTATION = 0.1
+#: Success: the target at least this high above its resting height (m) ...
+SUCCESS_HEIGHT = 0.10
+#: ... for at least this long (s), held in the gripper.
+HOLD_TIME = 1.0
+
 
 #: Option names ``reset(options=...)`` takes.
 RESET_OPTIONS = ("objects", "target", "n_distractors", "occlusion", "corruption", "depth_noise", "placement",
@@ -94,3 +107,46 @@ class EpisodeConfig:
         if start not in ("home", "observe"):
             raise ConfigError(f"start must be 'home' or 'observe', got {start!r}")
         return EpisodeConfig(objects, target, int(n_dis), occlusion, corruption, placement, start)
+
+
+def pick_target(objects, target, rng: np.random.Generator) -> int:
+    """The episode's target obj_id: ``target`` (an obj_id or a name) checked against ``objects``, or, for
+    ``None``, the first graspable object in a random order.
+
+    Raises:
+        ConfigError: An unknown target (listing the names or ids), or no graspable object.
+    """
+    if target is None:
+        # Objects in a random order, the first graspable one (grasp sets are computed only as needed).
+        for i in rng.permutation(len(objects)):
+            if objects[int(i)].graspable:
+                return int(objects[int(i)].obj_id)
+        raise ConfigError(f"object set {objects.name!r} has no graspable object")
+    if isinstance(target, str) and not target.lstrip("-").isdigit():
+        try:
+            return int(objects.by_name(target).obj_id)
+        except AssetError as exc:
+            names = ", ".join(o.name for o in objects)
+            raise ConfigError(f"unknown target {target!r} in object set {objects.name!r}; names: {names}"
+                              ) from exc
+    oid = int(target)
+    if oid not in objects.ids:
+        raise ConfigError(f"unknown target obj_id {oid} in object set {objects.name!r}; ids: {objects.ids}")
+    return oid
+
+
+def check_action(action) -> np.ndarray:
+    """``action`` as a (7,) float64 array; ConfigError naming the bad entries if it is not 7 finite numbers."""
+    space = (f"Box(7) [dx, dy, dz, rx, ry, rz, g] with |d*| <= {MAX_STEP_TRANSLATION} m, "
+             f"|r*| <= {MAX_STEP_ROTATION} rad, g in [-1, 1] (larger values are clipped)")
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"action must be 7 finite numbers, {space}; got {action!r}") from exc
+    if a.shape != (7,):
+        raise ConfigError(f"action must have shape (7,), {space}; got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        entries = ", ".join(f"action[{i}] ({_ACTION_NAMES[i]}) = {a[i]}" for i in bad)
+        raise ConfigError(f"action has non-finite entries: {entries}; expected finite numbers, {space}")
+    return a

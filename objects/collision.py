@@ -131,7 +131,7 @@ def open_mesh_note(obj: "ObjectModel") -> str:
     """What simtest does with a mesh that is not watertight, for the loader's warning."""
     edges = trimesh.grouping.group_rows(obj.mesh.edges_sorted, require_count=1)
     what = ("collision uses a convex decomposition of a watertight remesh (CoACD manifold preprocessing, "
-            f"computed on first use and cached)" if obj.is_concave else "collision uses its convex hull (it is "
+            "computed on first use and cached)" if obj.is_concave else "collision uses its convex hull (it is "
             "nearly convex)")
     return (f"mesh is not watertight ({len(edges)} open edges); mass and inertia use its convex hull; {what}; "
             "grasp candidates that would put the open gripper inside the collision geometry are dropped")
