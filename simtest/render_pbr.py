@@ -396,7 +396,8 @@ class PbrRenderer:
         return mesh
 
     def _mesh_geom(self, mesh_id: int, R: np.ndarray, t: np.ndarray, name: str, bsdf):
-        """Mesh ``mesh_id`` in the world, with MuJoCo's per-corner normals (unshared corners)."""
+        """Mesh ``mesh_id`` in the world, with MuJoCo's per-corner normals and texture coordinates (unshared
+        corners)."""
         m = self.model
         va, fa, na = int(m.mesh_vertadr[mesh_id]), int(m.mesh_faceadr[mesh_id]), int(m.mesh_normaladr[mesh_id])
         fn = int(m.mesh_facenum[mesh_id])
@@ -406,7 +407,12 @@ class PbrRenderer:
         corner_v = verts[faces].reshape(-1, 3) @ R.T + t
         corner_n = normals[m.mesh_facenormal[fa:fa + fn]].reshape(-1, 3) @ R.T
         tris = np.arange(3 * fn, dtype=np.uint32).reshape(-1, 3)
-        return self._with_bsdf(_mesh(self._mi, name, corner_v, tris, corner_n), bsdf)
+        uv = None
+        if int(m.mesh_texcoordnum[mesh_id]) > 0:
+            ta = int(m.mesh_texcoordadr[mesh_id])
+            texcoords = m.mesh_texcoord[ta:ta + int(m.mesh_texcoordnum[mesh_id])].astype(np.float64)
+            uv = texcoords[m.mesh_facetexcoord[fa:fa + fn]].reshape(-1, 2)  # same (u, v) convention as Mitsuba
+        return self._with_bsdf(_mesh(self._mi, name, corner_v, tris, corner_n, uv), bsdf)
 
     # --- lights -------------------------------------------------------------------------------------------
     def _emitters(self, data: mujoco.MjData) -> dict:
