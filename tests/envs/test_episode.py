@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import csv
 import json
 
@@ -31,7 +33,7 @@ class _Raises:
 
 class _NaN:
     def estimate(self, observation):
-        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=np.full((3, 3), np.nan), t=np.zeros(3))]
+        return [SimpleNamespace(obj_id=observation.target_obj_ids[0], R=np.full((3, 3), np.nan), t=np.zeros(3))]
 
 
 def _nothing(observation):

@@ -3,6 +3,8 @@ runner goes on, and the next episode runs normally."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import csv
 import json
 import sys
@@ -34,7 +36,7 @@ class ReturnsNone:
 
 class FlatRotation:
     def estimate(self, observation):
-        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=np.eye(2), t=np.zeros(3))]
+        return [SimpleNamespace(obj_id=observation.target_obj_ids[0], R=np.eye(2), t=np.zeros(3))]
 
 
 class SlowFirst:
