@@ -276,7 +276,8 @@ def _import_target(spec: str, target: str) -> Any:
         try:
             obj = getattr(obj, part)
         except AttributeError:
-            public = sorted(n for n, v in vars(module).items() if not n.startswith("_") and callable(v))
+            public = sorted(n for n, v in vars(module).items() if not n.startswith("_") and callable(v)
+                            and getattr(v, "__module__", None) == module.__name__)
             raise ConfigError(f"estimator {spec!r}: {mod_name!r} has no attribute {attr!r}; its classes and "
                               f"functions: {', '.join(public) or '(none)'}") from None
     return obj
