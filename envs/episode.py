@@ -22,8 +22,13 @@ every control period of the 1.0 s hold, and held between both fingers at its end
 * ``missed``: after closing, the target does not touch both fingers;
 * ``slipped``: grasped, but not at least 0.10 m up and held for the whole hold.
 
-Pose errors of the estimate actually used (ADD(-S), re, te, MSSD) are computed against the ground truth at
-the moment of the observation.
+Pose errors of the estimate actually used (ADD(-S), re, re_sym, te, MSSD) are computed against the ground truth
+at the moment of the observation; ``re_sym`` is the smallest rotation error over the object's symmetries, as in
+``simtest eval``.
+
+Nothing the estimator returns is dropped silently: estimates for the target that claim another
+``target_index`` than 0 (an episode has one target) are ignored and noted in ``EpisodeResult.warnings``; the
+reasons in the estimator's ``last_failures`` explain a missing estimate in ``EpisodeResult.error``.
 """
 
 from __future__ import annotations
@@ -70,7 +75,9 @@ class EpisodeResult:
         success: Lifted >= 0.10 m and held >= 1.0 s.
         reason: ``"none"`` on success, else one of :data:`FAILURE_REASONS`.
         add_s: ADD(-S) of the estimate used, m (ADD-S for symmetric objects); NaN without an estimate.
-        re_deg: Rotation error, degrees; NaN without an estimate.
+        re_deg: Rotation error (geodesic), degrees; NaN without an estimate.
+        re_sym_deg: Smallest rotation error over the object's symmetries (``simtest eval``'s ``re_sym``),
+            degrees; equals ``re_deg`` for objects without symmetries; NaN without an estimate.
         te: Translation error, m; NaN without an estimate.
         mssd: Maximum symmetry-aware surface distance, m; NaN without an estimate.
         estimate_s: Wall time of the estimator call, s.
@@ -85,6 +92,10 @@ class EpisodeResult:
         error: What went wrong with the estimator (exception text, ``sys.exit``, the time limit, the invalid
             return value or estimate) for ``estimator_*`` and ``no_estimate`` outcomes; for collisions the
             phase, the two geoms and the contact force; for IK failures during execution the unreachable pose.
+        traceback: The last frames of the estimator's traceback (``file:line in function: source > ...``) when
+            it raised, exited or timed out.
+        warnings: Estimates that were returned but not used, and why (``; ``-separated).
+        trace: The estimator's full traceback (not written to ``episodes.csv``; ``--fail-fast`` prints it).
         frames: Video frames (third-person | wrist), only when recording.
     """
 
@@ -95,6 +106,7 @@ class EpisodeResult:
     reason: str
     add_s: float = float("nan")
     re_deg: float = float("nan")
+    re_sym_deg: float = float("nan")
     te: float = float("nan")
     mssd: float = float("nan")
     estimate_s: float = 0.0
@@ -107,6 +119,9 @@ class EpisodeResult:
     grasp_index: int = -1
     approach_tilt_deg: float = float("nan")
     error: str = ""
+    traceback: str = ""
+    warnings: str = ""
+    trace: str = field(default="", repr=False)
     frames: list = field(default=None, repr=False)  # type: ignore[assignment]
 
     def to_row(self) -> dict[str, Any]:
@@ -281,30 +296,44 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
 
 
 def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray) -> dict[str, float]:
-    """ADD(-S) (m), re (deg), te (m) and MSSD (m) of one estimate against the ground truth (camera frame)."""
-    from simtest.metrics.pose import add_s_or_add, mssd, re, te
+    """ADD(-S) (m), re and re_sym (deg), te (m) and MSSD (m) of one estimate against the ground truth (camera
+    frame)."""
+    from simtest.metrics.pose import add_s_or_add, mssd, re, re_sym, te
 
     key = obj.mesh_hash
     if key not in _SYMMETRY_CACHE:
         _SYMMETRY_CACHE[key] = obj.symmetry_transforms()
     pts = np.asarray(obj.vertices)
-    return {"add_s": add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": re(R_e, R_g), "te": te(t_e, t_g),
-            "mssd": mssd(R_e, t_e, R_g, t_g, pts, _SYMMETRY_CACHE[key])}
+    syms = _SYMMETRY_CACHE[key]
+    return {"add_s": add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": re(R_e, R_g),
+            "re_sym_deg": re_sym(R_e, R_g, syms), "te": te(t_e, t_g), "mssd": mssd(R_e, t_e, R_g, t_g, pts, syms)}
 
 
-def _pick_estimate(elements: list, obj_id: int,
-                   known: set[int]) -> tuple[PoseEstimate | None, InvalidEstimate | None]:
+def _pick_estimate(elements: list, obj_id: int, known: set[int]
+                   ) -> tuple[PoseEstimate | None, InvalidEstimate | None, list[str]]:
     """The highest-scoring valid estimate of ``obj_id`` answering the first target (or no target); without one,
-    the first invalid element for ``obj_id`` (or of unknown object) says why."""
-    best, first_bad = None, None
+    the first invalid element for ``obj_id`` (or of unknown object) says why. The third item notes the
+    estimates of ``obj_id`` that were valid but set another ``target_index`` (ignored)."""
+    best, first_bad, notes = None, None, []
     for i, element in enumerate(elements):
         e, why = check_estimate(element, known, index=i)
         if why is not None:
             if first_bad is None and why.obj_id in (None, obj_id):
                 first_bad = why
-        elif e.obj_id == obj_id and e.target_index in (None, 0) and (best is None or e.score > best.score):
+        elif e.obj_id == obj_id and e.target_index not in (None, 0):
+            notes.append(f"estimate [{i}] of obj_id {obj_id} has target_index {e.target_index!r}, but the episode "
+                         "has one target (index 0, or None): ignored")
+        elif e.obj_id == obj_id and (best is None or e.score > best.score):
             best = e
-    return best, (None if best is not None else first_bad)
+    return best, (None if best is not None else first_bad), notes
+
+
+def _no_estimate_reason(est: Any, obj_id: int, notes: list[str]) -> str:
+    """Why there is no estimate: the estimator's own ``last_failures`` for ``obj_id``, else the ignored
+    estimates, else ``""``."""
+    reasons = [str(f.get("reason", "")) for f in list(getattr(est, "last_failures", None) or [])
+               if isinstance(f, dict) and f.get("obj_id") in (None, obj_id)]
+    return "; ".join(r for r in reasons if r) or "; ".join(notes)
 
 
 def _orthonormal(R: np.ndarray) -> np.ndarray:
@@ -389,16 +418,17 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     elements, fault = call_estimator(est, observation, timeout)
     result.estimate_s = time.perf_counter() - t0
     if fault is not None:
-        result.error = fault.message
+        result.error, result.traceback, result.trace = fault.message, fault.trace_tail, fault.trace
         return finish("estimator_timeout" if fault.kind == "timeout" else "estimator_error")
-    chosen, why = _pick_estimate(elements, tid, set(u.objects.ids))
+    chosen, why, notes = _pick_estimate(elements, tid, set(u.objects.ids))
+    result.warnings = "; ".join(notes)
     if chosen is None:
-        result.error = "" if why is None else why.message
+        result.error = why.message if why is not None else _no_estimate_reason(est, tid, notes)
         return finish("estimator_error" if why is not None and why.problem != "non-finite" else "no_estimate")
     R_e, t_e = _orthonormal(chosen.R), chosen.t
     errs = pose_errors(obj, R_e, t_e, R_g, t_g)
-    result.add_s, result.re_deg, result.te, result.mssd = (errs["add_s"], errs["re_deg"], errs["te"],
-                                                           errs["mssd"])
+    result.add_s, result.re_deg, result.re_sym_deg, result.te, result.mssd = (
+        errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
 
     # 3. Plan from the estimated pose, camera -> base -> world.
     T_world_obj = (Pose.from_matrix(info["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])

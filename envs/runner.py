@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
 from simtest.io.files import jsonable
@@ -29,9 +29,14 @@ __all__ = ["GraspRunConfig", "GraspRunReport", "episode_seed", "wilson_interval"
            "summarize", "noise_sweep", "NoiseSweepResult", "write_video"]
 
 #: Columns of ``episodes.csv`` (units: m, deg, s).
-CSV_COLUMNS = ["episode", "seed", "target_obj_id", "target_name", "success", "reason", "add_s", "re_deg", "te",
-               "mssd", "estimate_s", "wall_s", "sim_s", "lift_height", "occlusion", "occluded_fraction",
-               "visible_pixels", "grasp_index", "approach_tilt_deg", "error"]
+CSV_COLUMNS = ["episode", "seed", "target_obj_id", "target_name", "success", "reason", "add_s", "re_deg",
+               "re_sym_deg", "te", "mssd", "estimate_s", "wall_s", "sim_s", "lift_height", "occlusion",
+               "occluded_fraction", "visible_pixels", "grasp_index", "approach_tilt_deg", "error", "traceback",
+               "warnings"]
+#: Episode outcomes that are faults of the estimator (``fail_fast`` stops at the first).
+ESTIMATOR_FAULTS = ("estimator_error", "estimator_timeout")
+#: Video frames are recorded every this many control periods.
+RECORD_EVERY = 2
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -73,6 +78,8 @@ class GraspRunConfig:
         video_episodes: How many episodes get a video.
         timeout: Time limit of the estimator call per episode, seconds (``None`` or 0: none); over it the
             episode ends as ``estimator_timeout`` and the run goes on.
+        fail_fast: Stop at the first episode the estimator fails (``estimator_error`` / ``estimator_timeout``)
+            by raising :class:`~simtest.errors.EstimatorError` with its traceback.
     """
 
     estimator: str = "oracle"
@@ -94,6 +101,7 @@ class GraspRunConfig:
     video: bool = False
     video_episodes: int = 5
     timeout: float | None = DEFAULT_TIMEOUT_S
+    fail_fast: bool = False
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -118,6 +126,18 @@ class GraspRunReport:
 
     def table(self) -> str:
         return summary_markdown(self.summary)
+
+    def all_estimator_faults(self) -> bool:
+        """Whether every episode ended in a fault of the estimator (a run that measured nothing)."""
+        return bool(self.rows) and all(r["reason"] in ESTIMATOR_FAULTS for r in self.rows)
+
+    def failure_summary(self) -> str:
+        """One line: how many episodes the estimator failed, by reason, and the first error."""
+        bad = [r for r in self.rows if r["reason"] in ESTIMATOR_FAULTS]
+        kinds = ", ".join(f"{k} {sum(r['reason'] == k for r in bad)}" for k in ESTIMATOR_FAULTS
+                          if any(r["reason"] == k for r in bad))
+        first = " ".join(str(bad[0]["error"]).split()) if bad else ""
+        return f"the estimator failed in {len(bad)} of {len(self.rows)} episodes ({kinds}); first: {first}"
 
 
 def _resolve_targets(cfg: GraspRunConfig) -> list:
@@ -162,16 +182,24 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
     seed = episode_seed(cfg.seed, index)
     record = bool(cfg.video and ctx["out"] is not None and index < cfg.video_episodes)
     res = run_episode(ctx["env"], ctx["estimator"], seed=seed, options=cfg.reset_options(index, ctx["targets"]),
-                      record=record, timeout=cfg.timeout)
+                      record=record, record_every=RECORD_EVERY, timeout=cfg.timeout)
     row = {"episode": index, **res.to_row()}
     if record and res.frames:
+        from simtest.envs.grasp_env import CONTROL_DT
+
         path = Path(ctx["out"]) / "videos" / f"episode_{index:04d}_{res.target_name}_{res.reason}.gif"
-        write_video(res.frames, path)
+        write_video(res.frames, path, fps=1.0 / (CONTROL_DT * RECORD_EVERY))  # real time
     return row
 
 
 def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 10.0) -> Path:
     """Write frames (H, W, 3) uint8 as an MP4 if an ffmpeg backend is installed, else as a GIF.
+
+    Args:
+        frames: The frames.
+        path: Output path (its suffix is replaced by ``.mp4`` or ``.gif``).
+        fps: Frames per second of playback; a GIF stores ``1000 / fps`` ms per frame (imageio's GIF writer
+            takes ``duration`` in milliseconds), rounded by the format to 10 ms.
 
     Returns:
         The path written (suffix ``.mp4`` or ``.gif``).
@@ -188,7 +216,7 @@ def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 10.
     except ImportError:
         path = path.with_suffix(".gif")
         imageio.mimwrite(path, [f[::2, ::2] if f.shape[1] > 640 else f for f in frames],
-                         duration=1.0 / fps, loop=0)
+                         duration=1000.0 / fps, loop=0)
     return path
 
 
@@ -201,12 +229,14 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     and with ``cfg.video`` ``videos/episode_NNNN_<object>_<reason>.gif`` (or ``.mp4``).
 
     Estimator faults (exceptions, ``sys.exit``, timeouts, invalid return values) end their episode as
-    ``estimator_error`` or ``estimator_timeout`` (message in the ``error`` column) and the run goes on.
+    ``estimator_error`` or ``estimator_timeout`` (message in the ``error`` column, the last frames of the
+    traceback in ``traceback``) and the run goes on, unless ``cfg.fail_fast``.
     ``out_dir`` must be empty or absent unless ``overwrite`` (its files of these names are then replaced);
     this is checked before anything is loaded.
 
     Raises:
         ConfigError: On bad settings (checked before any episode runs).
+        EstimatorError: With ``cfg.fail_fast``, the first episode the estimator failed (with its traceback).
         DatasetError: ``out_dir`` not empty without ``overwrite``, a file, or not writable.
     """
     if out_dir is not None:
@@ -240,6 +270,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
                 for i in range(cfg.episodes):
                     rows.append(_run_one(i, ctx))
                     _tick(bar, rows)
+                    _check_fail_fast(cfg, rows[-1])
             finally:
                 ctx["env"].close()
         else:
@@ -251,6 +282,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
                 for row in pool.imap_unordered(_run_one, range(cfg.episodes)):
                     rows.append(row)
                     _tick(bar, rows)
+                    _check_fail_fast(cfg, row)
     finally:
         if bar is not None:
             bar.close()
@@ -263,6 +295,14 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     if out is not None:
         _write_outputs(report, out)
     return report
+
+
+def _check_fail_fast(cfg: GraspRunConfig, row: dict) -> None:
+    """With ``cfg.fail_fast``, raise :class:`EstimatorError` (with the traceback) for an estimator fault."""
+    if cfg.fail_fast and row["reason"] in ESTIMATOR_FAULTS:
+        trace = str(row.get("trace") or row.get("traceback") or "").rstrip()
+        raise EstimatorError(f"{cfg.estimator} failed in episode {row['episode']} (seed {row['seed']}, "
+                             f"{row['reason']}): {row['error']}" + (f"\n{trace}" if trace else ""))
 
 
 def _tick(bar, rows: list[dict]) -> None:
@@ -284,7 +324,8 @@ def summarize(rows: list[dict]) -> dict:
     Returns:
         ``{"episodes", "successes", "success_rate", "ci95": [lo, hi], "by_object": {name: {"obj_id", "n",
         "successes", "success_rate", "ci95"}}, "by_reason": {reason: count}, "median_add_s", "median_re_deg",
-        "median_te", "median_mssd", "median_wall_s", "median_estimate_s"}`` (errors in m / deg, times in s).
+        "median_te", "median_mssd", "median_wall_s", "median_estimate_s"}`` (errors in m / deg, times in s;
+        the rotation error is ``re_sym``, the smallest over the object's symmetries, as in ``simtest eval``).
     """
     from simtest.envs.episode import FAILURE_REASONS
 
@@ -305,7 +346,7 @@ def summarize(rows: list[dict]) -> dict:
         "episodes": n, "successes": k, "success_rate": k / n if n else 0.0, "ci95": [lo, hi],
         "by_object": by_obj, "by_reason": reasons,
         "median_add_s": _nanmedian([r["add_s"] for r in rows]),
-        "median_re_deg": _nanmedian([r["re_deg"] for r in rows]),
+        "median_re_deg": _nanmedian([r.get("re_sym_deg", r["re_deg"]) for r in rows]),
         "median_te": _nanmedian([r["te"] for r in rows]),
         "median_mssd": _nanmedian([r["mssd"] for r in rows]),
         "median_wall_s": _nanmedian([r["wall_s"] for r in rows]),
@@ -338,7 +379,7 @@ def summary_markdown(s: dict) -> str:
     def fmt(v: float | None, scale: float = 1.0, digits: int = 1) -> str:
         return "-" if v is None else f"{v * scale:.{digits}f}"
 
-    lines += ["| median ADD(-S) mm | median re deg | median te mm | median MSSD mm | median episode s |",
+    lines += ["| median ADD(-S) mm | median re_sym deg | median te mm | median MSSD mm | median episode s |",
               "|---:|---:|---:|---:|---:|",
               f"| {fmt(s['median_add_s'], 1000)} | {fmt(s['median_re_deg'])} | {fmt(s['median_te'], 1000)} | "
               f"{fmt(s['median_mssd'], 1000)} | {fmt(s['median_wall_s'], 1, 2)} |", ""]

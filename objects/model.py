@@ -128,13 +128,24 @@ class ObjectModel:
     # --- geometry ----------------------------------------------------------------------------------------
     @functools.cached_property
     def vertices(self) -> np.ndarray:
-        """Mesh vertices (N, 3), metres."""
+        """Mesh vertices (N, 3) float64, metres. Read-only (shared); :meth:`vertices_copy` gives a writable
+        copy (e.g. for Open3D's ``Vector3dVector``)."""
         return np.asarray(self.mesh.vertices)
 
     @functools.cached_property
     def faces(self) -> np.ndarray:
-        """Triangle indices (M, 3)."""
+        """Triangle indices (M, 3) int64 into :attr:`vertices`. Read-only; :meth:`faces_copy` gives a writable
+        copy."""
         return np.asarray(self.mesh.faces)
+
+    def vertices_copy(self) -> np.ndarray:
+        """A writable, C-contiguous float64 copy of :attr:`vertices` (N, 3), metres."""
+        return np.array(self.vertices, dtype=np.float64, order="C")
+
+    def faces_copy(self) -> np.ndarray:
+        """A writable, C-contiguous int32 copy of :attr:`faces` (M, 3) (the type Open3D's ``Vector3iVector``
+        takes)."""
+        return np.array(self.faces, dtype=np.int32, order="C")
 
     @functools.cached_property
     def bbox(self) -> np.ndarray:
@@ -221,6 +232,33 @@ class ObjectModel:
         rng = np.random.default_rng(int(self.mesh_hash[:8], 16))
         pts, _ = trimesh.sample.sample_surface(self.mesh, 4096, seed=rng)
         return np.asarray(pts, dtype=np.float64)
+
+    def surface_cloud(self, count: int = 2000, seed: int = 12345) -> tuple[np.ndarray, np.ndarray]:
+        """Area-uniform surface samples with the unit normals of their faces (outward for a consistently
+        wound mesh), model frame, metres; the cloud the built-in ``icp`` estimator registers against.
+
+        Deterministic for ``(count, seed)`` and cached per pair on the instance. The arrays are read-only;
+        ``np.array(points)`` gives a writable copy.
+
+        Args:
+            count: Number of samples.
+            seed: Seed of the sampling.
+
+        Returns:
+            ``(points (count, 3) float64, normals (count, 3) float64)``.
+        """
+        if int(count) < 1:
+            raise AssetError(f"{self.name}: surface_cloud count must be >= 1, got {count!r}")
+        cache = self.__dict__.setdefault("_surface_clouds", {})
+        key = (int(count), int(seed))
+        if key not in cache:
+            pts, face_idx = trimesh.sample.sample_surface(self.mesh, key[0], seed=np.random.default_rng(key[1]))
+            points = np.asarray(pts, dtype=np.float64)
+            normals = np.array(np.asarray(self.mesh.face_normals)[face_idx], dtype=np.float64)
+            points.flags.writeable = False
+            normals.flags.writeable = False
+            cache[key] = (points, normals)
+        return cache[key]
 
     @functools.cached_property
     def keypoints_bbox(self) -> np.ndarray:

@@ -21,3 +21,8 @@ class RenderError(SimtestError, RuntimeError):
 
 class DatasetError(SimtestError, ValueError):
     """A dataset folder is missing, malformed, or would be overwritten."""
+
+
+class EstimatorError(SimtestError, RuntimeError):
+    """An estimator failed and the run was asked to stop at the first failure (``--fail-fast``); the message
+    holds the estimator's traceback."""

@@ -31,8 +31,8 @@ Scoring protocol
   targets, so the per-image ARs weighted by their target counts add up to the pooled AR.
 
 Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
-target), ``failures.csv`` (image, object, kind, message, exception type) and ``metrics.md`` (Markdown tables,
-units in the column headers).
+target), ``failures.csv`` (image, object, kind, message, exception type, the last frames of the estimator's
+traceback) and ``metrics.md`` (Markdown tables, units in the column headers).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.base import Estimator, Observation, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
@@ -81,12 +81,14 @@ class EvalReport:
         per_object: ``{obj_id: metrics}`` with the same keys.
         errors: One dict per target (``errors.csv`` rows).
         failures: One dict per failure (``failures.csv`` rows): ``scene_id, im_id, obj_id, kind, message,
-            exception_type``.
+            exception_type, traceback`` (the last frames, one line).
         estimates: The valid estimates, as BOP result rows (metres).
         object_names: ``{obj_id: name}``.
         num_images: Images evaluated.
         paths: Files written (``results``, ``metrics``, ``errors``, ``failures``, ``table``).
         settings: What was evaluated (dataset, split, estimator, targets, vsd).
+        num_failed_images: Images on which the estimator failed as a whole (raised, exited, timed out,
+            returned no list, or returned only invalid estimates).
     """
 
     overall: dict[str, Any]
@@ -98,6 +100,19 @@ class EvalReport:
     num_images: int
     paths: dict[str, Path] = field(default_factory=dict)
     settings: dict[str, Any] = field(default_factory=dict)
+    num_failed_images: int = 0
+
+    def all_images_failed(self) -> bool:
+        """Whether the estimator failed on every image (raised, exited, timed out, returned no list, or
+        returned only invalid estimates): a run that measured nothing."""
+        return self.num_images > 0 and self.num_failed_images == self.num_images
+
+    def failure_summary(self) -> str:
+        """One line: how many images failed, by kind, and the first failure's message."""
+        kinds = ", ".join(f"{k} {n}" for k, n in failure_counts(self.failures).items())
+        first = " ".join(self.failures[0]["message"].split()) if self.failures else ""
+        return (f"the estimator failed on {self.num_failed_images} of {self.num_images} images ({kinds}); "
+                f"first: {first}")
 
     def table(self) -> str:
         """Markdown tables (per object and overall), ready to paste."""
@@ -134,16 +149,18 @@ def _observation(ref: ImageRef, objects, targets: str, width: int, height: int,
     return obs, tg
 
 
-def _failure(ref: ImageRef, obj_id: Any, kind: str, message: str, exception_type: str = "") -> dict[str, Any]:
+def _failure(ref: ImageRef, obj_id: Any, kind: str, message: str, exception_type: str = "",
+             trace: str = "") -> dict[str, Any]:
     return {"scene_id": ref.scene_id, "im_id": ref.im_id, "obj_id": "" if obj_id is None else obj_id,
-            "kind": kind, "message": message, "exception_type": exception_type}
+            "kind": kind, "message": message, "exception_type": exception_type, "traceback": trace}
 
 
 def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str = "train_pbr",
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
-             timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False) -> EvalReport:
+             timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
+             fail_fast: bool = False) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -164,6 +181,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
             limit is recorded as a ``timeout`` failure and the run goes on with the next image.
         overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
             estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
+        fail_fast: Stop at the first fault of the estimator (any failure kind but ``no-estimate``) by raising
+            :class:`~simtest.errors.EstimatorError` with its traceback; nothing is written.
 
     Returns:
         The :class:`EvalReport`.
@@ -171,6 +190,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     Raises:
         ConfigError: Unknown ``targets`` value or estimator, an estimator needing ground truth with
             ``targets="none"``, or a negative ``timeout``.
+        EstimatorError: With ``fail_fast``, the estimator's first fault.
         DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
             ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
             runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``.
@@ -202,10 +222,13 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     scales: dict[int, float] = {}
     failures: list[dict[str, Any]] = []
     times: list[float] = []
+    failed_images = 0
     bar = tqdm(refs, desc="eval", unit="img", disable=not progress, dynamic_ncols=True)
     for ref in bar:
         obs, _ = _observation(ref, objects, targets, width, height, needs_gt)
-        times.append(_estimate_image(est, obs, ref, known, limit, results, scales, failures))
+        dt, failed = _estimate_image(est, obs, ref, known, limit, results, scales, failures, fail_fast)
+        times.append(dt)
+        failed_images += failed
         if progress:
             bar.set_postfix(fail=len(failures), s_per_img=f"{np.mean(times):.3f}")
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
@@ -220,38 +243,56 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
-                        object_names=names, num_images=len(refs), settings=settings)
+                        object_names=names, num_images=len(refs), settings=settings,
+                        num_failed_images=failed_images)
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
 
 
 def _estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], timeout: float | None,
-                    results: list[ResultRow], scales: dict[int, float], failures: list[dict[str, Any]]) -> float:
+                    results: list[ResultRow], scales: dict[int, float],
+                    failures: list[dict[str, Any]], fail_fast: bool = False) -> tuple[float, bool]:
     """Run the estimator on one image; append its valid estimates to ``results`` (and non-unit scales to
-    ``scales``) and every fault to ``failures``. Returns the wall time of the call, s."""
+    ``scales``) and every fault to ``failures`` (with ``fail_fast``: raise :class:`EstimatorError` at the
+    first). Returns the wall time of the call (s) and whether the image failed as a whole (a fault, or only
+    invalid estimates)."""
     t0 = time.perf_counter()
     out, fault = call_estimator(est, obs, timeout)
     dt = time.perf_counter() - t0
     if fault is not None:
-        log.warning("estimator failed on scene %d image %d (%s): %s\n%s", ref.scene_id, ref.im_id, fault.kind,
-                    fault.message, fault.trace)
-        failures.append(_failure(ref, None, fault.kind, fault.message, fault.exception_type))
-        return dt
+        log.warning("estimator failed on scene %d image %d (%s): %s%s", ref.scene_id, ref.im_id, fault.kind,
+                    fault.message, "\n" + fault.trace if fault.trace else "")
+        failures.append(_failure(ref, None, fault.kind, fault.message, fault.exception_type, fault.trace_tail))
+        if fail_fast:
+            _stop(est, failures[-1], fault.trace)
+        return dt, True
     for f in list(getattr(est, "last_failures", None) or []):
         failures.append(_failure(ref, f.get("obj_id"), "no-estimate", str(f.get("reason", ""))))
+    valid = 0
     for i, element in enumerate(out):
         e, why = check_estimate(element, known, index=i)
         if why is not None:
             failures.append(_failure(ref, why.obj_id, "invalid-estimate", why.message))
+            if fail_fast:
+                _stop(est, failures[-1], "")
             continue
+        valid += 1
         row = ResultRow(scene_id=ref.scene_id, im_id=ref.im_id, obj_id=e.obj_id, score=e.score, R=e.R, t=e.t,
                         time=dt)
         results.append(row)
         if e.scale != 1.0:
             scales[id(row)] = e.scale
-    return dt
+    return dt, bool(out) and valid == 0
 
+
+def _stop(est: Any, failure: dict[str, Any], trace: str) -> None:
+    """Raise :class:`EstimatorError` for one ``failures`` row, with the estimator's full traceback."""
+    where = f"scene {failure['scene_id']} image {failure['im_id']}"
+    if failure["obj_id"] != "":
+        where += f" object {failure['obj_id']}"
+    raise EstimatorError(f"{type(est).__name__} failed on {where} ({failure['kind']}): {failure['message']}"
+                         + (f"\n{trace.rstrip()}" if trace else ""))
 
 def _check_out(out_dir: str | Path | None, dataset_dir: Path, overwrite: bool) -> None:
     if out_dir is not None:
@@ -320,7 +361,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
 # Output files
 _ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diameter_m", "symmetric", "matched",
                   "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale"]
-_FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type"]
+_FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type", "traceback"]
 
 
 def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:

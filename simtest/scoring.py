@@ -20,18 +20,11 @@ from simtest.io.dataset import ImageRef, image_size, image_targets, select_image
 from simtest.metrics.auc import ADDS_2CM, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, ResultRow
 from simtest.metrics.bop19 import evaluate_bop19
-from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, te, vsd
+from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, re_sym, te, vsd
 from simtest.metrics.registry import NDEG_MCM
 from simtest.objects.loaders import load_dataset_objects
 
 __all__ = ["score_estimates", "aggregate"]
-
-
-def _re_sym(R_e: np.ndarray, R_g: np.ndarray, syms: np.ndarray) -> float:
-    """Smallest geodesic angle (degrees) between ``R_e`` and ``R_g R_s`` over the symmetry rotations."""
-    M = R_g.T @ R_e  # trace(R_e (R_g R_s)^T) = sum(M * R_s)
-    tr = np.einsum("ij,sij->s", M, syms[:, :3, :3])
-    return float(np.degrees(np.arccos(np.clip(0.5 * (tr.max() - 1.0), -1.0, 1.0))))
 
 
 def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dict[int, int]:
@@ -88,7 +81,7 @@ def _errors(e: ResultRow, g: bop.ImageGT, obj, syms: np.ndarray, K: np.ndarray, 
     pts = obj.vertices
     out = {"score": float(e.score), "add": add(e.R, e.t, R_g, t_g, pts), "adi": adi(e.R, e.t, R_g, t_g, pts)}
     out["add_s_or_add"] = out["adi"] if obj.is_symmetric else out["add"]
-    out.update(re=re(e.R, R_g), re_sym=_re_sym(e.R, R_g, syms), te=te(e.t, t_g),
+    out.update(re=re(e.R, R_g), re_sym=re_sym(e.R, R_g, syms), te=te(e.t, t_g),
                mssd=mssd(e.R, e.t, R_g, t_g, pts, syms),
                mspd=mspd(e.R, e.t, R_g, t_g, K, pts, syms) * MSPD_REFERENCE_WIDTH / width)
     if depth is not None:

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from simtest.cli.common import add_no_progress_alias, common_parser
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, EstimatorError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "folder, or any folder with --overwrite; never the dataset folder or one inside it).",
     )
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--estimator", metavar="NAME|module:attr", help="estimator to run")
+    src.add_argument("--estimator", metavar="NAME|module:attr|file.py:attr",
+                     help="estimator to run: a built-in or installed name, module:attr, or path/to/file.py:attr "
+                          "(see docs/plugins.md)")
     src.add_argument("--results", metavar="FILE", help="BOP results CSV to score instead of running an estimator")
     p.add_argument("--data", required=True, metavar="DATASET", help="BOP dataset folder")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (outside --data)")
@@ -35,6 +38,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
                    help="time limit of the estimator per image (default 120; 0 = none); an image over it is "
                         "recorded in failures.csv as 'timeout' and the run goes on")
+    p.add_argument("--fail-fast", action="store_true",
+                   help="stop at the estimator's first failure and print its traceback (exit code 1); without "
+                        "it failures go to failures.csv and the run goes on (exit code 1 if every image failed)")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 
@@ -56,11 +62,20 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--opt applies to --estimator, not to --results")
         report = score_results(args.results, args.data, **common)
     else:
-        report = evaluate(args.data, args.estimator, targets=args.targets,
-                          estimator_options=parse_options(args.opt), timeout=args.timeout, **common)
+        try:
+            report = evaluate(args.data, args.estimator, targets=args.targets,
+                              estimator_options=parse_options(args.opt), timeout=args.timeout,
+                              fail_fast=args.fail_fast, **common)
+        except EstimatorError as exc:
+            print(f"simtest eval: estimator failed (--fail-fast): {exc}", file=sys.stderr)
+            return 1
     print(format_table(report))
     print(overall_table(report))
     print()
     for name, path in report.paths.items():
         print(f"{name:<9} {path}")
+    if report.all_images_failed():
+        print(f"simtest eval: error: {report.failure_summary()}; see {report.paths.get('failures', 'failures.csv')}",
+              file=sys.stderr)
+        return 1
     return 0

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from simtest.cli.common import LazyChoices, common_parser
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, EstimatorError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,8 +15,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run closed-loop grasp episodes: the Panda's wrist camera observes the target, the estimator "
                     "estimates its pose, a grasp planned from that estimate is executed, and success (lifted "
                     ">= 0.10 m and held 1 s) is recorded. Writes episodes.csv, summary.json and summary.md "
-                    "(see docs/grasping.md).")
-    p.add_argument("--estimator", required=True, help="estimator name (oracle, icp, ...) or module:attr")
+                    "(see docs/grasping.md). The estimator gets the wrist camera's RGB-D image, its intrinsics, "
+                    "the target's object id and the target's ground-truth visible mask and box (the 'GT "
+                    "detections' protocol); see docs/plugins.md.")
+    p.add_argument("--estimator", required=True,
+                   help="estimator: a built-in or installed name (oracle, icp, ...), module:attr, or "
+                        "path/to/file.py:attr")
     p.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
                    help="estimator option (repeatable), parsed as for simtest eval; e.g. --opt trans_noise_mm=10")
     p.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
@@ -45,6 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
                    help="time limit of the estimator per episode (default 120; 0 = none); an episode over it "
                         "ends as 'estimator_timeout' and the run goes on")
+    p.add_argument("--fail-fast", action="store_true",
+                   help="stop at the first episode the estimator fails and print its traceback (exit code 1); "
+                        "without it the run goes on (exit code 1 if the estimator failed in every episode)")
     p.set_defaults(func=run)
 
 
@@ -74,9 +81,17 @@ def run(args: argparse.Namespace) -> int:
         n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
-        workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout)
-    report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
-                                command_line=["simtest", *sys.argv[1:]])
+        workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout,
+        fail_fast=args.fail_fast)
+    try:
+        report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
+                                    command_line=["simtest", *sys.argv[1:]])
+    except EstimatorError as exc:
+        print(f"simtest grasp: estimator failed (--fail-fast): {exc}", file=sys.stderr)
+        return 1
     print(report.table())
     print(f"wrote {args.out}/episodes.csv, summary.json, summary.md")
+    if report.all_estimator_faults():
+        print(f"simtest grasp: error: {report.failure_summary()}; see {args.out}/episodes.csv", file=sys.stderr)
+        return 1
     return 0

@@ -2,26 +2,40 @@
 
 An estimator is any object with an ``estimate`` method (or a plain callable) taking an :class:`Observation`
 and returning pose estimates in the camera frame (OpenCV convention, metres). Estimators are chosen by name
-(``oracle``, ``icp``, ``umeyama``, ...) or by ``module:attr`` for user code, with keyword options:
-``load_estimator("mypkg.est:MyEstimator", threshold=0.5)``.
+(``oracle``, ``icp``, ``umeyama``, ...), by ``module:attr`` or ``path/to/file.py:attr`` for user code, or by the
+name an installed package registers in the ``simtest.estimators`` entry-point group, with keyword options:
+``load_estimator("mypkg.est:MyEstimator", threshold=0.5)``. The contract is written out in ``docs/plugins.md``.
 """
 
 from __future__ import annotations
 
 import ast
 import importlib
+import importlib.metadata
+import importlib.util
 import inspect
 import numbers
+import operator
+import sys
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from simtest.errors import ConfigError
 
+if TYPE_CHECKING:
+    from simtest.objects import ObjectSet
+
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
-           "parse_value", "parse_options", "option_signature", "check_estimator_options"]
+           "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
+           "installed_estimators"]
+
+#: Entry-point group under which installed packages register estimators by name.
+ENTRY_POINT_GROUP = "simtest.estimators"
 
 
 @dataclass(frozen=True)
@@ -33,7 +47,9 @@ class Observation:
         depth: (H, W) float32 planar depth in metres, 0 = missing.
         K: 3x3 intrinsics (pixels, OpenCV).
         width, height: Image size (pixels).
-        objects: The object set (models, symmetries, keypoints, grasps) estimates refer to.
+        objects: The :class:`~simtest.objects.ObjectSet` estimates refer to: ``objects.get(obj_id)`` gives the
+            :class:`~simtest.objects.ObjectModel` (mesh, vertices, surface samples with normals, symmetries,
+            keypoints, diameter; metres, model frame).
         target_obj_ids: Objects to estimate (``None``: whatever the estimator finds).
         masks: Optional per-target visible masks (H, W) bool, same order as ``target_obj_ids``
             (evaluation "with GT detections", as common protocols allow).
@@ -47,7 +63,7 @@ class Observation:
     K: np.ndarray
     width: int
     height: int
-    objects: Any
+    objects: ObjectSet
     target_obj_ids: tuple[int, ...] | None = None
     masks: tuple[np.ndarray, ...] | None = None
     boxes: tuple[tuple[int, int, int, int], ...] | None = None
@@ -88,8 +104,75 @@ class PoseEstimate:
     target_index: int | None = None
     info: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """Check the fields and store ``R`` (3, 3) and ``t`` (3,) as float64 arrays.
+
+        Raises:
+            ConfigError: ``obj_id`` not an integer, ``R`` not 3x3 or ``t`` not 3 values, or NaN / inf in them;
+                the message names the field and the value.
+        """
+        if isinstance(self.obj_id, bool):
+            raise ConfigError(f"PoseEstimate: obj_id must be an integer object id, got {self.obj_id!r}")
+        try:
+            object.__setattr__(self, "obj_id", operator.index(self.obj_id))
+        except TypeError:
+            raise ConfigError(f"PoseEstimate: obj_id must be an integer object id, got {self.obj_id!r} "
+                              f"({type(self.obj_id).__name__})") from None
+        object.__setattr__(self, "R", _field_array("R", self.R, (3, 3), "a 3x3 rotation matrix (model -> camera)"))
+        object.__setattr__(self, "t", _field_array("t", self.t, (3,), "3 values (metres, camera frame)"))
+
+    @classmethod
+    def from_matrix(cls, T: Any, obj_id: int, score: float = 1.0, **kwargs: Any) -> "PoseEstimate":
+        """An estimate from a 4x4 homogeneous transform ``T_cam_obj`` (model -> camera, translation in metres).
+
+        Args:
+            T: (4, 4) array; its top-left 3x3 block is ``R``, its last column's first three entries ``t``.
+            obj_id: Object id.
+            score: Confidence (higher is better).
+            **kwargs: Other fields (``scale``, ``target_index``, ``info``).
+
+        Raises:
+            ConfigError: ``T`` is not a finite 4x4 matrix (the message gives its shape), or a field is invalid.
+        """
+        try:
+            M = np.asarray(T, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ConfigError(f"PoseEstimate.from_matrix: T must be a 4x4 numeric matrix, got {_short(T)}") from None
+        if M.shape != (4, 4):
+            raise ConfigError(f"PoseEstimate.from_matrix: T must be a 4x4 matrix (model -> camera, metres), got "
+                              f"shape {M.shape}")
+        return cls(obj_id=obj_id, R=M[:3, :3].copy(), t=M[:3, 3].copy(), score=score, **kwargs)
+
+    def matrix(self) -> np.ndarray:
+        """The 4x4 homogeneous transform ``T_cam_obj`` (metres)."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.t
+        return T
+
     def is_finite(self) -> bool:
         return bool(np.all(np.isfinite(self.R)) and np.all(np.isfinite(self.t)) and np.isfinite(self.score))
+
+
+def _short(value: Any) -> str:
+    """``repr(value)`` on one line, at most 80 characters."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _field_array(name: str, value: Any, shape: tuple[int, ...], expected: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` with finite entries; :class:`ConfigError` naming the field
+    ``name``, the value and what is expected otherwise. ``t`` may also come as (3, 1) or (1, 3)."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"PoseEstimate: {name} must be {expected}, got {_short(value)}") from None
+    if arr.shape != shape and arr.size == int(np.prod(shape)) and len(shape) == 1:
+        arr = arr.reshape(shape)
+    if arr.shape != shape:
+        raise ConfigError(f"PoseEstimate: {name} must be {expected}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ConfigError(f"PoseEstimate: {name} must be finite, got {_short(value)} (NaN or inf)")
+    return arr
 
 
 @runtime_checkable
@@ -107,21 +190,29 @@ def register_estimator(name: str, target: str) -> None:
 
 
 def load_estimator(spec: str | Estimator | Callable, **options: Any) -> Estimator:
-    """An estimator from a registered name, a ``module:attr`` path, an instance, or a callable.
+    """An estimator from a registered name, an installed entry point, ``module:attr``, ``path/file.py:attr``,
+    an instance, or a callable.
 
-    ``module:attr`` may name a class (instantiated with ``options``), a factory function (called with
+    A string is looked up in this order: a built-in name (:data:`ESTIMATORS`); a name registered by an
+    installed package in the ``simtest.estimators`` entry-point group; ``module:attr`` (the module imported
+    from ``sys.path``); ``path/to/file.py:attr`` (the file imported by path; its folder is appended to
+    ``sys.path`` so it can import its sibling modules). ``attr`` may be dotted (``Class.factory``).
+
+    The object found may be a class (instantiated with ``options``), a factory function (called with
     ``options``) or a function ``f(observation) -> list[PoseEstimate]`` (used as is; no options allowed).
 
     Raises:
-        ConfigError: Unknown name (lists the known ones), unimportable module, missing attribute, or options
-            the estimator does not accept.
+        ConfigError: Unknown name (lists the built-in and installed ones), a module that cannot be imported or
+            a file that does not exist (with how to fix it), a missing attribute, or options the estimator
+            does not accept (lists the valid ones).
     """
     if not isinstance(spec, str):
         if hasattr(spec, "estimate"):
             return spec  # type: ignore[return-value]
         if callable(spec):
             return _FunctionEstimator(spec)
-        raise ConfigError(f"estimator must be a name, 'module:attr', or have an estimate() method; got {spec!r}")
+        raise ConfigError(f"estimator must be a name, 'module:attr', 'path/to/file.py:attr', or have an estimate() "
+                          f"method; got {spec!r}")
     obj = _resolve(spec)
     if isinstance(obj, type) or (callable(obj) and options):
         _check_options(spec, obj, options)
@@ -138,22 +229,98 @@ def load_estimator(spec: str | Estimator | Callable, **options: Any) -> Estimato
     return load_estimator(obj)
 
 
+def installed_estimators() -> dict[str, importlib.metadata.EntryPoint]:
+    """Estimators registered by installed packages: ``{name: entry point}`` of the ``simtest.estimators``
+    group (``[project.entry-points."simtest.estimators"] my-est = "mypkg.est:MyEstimator"``)."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
 def _resolve(spec: str) -> Any:
-    """The class, factory or function a registered name or ``module:attr`` names (imported)."""
-    target = ESTIMATORS.get(spec, spec)
-    if ":" not in target:
-        raise ConfigError(f"unknown estimator {spec!r}; built-in: {', '.join(sorted(ESTIMATORS))}; or give "
-                          f"'module:attr' for your own")
-    mod_name, attr = target.split(":", 1)
+    """The class, factory or function a name, entry point, ``module:attr`` or ``file.py:attr`` names."""
+    if spec in ESTIMATORS:
+        return _import_target(spec, ESTIMATORS[spec])
+    if ":" not in spec:
+        installed = installed_estimators()
+        if spec in installed:
+            return _load_entry_point(spec, installed[spec])
+        hint = (f"; give the class or function too: {spec}:MyEstimator" if spec.endswith(".py") else
+                "; or give 'module:attr' or 'path/to/file.py:attr' for your own")
+        names = sorted(ESTIMATORS)
+        extra = f"; installed: {', '.join(sorted(installed))}" if installed else ""
+        raise ConfigError(f"unknown estimator {spec!r}; built-in: {', '.join(names)}{extra}{hint}")
+    return _import_target(spec, spec)
+
+
+def _load_entry_point(spec: str, ep: importlib.metadata.EntryPoint) -> Any:
+    dist = getattr(getattr(ep, "dist", None), "name", None) or "?"
     try:
-        module = importlib.import_module(mod_name)
-    except ImportError as exc:
-        raise ConfigError(f"estimator {spec!r}: cannot import module {mod_name!r}: {exc}") from exc
-    try:
-        obj = getattr(module, attr)
-    except AttributeError:
-        raise ConfigError(f"estimator {spec!r}: module {mod_name!r} has no attribute {attr!r}") from None
+        return ep.load()
+    except Exception as exc:  # noqa: BLE001 - any failure of a plug-in's import is reported as a config error
+        raise ConfigError(f"estimator {spec!r}: the entry point {ep.value!r} (group {ENTRY_POINT_GROUP!r}, "
+                          f"package {dist!r}) failed to load: {type(exc).__name__}: {exc}") from exc
+
+
+def _is_file_target(module_part: str) -> bool:
+    return module_part.endswith(".py") or "/" in module_part or "\\" in module_part
+
+
+def _import_target(spec: str, target: str) -> Any:
+    """Import ``module:attr`` or ``path/file.py:attr`` and return the attribute."""
+    mod_name, _, attr = target.rpartition(":")
+    if not mod_name or not attr:
+        raise ConfigError(f"estimator {spec!r}: expected 'module:attr' or 'path/to/file.py:attr' with both parts "
+                          "given")
+    module = _import_file(spec, mod_name, attr) if _is_file_target(mod_name) else _import_module(spec, mod_name, attr)
+    obj: Any = module
+    for part in attr.split("."):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            public = sorted(n for n, v in vars(module).items() if not n.startswith("_") and callable(v)
+                            and getattr(v, "__module__", None) == module.__name__)
+            raise ConfigError(f"estimator {spec!r}: {mod_name!r} has no attribute {attr!r}; its classes and "
+                              f"functions: {', '.join(public) or '(none)'}") from None
     return obj
+
+
+def _import_module(spec: str, mod_name: str, attr: str) -> Any:
+    try:
+        return importlib.import_module(mod_name)
+    except ImportError as exc:
+        missing = getattr(exc, "name", None)
+        if missing and (mod_name == missing or mod_name.startswith(missing + ".")):
+            raise ConfigError(f"estimator {spec!r}: {exc}: is it on PYTHONPATH (tried the folders of sys.path)? "
+                              f"or pass a file path: path/to/{mod_name.split('.')[-1]}.py:{attr}") from exc
+        raise ConfigError(f"estimator {spec!r}: importing module {mod_name!r} failed: {exc} (a module it imports "
+                          "is missing: install it)") from exc
+    except Exception as exc:  # noqa: BLE001 - user code failing at import time
+        raise ConfigError(f"estimator {spec!r}: importing module {mod_name!r} raised {type(exc).__name__}: "
+                          f"{exc}") from exc
+
+
+def _import_file(spec: str, path_text: str, attr: str) -> Any:
+    """Import a Python file by path (once per resolved path; later calls reuse the module)."""
+    path = Path(path_text).expanduser().resolve()
+    if not path.is_file():
+        raise ConfigError(f"estimator {spec!r}: file not found: {path} (a path relative to the working folder "
+                          f"{Path.cwd()}, or absolute)")
+    name = f"simtest_plugin_{path.stem}_{zlib.crc32(str(path).encode()):08x}"
+    if name in sys.modules:
+        return sys.modules[name]
+    loader_spec = importlib.util.spec_from_file_location(name, path)
+    if loader_spec is None or loader_spec.loader is None:
+        raise ConfigError(f"estimator {spec!r}: {path} cannot be imported as a Python module (expected a .py file)")
+    module = importlib.util.module_from_spec(loader_spec)
+    if str(path.parent) not in sys.path:
+        sys.path.append(str(path.parent))
+    sys.modules[name] = module
+    try:
+        loader_spec.loader.exec_module(module)
+    except Exception as exc:  # noqa: BLE001 - user code failing at import time
+        del sys.modules[name]
+        where = f" (line {exc.lineno})" if isinstance(exc, SyntaxError) else ""
+        raise ConfigError(f"estimator {spec!r}: importing {path}{where} raised {type(exc).__name__}: {exc}") from exc
+    return module
 
 
 def check_estimator_options(spec: str | Any, options: dict[str, Any]) -> None:

@@ -39,7 +39,7 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 
 __all__ = ["DEFAULT_TIMEOUT_S", "FAILURE_KINDS", "EstimatorFailure", "InvalidEstimate", "call_estimator",
-           "check_estimate", "check_timeout"]
+           "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES"]
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +49,8 @@ DEFAULT_TIMEOUT_S = 120.0
 FAILURE_KINDS = ("exception", "exit", "timeout", "invalid-return")
 #: Largest deviation of ``R R^T`` from the identity accepted as a rotation.
 ROTATION_TOL = 1e-3
+#: Frames kept in :attr:`EstimatorFailure.trace_tail`.
+TRACE_FRAMES = 3
 _EXPECTED = "expected a list of PoseEstimate (obj_id, R 3x3 rotation, t (3,) in metres)"
 _warned_no_timeout = False
 
@@ -62,12 +64,16 @@ class EstimatorFailure:
         message: What happened, with the expected behaviour where that helps.
         exception_type: Name of the exception class (``""`` for ``invalid-return``).
         trace: The formatted traceback of an ``exception`` (for logs), else ``""``.
+        trace_tail: The last frames (at most :data:`TRACE_FRAMES`) of the estimator's own code where it raised,
+            exited or was stopped by the time limit, one line: ``file:line in function: source > ...``
+            (outermost first); ``""`` when unknown.
     """
 
     kind: str
     message: str
     exception_type: str = ""
     trace: str = ""
+    trace_tail: str = ""
 
 
 @dataclass(frozen=True)
@@ -169,18 +175,26 @@ def call_estimator(est: Any, observation: Observation,
             out = _run_with_alarm(est, observation, limit)
         else:
             out = est.estimate(observation)
-    except _EstimatorTimeout:
+    except _EstimatorTimeout as exc:
         return [], EstimatorFailure("timeout", f"estimate() did not return within the {limit:g} s time limit",
-                                    "TimeoutError")
+                                    "TimeoutError", trace_tail=trace_tail(exc))
     except SystemExit as exc:
         return [], EstimatorFailure("exit", f"estimate() called sys.exit({exc.code!r}); estimators must return "
-                                    "or raise, never exit", "SystemExit")
+                                    "or raise, never exit", "SystemExit", traceback.format_exc(), trace_tail(exc))
     except Exception as exc:  # noqa: BLE001 - every estimator error is a recorded failure
         return [], EstimatorFailure("exception", f"{type(exc).__name__}: {exc}", type(exc).__name__,
-                                    traceback.format_exc())
+                                    traceback.format_exc(), trace_tail(exc))
     if not isinstance(out, (list, tuple)):
         return [], EstimatorFailure("invalid-return", f"estimate() returned {_describe(out)}; {_EXPECTED}")
     return list(out), None
+
+
+def trace_tail(exc: BaseException, frames: int = TRACE_FRAMES) -> str:
+    """The last ``frames`` frames of ``exc``'s traceback outside this module, on one line:
+    ``path:line in function: source > ...`` (outermost first)."""
+    here = __file__
+    summary = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename != here]
+    return " > ".join(f"{f.filename}:{f.lineno} in {f.name}: {(f.line or '').strip()}" for f in summary[-frames:])
 
 
 def _describe(value: Any) -> str:

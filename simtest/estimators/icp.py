@@ -146,16 +146,11 @@ _CLOUDS: dict[tuple[str, int], ModelCloud] = {}
 
 
 def model_cloud(obj: Any, count: int = 2000) -> ModelCloud:
-    """Area-uniform surface samples with face normals of ``obj.mesh`` (cached per mesh and count)."""
-    import trimesh
-
+    """Area-uniform surface samples with face normals of the model (:meth:`ObjectModel.surface_cloud`), with a
+    KD-tree (cached per mesh and count)."""
     key = (getattr(obj, "mesh_hash", str(id(obj))), int(count))
     if key not in _CLOUDS:
-        rng = np.random.default_rng(12345)
-        pts, face_idx = trimesh.sample.sample_surface(obj.mesh, int(count), seed=rng)
-        normals = np.asarray(obj.mesh.face_normals)[face_idx]
-        _CLOUDS[key] = ModelCloud(np.asarray(pts, dtype=np.float64), np.asarray(normals, dtype=np.float64),
-                                  float(obj.diameter), float(obj.mesh.area))
+        _CLOUDS[key] = ModelCloud(*obj.surface_cloud(int(count)), float(obj.diameter), float(obj.mesh.area))
     return _CLOUDS[key]
 
 

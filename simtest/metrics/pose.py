@@ -23,6 +23,7 @@ __all__ = [
     "adi",
     "add_s",
     "re",
+    "re_sym",
     "rotation_error_rad",
     "te",
     "mssd",
@@ -161,6 +162,22 @@ def rotation_error_rad(R_e: np.ndarray, R_g: np.ndarray) -> float:
 def re(R_e: np.ndarray, R_g: np.ndarray) -> float:
     """Rotation error in degrees (BOP ``re``): the geodesic angle of ``R_e R_g^T``, in [0, 180]."""
     return float(np.degrees(rotation_error_rad(R_e, R_g)))
+
+
+def re_sym(R_e: np.ndarray, R_g: np.ndarray, syms: Any) -> float:
+    """Smallest geodesic rotation error (degrees) between ``R_e`` and ``R_g R_s`` over the symmetry set.
+
+    Args:
+        R_e, R_g: 3x3 rotations (estimate, ground truth).
+        syms: Symmetry transforms (S, 4, 4) or rotations (S, 3, 3), identity included (as returned by
+            :meth:`simtest.objects.ObjectModel.symmetry_transforms`); equals :func:`re` for the identity alone.
+    """
+    S = np.asarray(syms, dtype=np.float64)
+    if S.ndim != 3 or S.shape[1:] not in ((3, 3), (4, 4)) or len(S) == 0:
+        raise ConfigError(f"syms must be (S, 4, 4) or (S, 3, 3) with S >= 1, got shape {S.shape}")
+    M = _rot(R_g, "R_g").T @ _rot(R_e, "R_e")  # trace(R_e (R_g R_s)^T) = sum(M * R_s)
+    tr = np.einsum("ij,sij->s", M, S[:, :3, :3])
+    return float(np.degrees(np.arccos(np.clip(0.5 * (tr.max() - 1.0), -1.0, 1.0))))
 
 
 def te(t_e: np.ndarray, t_g: np.ndarray) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -31,7 +32,7 @@ class _Raises:
 
 class _NaN:
     def estimate(self, observation):
-        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=np.full((3, 3), np.nan), t=np.zeros(3))]
+        return [SimpleNamespace(obj_id=observation.target_obj_ids[0], R=np.full((3, 3), np.nan), t=np.zeros(3))]
 
 
 def _nothing(observation):

@@ -7,11 +7,13 @@ import csv
 import json
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from simtest.envs.episode import FAILURE_REASONS, run_episode
+from simtest.envs.runner import CSV_COLUMNS, summarize
 from simtest.estimators.base import PoseEstimate
 from simtest.estimators.oracle import OracleEstimator
 
@@ -34,7 +36,7 @@ class ReturnsNone:
 
 class FlatRotation:
     def estimate(self, observation):
-        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=np.eye(2), t=np.zeros(3))]
+        return [SimpleNamespace(obj_id=observation.target_obj_ids[0], R=np.eye(2), t=np.zeros(3))]
 
 
 class SlowFirst:
@@ -88,3 +90,77 @@ def test_grasp_cli_records_a_timeout_and_goes_on(tmp_path, capsys):
     assert summary["by_reason"]["estimator_timeout"] == 1 and summary["config"]["timeout"] == 1.0
     assert main(["grasp", "--estimator", "oracle", "--timeout", "-2", "--out", str(tmp_path / "x"),
                  "--quiet"]) == 2
+
+
+class OtherTarget:
+    """The ground truth, but answering target 1 (an episode has only target 0)."""
+
+    needs_gt = True
+
+    def estimate(self, observation):
+        R, t = observation.gt_poses[0]
+        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=R, t=t, target_index=1)]
+
+
+class GivesUp:
+    def __init__(self):
+        self.last_failures = []
+
+    def estimate(self, observation):
+        self.last_failures = [{"obj_id": observation.target_obj_ids[0], "reason": "only 3 depth points"}]
+        return []
+
+
+class TurnedCan:
+    """The ground truth turned 90 degrees about the can's axis of symmetry (model z): a correct pose."""
+
+    needs_gt = True
+
+    def estimate(self, observation):
+        R, t = observation.gt_poses[0]
+        Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=R @ Rz, t=t)]
+
+
+def test_estimates_for_another_target_index_are_noted_not_dropped_silently(env):
+    res = run_episode(env, OtherTarget(), seed=4, options={"target": "box_1"})
+    assert res.reason == "no_estimate" and "target_index 1" in res.warnings and "target_index 1" in res.error
+    assert "warnings" in res.to_row()
+
+
+def test_the_estimators_own_failure_reason_explains_a_missing_estimate(env):
+    res = run_episode(env, GivesUp(), seed=4, options={"target": "box_1"})
+    assert res.reason == "no_estimate" and res.error == "only 3 depth points" and res.warnings == ""
+
+
+def test_grasp_rotation_error_is_symmetric_as_in_eval(env):
+    res = run_episode(env, TurnedCan(), seed=3, options={"target": "can_0"})
+    assert res.re_deg == pytest.approx(90.0, abs=1e-6) and res.re_sym_deg < 1.0
+    rows = [{**res.to_row(), "episode": 0}]
+    assert summarize(rows)["median_re_deg"] == pytest.approx(res.re_sym_deg)
+
+
+def test_raising_estimator_leaves_its_traceback(env):
+    class Raises:
+        def estimate(self, observation):
+            raise KeyError("weights")
+
+    res = run_episode(env, Raises(), seed=4, options={"target": "box_1"})
+    assert res.reason == "estimator_error" and "in estimate: raise KeyError" in res.traceback
+    assert "Traceback (most recent call last)" in res.trace and "trace" not in CSV_COLUMNS
+
+
+def test_gif_frames_play_at_the_given_rate(tmp_path):
+    from PIL import Image
+
+    from simtest.envs.runner import write_video
+
+    frames = [np.full((16, 24, 3), 40 * i, np.uint8) for i in range(4)]
+    path = write_video(frames, tmp_path / "clip.gif", fps=10.0)
+    if path.suffix == ".gif":
+        with Image.open(path) as im:
+            assert im.n_frames == 4 and im.info["duration"] == 100  # milliseconds
+    else:  # an ffmpeg backend is installed: MP4 at 10 fps
+        import imageio.v3 as iio
+
+        assert iio.immeta(path)["fps"] == pytest.approx(10.0)

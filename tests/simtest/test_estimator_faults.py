@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import time
+from types import SimpleNamespace as Pose  # pose-like objects a PoseEstimate would refuse at construction
 
 import numpy as np
 import pytest
@@ -73,11 +74,11 @@ class Mixed:
                                                                       observation.gt_poses)]
         o = observation.target_obj_ids[0]
         bad = [{"obj_id": o, "R": np.eye(3), "t": np.zeros(3)},
-               PoseEstimate(obj_id=o, R=np.eye(2), t=np.zeros(3)),
-               PoseEstimate(obj_id=o, R=np.eye(3), t=np.zeros(4)),
-               PoseEstimate(obj_id=o, R=np.eye(3), t=np.array([0.0, np.inf, 1.0])),
+               Pose(obj_id=o, R=np.eye(2), t=np.zeros(3)),
+               Pose(obj_id=o, R=np.eye(3), t=np.zeros(4)),
+               Pose(obj_id=o, R=np.eye(3), t=np.array([0.0, np.inf, 1.0])),
                PoseEstimate(obj_id=o, R=2 * np.eye(3), t=np.zeros(3)),
-               PoseEstimate(obj_id=1.5, R=np.eye(3), t=np.zeros(3)),
+               Pose(obj_id=1.5, R=np.eye(3), t=np.zeros(3)),
                PoseEstimate(obj_id=999, R=np.eye(3), t=np.zeros(3))]
         return good + bad
 
@@ -220,9 +221,10 @@ def test_cli_eval_timeout(small_dataset, tmp_path, capsys):
 
     out = tmp_path / "cli"
     assert main(["eval", "--data", str(small_dataset), "--estimator", f"{__name__}:Sleeper", "--timeout", "1",
-                 "--max-images", "1", "--no-vsd", "--no-progress", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
-    assert "failures" in text and "(timeout 1)" in text
+                 "--max-images", "1", "--no-vsd", "--no-progress", "--out", str(out)]) == 1  # every image failed
+    captured = capsys.readouterr()
+    assert "failures" in captured.out and "(timeout 1)" in captured.out
+    assert "the estimator failed on 1 of 1 images (timeout 1)" in captured.err
     assert [r["kind"] for r in _failures_csv(out)] == ["timeout"]
     assert main(["eval", "--data", str(small_dataset), "--estimator", "oracle", "--timeout", "-1",
                  "--no-progress", "--out", str(tmp_path / "x")]) == 2

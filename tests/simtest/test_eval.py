@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,8 +23,10 @@ class Raising:
 
 
 class NaNPose:
+    """Returns pose-like objects with NaN (a PoseEstimate refuses NaN at construction)."""
+
     def estimate(self, observation):
-        return [PoseEstimate(obj_id=o, R=np.eye(3), t=np.array([np.nan, 0.0, 1.0]))
+        return [SimpleNamespace(obj_id=o, R=np.eye(3), t=np.array([np.nan, 0.0, 1.0]))
                 for o in observation.target_obj_ids]
 
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from simtest.errors import ConfigError
 from simtest.geometry import random_rotation, rotation_about
 from simtest.metrics import add, add_01d, add_s_or_add, adi, mspd, mssd, re, rotation_error_rad, te, vsd
-from simtest.metrics.pose import as_symmetries, vsd_from_depth
+from simtest.metrics.pose import as_symmetries, re_sym, vsd_from_depth
 from simtest.objects import ContinuousSymmetry, ObjectModel
 from simtest.raster import render_depth
 
@@ -77,6 +77,21 @@ def test_rotation_about_the_symmetry_axis(can):
     assert mssd(R_e, T0, I3, T0, pts) >= e_add
     assert add_s_or_add(can, R_e, T0, I3, T0) == adi(R_e, T0, I3, T0, pts)
     assert add_01d(can, R_e, T0, I3, T0)
+
+
+def test_re_sym_is_the_smallest_rotation_error_over_the_symmetries(can, box):
+    syms = can.symmetry_transforms()
+    R_e = rotation_about([0, 0, 1], 0.7)  # about the can's axis: equivalent up to one discretisation step
+    assert re(R_e, I3) == pytest.approx(np.degrees(0.7)) and re_sym(R_e, I3, syms) <= 180.0 / 315 + 1e-9
+    tilt = rotation_about([1, 0, 0], 0.3) @ R_e  # a tilt of the axis is not a symmetry
+    assert re_sym(tilt, I3, syms) == pytest.approx(np.degrees(0.3), abs=180.0 / 315)
+    rng = np.random.default_rng(3)
+    for _ in range(5):  # no symmetries: re_sym is re; (S, 3, 3) rotations work as (S, 4, 4) transforms
+        R1, R2 = random_rotation(rng), random_rotation(rng)
+        assert re_sym(R1, R2, box.symmetry_transforms()) == pytest.approx(re(R1, R2), abs=1e-9)
+        assert re_sym(R1, R2, syms[:, :3, :3]) == re_sym(R1, R2, syms)
+    with pytest.raises(ConfigError, match=r"syms must be \(S, 4, 4\) or \(S, 3, 3\)"):
+        re_sym(I3, I3, np.eye(4))
 
 
 def test_consistency_on_random_poses(box):
