@@ -29,7 +29,7 @@ from simtest.errors import RenderError
 from simtest.gl import SYSTEM_PACKAGES_HINT, backend, before_first_context, check_fork, context_made, \
     forked_after_context
 
-__all__ = ["Frame", "Renderer", "Profile"]
+__all__ = ["Frame", "Renderer", "Profile", "camera_id"]
 
 Profile = Literal["fast", "quality"]
 
@@ -80,6 +80,19 @@ class Frame:
     depth: np.ndarray | None
     seg: np.ndarray | None
 
+
+
+def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
+    """The id of fixed camera ``camera`` (an id or a name) of ``model``.
+
+    Raises:
+        RenderError: No such camera (the message lists the model's cameras).
+    """
+    cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) if isinstance(camera, str) else int(camera)
+    if not 0 <= cid < model.ncam:
+        names = [model.camera(i).name for i in range(model.ncam)]
+        raise RenderError(f"unknown camera {camera!r}; the model has {names}")
+    return cid
 
 class Renderer:
     """Renders RGB / depth / segmentation of a MuJoCo model from its fixed cameras.
@@ -135,12 +148,7 @@ class Renderer:
         self.zfar = float(model.vis.map.zfar) * extent
 
     def _camera_id(self, camera: int | str) -> int:
-        cid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) if isinstance(camera, str) \
-            else int(camera)
-        if not 0 <= cid < self.model.ncam:
-            names = [self.model.camera(i).name for i in range(self.model.ncam)]
-            raise RenderError(f"unknown camera {camera!r}; the model has {names}")
-        return cid
+        return camera_id(self.model, camera)
 
     def render(self, data: mujoco.MjData, camera: int | str, rgb: bool = True, depth: bool = True,
                seg: bool = True) -> Frame:

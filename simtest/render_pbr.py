@@ -34,7 +34,7 @@ import mujoco
 
 from simtest.camera import CameraModel
 from simtest.errors import RenderError
-from simtest.render import Frame
+from simtest.render import Frame, camera_id
 from simtest.rng import child_sequence
 
 __all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "srgb_to_linear", "linear_to_srgb8", "INSTALL_HINT"]
@@ -288,12 +288,7 @@ class PbrRenderer:
         return Frame(linear_to_srgb8(color), None, None)
 
     def _camera_id(self, camera: int | str) -> int:
-        cid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) if isinstance(camera, str) \
-            else int(camera)
-        if not 0 <= cid < self.model.ncam:
-            names = [self.model.camera(i).name for i in range(self.model.ncam)]
-            raise RenderError(f"unknown camera {camera!r}; the model has {names}")
-        return cid
+        return camera_id(self.model, camera)
 
     def _scene_dict(self, data: mujoco.MjData, cam: CameraModel) -> dict:
         mi = self._mi

@@ -8,7 +8,7 @@ import importlib
 import logging
 from collections.abc import Iterator
 
-__all__ = ["common_parser", "add_no_progress_alias", "configure_logging", "LazyChoices"]
+__all__ = ["common_parser", "add_no_progress_alias", "add_fault_options", "configure_logging", "LazyChoices"]
 
 
 def common_parser() -> argparse.ArgumentParser:
@@ -23,6 +23,21 @@ def common_parser() -> argparse.ArgumentParser:
 def add_no_progress_alias(parser: argparse.ArgumentParser) -> None:
     """Keep ``--no-progress`` working (hidden, deprecated): :func:`simtest.cli.main` turns it into ``--quiet``."""
     parser.add_argument("--no-progress", dest="no_progress", action="store_true", help=argparse.SUPPRESS)
+
+
+def add_fault_options(parser: argparse.ArgumentParser, unit: str, over_limit: str, goes_on: str) -> None:
+    """``--timeout SECONDS`` and ``--fail-fast``, the estimator-fault options of eval and grasp.
+
+    Args:
+        unit: What one estimator call covers (``"image"``, ``"episode"``).
+        over_limit: What happens to a unit over the time limit (help text).
+        goes_on: When the command exits 1 without ``--fail-fast`` (help text).
+    """
+    parser.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
+                        help=f"time limit of the estimator per {unit} (default 120; 0 = none); {over_limit}")
+    parser.add_argument("--fail-fast", action="store_true",
+                        help=f"stop at the estimator's first failure and print its traceback (exit code 1); "
+                             f"without it the run goes on ({goes_on})")
 
 
 def configure_logging(verbose: int) -> None:

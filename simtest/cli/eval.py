@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import add_no_progress_alias, common_parser
+from simtest.cli.common import add_fault_options, add_no_progress_alias, common_parser
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -35,12 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", metavar="ID,ID", help="scene ids to evaluate (default: all)")
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD (faster; AR is then mean of MSSD and MSPD)")
-    p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
-                   help="time limit of the estimator per image (default 120; 0 = none); an image over it is "
-                        "recorded in failures.csv as 'timeout' and the run goes on")
-    p.add_argument("--fail-fast", action="store_true",
-                   help="stop at the estimator's first failure and print its traceback (exit code 1); without "
-                        "it failures go to failures.csv and the run goes on (exit code 1 if every image failed)")
+    add_fault_options(p, "image", "an image over it is recorded in failures.csv as 'timeout' and the run goes on",
+                      "failures go to failures.csv; exit code 1 if every image failed")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 

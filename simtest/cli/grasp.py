@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import LazyChoices, common_parser
+from simtest.cli.common import LazyChoices, add_fault_options, common_parser
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -46,12 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty --out, replacing its results")
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
     p.add_argument("--video-episodes", type=int, default=5, help="how many episodes get a clip (default 5)")
-    p.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
-                   help="time limit of the estimator per episode (default 120; 0 = none); an episode over it "
-                        "ends as 'estimator_timeout' and the run goes on")
-    p.add_argument("--fail-fast", action="store_true",
-                   help="stop at the first episode the estimator fails and print its traceback (exit code 1); "
-                        "without it the run goes on (exit code 1 if the estimator failed in every episode)")
+    add_fault_options(p, "episode", "an episode over it ends as 'estimator_timeout' and the run goes on",
+                      "exit code 1 if the estimator failed in every episode")
     p.set_defaults(func=run)
 
 
