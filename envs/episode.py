@@ -44,7 +44,7 @@ import mujoco
 
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner
-from simtest.estimators.base import Observation, PoseEstimate, load_estimator
+from simtest.estimators.base import Observation, PoseEstimate, gt_access, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
@@ -351,8 +351,9 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
         env: A :class:`PandaGraspEnv` (wrappers are looked through).
         estimator: An estimator instance, a callable, a registered name or ``module:attr``. Estimators with a
             true ``needs_gt`` attribute (the ``oracle``) get the ground-truth pose in
-            ``Observation.gt_poses``; every estimator gets the target's ground-truth visible mask and box
-            (the "GT detections" protocol).
+            ``Observation.gt_poses``; those with ``needs_gt_masks`` (or ``needs_gt``) the target's
+            ground-truth visible mask and box (the "GT detections" protocol); every estimator gets the
+            target's object id, no other ground truth.
         planner: The grasp planner (default :class:`GraspPlanner`).
         seed: Env seed of the episode (scene, corruption and, through ``Observation.scene_id``, oracle noise).
         options: ``reset`` options (objects, target, n_distractors, occlusion, corruption, depth_noise, ...).
@@ -406,10 +407,10 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     T_cam_obj_gt = info["T_cam_obj"][u.grasp_scene.target_instance]
     R_g, t_g = T_cam_obj_gt[:3, :3], T_cam_obj_gt[:3, 3]
     box = tuple(mask_bbox(mask)) if mask.any() else (0, 0, 0, 0)  # BOP's bbox_visib convention
-    needs_gt = bool(getattr(est, "needs_gt", False))
+    gt_masks, needs_gt = gt_access(est)
     observation = Observation(
         rgb=obs["rgb"], depth=obs["depth"], K=obs["K"], width=u.width, height=u.height, objects=u.objects,
-        target_obj_ids=(tid,), masks=(mask,), boxes=(box,),
+        target_obj_ids=(tid,), masks=(mask,) if gt_masks else None, boxes=(box,) if gt_masks else None,
         gt_poses=((R_g.copy(), t_g.copy()),) if needs_gt else None,
         scene_id=int(seed) if seed is not None else 0, im_id=0)
 

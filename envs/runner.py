@@ -289,6 +289,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     rows.sort(key=lambda r: r["episode"])
     summary = summarize(rows)
     summary["config"] = cfg.to_dict()
+    summary["estimator_label"] = _estimator_label(cfg)
     summary["wall_s_total"] = time.perf_counter() - t0
     summary["command_line"] = list(command_line) if command_line is not None else None
     report = GraspRunReport(rows, summary, out)
@@ -303,6 +304,13 @@ def _check_fail_fast(cfg: GraspRunConfig, row: dict) -> None:
         trace = str(row.get("trace") or row.get("traceback") or "").rstrip()
         raise EstimatorError(f"{cfg.estimator} failed in episode {row['episode']} (seed {row['seed']}, "
                              f"{row['reason']}): {row['error']}" + (f"\n{trace}" if trace else ""))
+
+
+def _estimator_label(cfg: GraspRunConfig) -> str:
+    """The estimator's label in tables: its name, plus `` (GT masks)`` when it is given ground-truth masks."""
+    from simtest.estimators.base import estimator_label, load_estimator
+
+    return estimator_label(cfg.estimator, load_estimator(cfg.estimator, **cfg.estimator_options))
 
 
 def _tick(bar, rows: list[dict]) -> None:
@@ -365,7 +373,7 @@ def summary_markdown(s: dict) -> str:
     lines = ["# Closed-loop grasping", ""]
     if cfg:
         opts = ", ".join(f"{k}={v}" for k, v in (cfg.get("estimator_options") or {}).items())
-        lines += [f"Estimator `{cfg.get('estimator')}`" + (f" ({opts})" if opts else "") +
+        lines += [f"Estimator `{s.get('estimator_label') or cfg.get('estimator')}`" + (f" ({opts})" if opts else "") +
                   f", objects `{cfg.get('objects')}`, occlusion {cfg.get('occlusion')}, "
                   f"weather {cfg.get('weather') or 'none'}"
                   + (f" (severity {cfg.get('severity')})" if cfg.get("weather") else "")

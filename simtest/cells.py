@@ -14,7 +14,7 @@ from typing import Any
 
 from simtest.io.files import atomic_write_json, read_csv, write_csv
 
-__all__ = ["cell_dir", "is_finished", "finish_cell", "collect", "write_tables", "RESULT_COLUMNS",
+__all__ = ["cell_dir", "is_finished", "finish_cell", "collect", "write_tables", "labels", "RESULT_COLUMNS",
            "SUMMARY_COLUMNS", "RESULTS_FILE", "SUMMARY_FILE"]
 
 RESULTS_FILE = "results.csv"
@@ -74,8 +74,22 @@ def _grasp_rows(base: dict, cdir: Path, cell: dict) -> tuple[list[dict], list[di
     return results, summary
 
 
+def labels(out: str | Path, estimators: list[str], conds: list) -> dict[str, str]:
+    """``{name: label}``: the label its finished pose cells recorded (``NAME (GT masks)`` for an estimator
+    given ground-truth masks), else the name."""
+    found = {}
+    for est in estimators:
+        for cond in conds:
+            cell = _read_cell(cell_dir(out, est, cond.name, "pose"))
+            if cell is not None and cell.get("label"):
+                found[est] = str(cell["label"])
+                break
+    return {est: found.get(est, est) for est in estimators}
+
+
 def collect(out: str | Path, estimators: list[str], conds: list) -> tuple[list[dict], list[dict]]:
-    """``(results, summary)`` rows of every finished cell, conditions in table order.
+    """``(results, summary)`` rows of every finished cell, conditions in table order; the ``estimator``
+    column holds the estimator's label (:func:`labels`).
 
     Args:
         out: Sweep folder.
@@ -83,6 +97,7 @@ def collect(out: str | Path, estimators: list[str], conds: list) -> tuple[list[d
         conds: :class:`simtest.sweep.Condition` objects (``name``, ``factor``, ``level``, ``severity``).
     """
     results, summary = [], []
+    names = labels(out, estimators, conds)
     for cond in conds:
         base = {"condition": cond.name, "factor": cond.factor, "level": cond.level,
                 "severity": "" if cond.severity is None else cond.severity}
@@ -91,7 +106,7 @@ def collect(out: str | Path, estimators: list[str], conds: list) -> tuple[list[d
                 cdir = cell_dir(out, est, cond.name, kind)
                 cell = _read_cell(cdir)
                 if cell is not None:
-                    r, s = rows_of({**base, "estimator": est}, cdir, cell)
+                    r, s = rows_of({**base, "estimator": names[est]}, cdir, cell)
                     results += r
                     summary += s
     return results, summary

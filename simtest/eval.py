@@ -11,7 +11,10 @@ estimator, with the same code, so both give the same numbers.
 Scoring protocol
 ----------------
 * **Targets** are the ground-truth instances with ``visib_fract >= 0.1`` (BOP19's ``visib_gt_min``). With
-  ``targets="gt-masks"`` the estimator is told these instances (object ids, visible masks, visible boxes).
+  ``targets="gt-masks"`` the estimator is told their object ids (one per instance, as BOP's localisation
+  task); their ground-truth visible masks and boxes only if it declares ``needs_gt_masks`` (such runs are
+  labelled ``NAME (GT masks)``), their poses only if it declares ``needs_gt`` (the ``oracle``). Any other
+  estimator reads no ground truth: no mask file is opened for it.
 * **Matching** (for the per-target errors): per image and object id, estimates in order of decreasing score
   are each assigned to the not yet assigned target with the nearest translation (``te``); at most one estimate
   per target. A target left without an estimate is a **miss**: its distances count as infinite, its rotation
@@ -48,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import Estimator, Observation, load_estimator
+from simtest.estimators.base import GT_MASKS_LABEL, Estimator, Observation, gt_access, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
@@ -132,16 +135,19 @@ METRIC_DEFINITIONS = definitions()
 
 # ---------------------------------------------------------------------------------------------------------
 # Running an estimator
-def _observation(ref: ImageRef, objects, targets: str, width: int, height: int,
-                 needs_gt: bool) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
+def _observation(ref: ImageRef, objects, targets: str, width: int, height: int, needs_gt: bool,
+                 gt_masks: bool = False) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
+    """The estimator's view of one image: ground-truth masks and boxes only with ``gt_masks``, poses only with
+    ``needs_gt`` (see the module doc)."""
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"])
     tg = image_targets(ref, VISIB_GT_MIN)
     kw: dict[str, Any] = {}
     if targets == "gt-masks":
         kw["target_obj_ids"] = tuple(g.obj_id for _, g in tg)
-        kw["masks"] = tuple(bop.read_mask(ref.scene_dir, ref.im_id, j, visible=True) for j, _ in tg)
-        kw["boxes"] = tuple(tuple(int(v) for v in g.bbox_visib) for _, g in tg)
+        if gt_masks or needs_gt:
+            kw["masks"] = tuple(bop.read_mask(ref.scene_dir, ref.im_id, j, visible=True) for j, _ in tg)
+            kw["boxes"] = tuple(tuple(int(v) for v in g.bbox_visib) for _, g in tg)
         if needs_gt:
             kw["gt_poses"] = tuple((g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy()) for _, g in tg)
     obs = Observation(rgb=rgb, depth=depth, K=ref.info["K"].copy(), width=width, height=height, objects=objects,
@@ -168,9 +174,11 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         estimator: A name (``oracle``, ``icp``, ``umeyama``), ``"module:attr"``, an instance with
             ``estimate(observation)`` or a callable; see :func:`simtest.estimators.load_estimator`.
         split: Split folder (``train_pbr``).
-        targets: ``"gt-masks"``: tell the estimator the targets (object ids, visible masks and boxes);
-            ``"none"``: the estimator finds objects itself. Ground-truth poses are passed only to estimators
-            with ``needs_gt = True`` (the ``oracle``), and only with ``"gt-masks"``.
+        targets: ``"gt-masks"``: tell the estimator the targets' object ids, and their ground-truth visible
+            masks and boxes if it declares ``needs_gt_masks`` (the run is then labelled ``NAME (GT masks)``);
+            ``"none"``: nothing, the estimator finds objects itself (one that cannot, e.g. ``icp``, fails).
+            Ground-truth poses are passed only to estimators with ``needs_gt = True`` (the ``oracle``), and
+            only with ``"gt-masks"``.
         scenes: Scene ids to evaluate (default all).
         max_images: Evaluate only the first N images.
         progress: Show a tqdm progress bar.
@@ -209,10 +217,11 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     root = Path(dataset_dir)
     _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
-    needs_gt = bool(getattr(est, "needs_gt", False))
+    gt_masks, needs_gt = gt_access(est)
     if needs_gt and targets == "none":
         raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt = True); use "
                           "targets='gt-masks'")
+    gt_masks = gt_masks and targets == "gt-masks"
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
     known = set(objects.ids)
@@ -225,7 +234,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     failed_images = 0
     bar = tqdm(refs, desc="eval", unit="img", disable=not progress, dynamic_ncols=True)
     for ref in bar:
-        obs, _ = _observation(ref, objects, targets, width, height, needs_gt)
+        obs, _ = _observation(ref, objects, targets, width, height, needs_gt, gt_masks)
         dt, failed = _estimate_image(est, obs, ref, known, limit, results, scales, failures, fail_fast)
         times.append(dt)
         failed_images += failed
@@ -239,7 +248,10 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     overall["num_image_exceptions"] = sum(f["kind"] == "exception" for f in failures)
     overall["mean_time_per_image_s"] = float(np.mean(times)) if times else float("nan")
     overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
-    settings = {"dataset": str(root), "split": split, "estimator": _describe(estimator, est), "targets": targets,
+    labelled = gt_masks and not needs_gt  # the oracle's name says it
+    settings = {"dataset": str(root), "split": split,
+                "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else ""),
+                "gt_masks": labelled, "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,

@@ -260,6 +260,17 @@ def _headline(cfg, conds, summary: list[dict]) -> str:
     return "<ul class=\"headline\">" + "".join(items) + "</ul>"
 
 
+def _labelled(cfg, out: Path, conds):
+    """``cfg`` with every estimator named by its label in the tables (``NAME (GT masks)`` for an estimator
+    given ground-truth masks; :func:`simtest.cells.labels`)."""
+    from dataclasses import replace
+
+    from simtest.cells import labels
+
+    names = labels(out, [e.name for e in cfg.estimators], conds)
+    return replace(cfg, estimators=tuple(replace(e, name=names[e.name]) for e in cfg.estimators))
+
+
 def write_report(cfg, out: Path, conds) -> dict[str, Path]:
     """Write ``tables.md`` and ``report.html`` from the sweep's ``results.csv`` and ``summary.csv``.
 
@@ -270,6 +281,7 @@ def write_report(cfg, out: Path, conds) -> dict[str, Path]:
     """
     results = read_csv(out / RESULTS_FILE)
     summary = read_csv(out / SUMMARY_FILE)
+    cfg = _labelled(cfg, out, conds)
     md = markdown_tables(cfg, conds, summary)
     atomic_write_text(out / "tables.md", md)
     plots = _plots(cfg, conds, summary, results)

@@ -23,6 +23,7 @@ from typing import Any
 
 from simtest import cells
 from simtest.errors import ConfigError, DatasetError
+from simtest.estimators.base import GT_MASKS_LABEL
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
 from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
 from simtest.metrics.registry import metric_keys
@@ -319,7 +320,8 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
                    progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options),
                    timeout=cfg.timeout, overwrite=True)
-    cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "dataset": str(data),
+    label = est.name + (GT_MASKS_LABEL if rep.settings.get("gt_masks") else "")
+    cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "label": label, "dataset": str(data),
                              "overall": rep.to_json()["overall"], "seconds": time.perf_counter() - t0,
                              "failures": len(rep.failures)})
 

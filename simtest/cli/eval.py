@@ -13,8 +13,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "eval", parents=[common_parser()],
         help="run a pose estimator on a BOP dataset (or score a BOP results CSV) and print the metrics",
-        description="Run an estimator (built-in name: oracle, icp, umeyama; or module:attr) over a BOP dataset, "
-                    "or score a results CSV written by any estimator (--results). Writes results.csv (BOP "
+        description="Run an estimator (built-in name: oracle, icp, umeyama, keypoints, segicp; or module:attr) "
+                    "over a BOP dataset, or score a results CSV written by any estimator (--results). Writes results.csv (BOP "
                     "format), metrics.json, errors.csv, failures.csv and metrics.md to --out (a new or empty "
                     "folder, or any folder with --overwrite; never the dataset folder or one inside it).",
     )
@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="estimator option (repeatable); values parse as int, float, bool (true/false), none, "
                         "a [list] or 'quoted string', else string; e.g. --opt rot_noise_deg=5")
     p.add_argument("--targets", default="gt-masks", choices=("gt-masks", "none"),
-                   help="give the estimator the ground-truth targets and visible masks (default), or nothing")
+                   help="give the estimator the target object ids, plus their ground-truth visible masks if it "
+                        "declares needs_gt_masks (runs labelled 'NAME (GT masks)') (default), or nothing")
     p.add_argument("--split", default="train_pbr", help="split folder (default: train_pbr)")
     p.add_argument("--scenes", metavar="ID,ID", help="scene ids to evaluate (default: all)")
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")

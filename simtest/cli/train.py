@@ -1,4 +1,5 @@
-"""``simtest train keypoints``: train the confidence-based keypoint pose estimator on a BOP dataset."""
+"""``simtest train keypoints|segmentation``: train the keypoint pose estimator or the segmentation network of
+``segicp`` on a BOP dataset."""
 
 from __future__ import annotations
 
@@ -8,17 +9,19 @@ from simtest.cli.common import add_no_progress_alias, common_parser
 from simtest.errors import ConfigError
 
 #: Models this command can train.
-MODELS = ("keypoints",)
+MODELS = ("keypoints", "segmentation")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "train", parents=[common_parser()],
-        help="train a pose estimator (keypoints) on a BOP dataset (needs PyTorch: pip install 'simtest[train]')",
-        description="Train the confidence-based keypoint estimator on a BOP dataset. Writes OUT/last.pt after "
-                    "every epoch (resume with --resume), OUT/best.pt (best validation ADD(-S)-0.1d, with --val), "
-                    "OUT/model.pt (final weights) and OUT/history.json. Evaluate with: simtest eval --estimator "
-                    "keypoints --opt checkpoint=OUT/model.pt --data TEST --out DIR.",
+        help="train a pose estimator (keypoints) or segicp's segmentation network on a BOP dataset (needs "
+             "PyTorch: pip install 'simtest[train]')",
+        description="Train the confidence-based keypoint estimator (keypoints) or the segmentation network of "
+                    "segicp (segmentation) on a BOP dataset. Writes OUT/last.pt after every epoch (resume with "
+                    "--resume), OUT/best.pt (best validation score, with --val: ADD(-S)-0.1d for keypoints, mean "
+                    "IoU for segmentation), OUT/model.pt (final weights) and OUT/history.json. Evaluate with: "
+                    "simtest eval --estimator keypoints|segicp --opt checkpoint=OUT/model.pt --data TEST --out DIR.",
     )
     p.add_argument("model", choices=MODELS, help="what to train")
     p.add_argument("--data", required=True, metavar="DATASET", help="training BOP dataset")
@@ -27,19 +30,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--val-split", default="train_pbr", help="validation split folder (default: train_pbr)")
     p.add_argument("--val-images", type=int, metavar="N", help="validate on the first N images only")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoints and history)")
-    p.add_argument("--epochs", type=int, default=20, help="epochs (default: 20)")
+    p.add_argument("--epochs", type=int, help="epochs (default: 20 keypoints, 12 segmentation)")
     p.add_argument("--batch-size", type=int, default=8, help="images per step (default: 8)")
-    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default: 2e-3)")
+    p.add_argument("--lr", type=float, help="peak learning rate (default: 2e-3 keypoints, 3e-3 segmentation)")
     p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
                    help="on-the-fly corruptions: occlusion, weather, depth, or none (default: occlusion,weather; "
                         "weather leaves out brightness/frost/snow/fog, which stay unseen)")
     p.add_argument("--crop", metavar="HxW", help="train on HxW crops around objects (e.g. 128x128); default full images")
-    p.add_argument("--widths", default="16,32,64,96", metavar="A,B,C,D",
-                   help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96)")
+    p.add_argument("--widths", metavar="A,B,C,D",
+                   help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
+                        "segmentation)")
+    p.add_argument("--depth-input", action="store_true",
+                   help="segmentation: feed relative depth as a fourth input channel (default: RGB only)")
+    p.add_argument("--augment-p", type=float, metavar="P",
+                   help="probability that a training sample is corrupted at all (default: 0.8 keypoints, "
+                        "0.5 segmentation)")
+    p.add_argument("--max-images", type=int, metavar="N", help="segmentation: train on the first N images only")
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu)")
-    p.add_argument("--workers", type=int, default=1, help="data-loading worker processes (default: 1)")
+    p.add_argument("--workers", type=int, help="data-loading worker processes (default: 1 keypoints, 0 "
+                                               "segmentation)")
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--seed", type=int, default=0, help="seed of weights, sample order and corruptions (default: 0)")
     g = p.add_mutually_exclusive_group()
@@ -72,6 +83,12 @@ def parse_ints(text: str, n: int, flag: str) -> tuple[int, ...]:
     return vals
 
 
+def _given(args: argparse.Namespace, **names: str) -> dict:
+    """``{field: value}`` of the options given on the command line (``names``: field -> attribute), so the
+    training config's own defaults hold for the rest."""
+    return {f: getattr(args, a) for f, a in names.items() if getattr(args, a) is not None}
+
+
 def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
 
@@ -81,17 +98,21 @@ def run(args: argparse.Namespace) -> int:
         import torch  # noqa: F401
     except ImportError:
         raise ConfigError("simtest train needs PyTorch; install it with: pip install 'simtest[train]'") from None
-    from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
-
     augment = tuple(a.strip() for a in args.augment.split(",") if a.strip() and a.strip() != "none")
     from simtest.data import augmentation
 
     augmentation(list(augment))  # validates the names
-    cfg = TrainConfig(data=args.data, out=args.out, split=args.split, val=args.val, val_split=args.val_split,
-                      val_images=args.val_images, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                      augment=augment, device=args.device, seed=args.seed, workers=args.workers,
-                      keypoints=args.keypoints, crop=parse_crop(args.crop), threads=args.threads,
-                      widths=parse_ints(args.widths, 4, "--widths"), decoder=parse_ints(args.decoder, 2, "--decoder"))
+    common = dict(data=args.data, out=args.out, split=args.split, val=args.val, val_split=args.val_split,
+                  val_images=args.val_images, batch_size=args.batch_size, augment=augment, device=args.device,
+                  seed=args.seed, crop=parse_crop(args.crop), threads=args.threads,
+                  **_given(args, epochs="epochs", lr="lr", workers="workers", augment_p="augment_p"))
+    if args.widths is not None:
+        common["widths"] = parse_ints(args.widths, 4, "--widths")
+    if args.model == "segmentation":
+        return _run_segmentation(args, common)
+    from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
+
+    cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")
@@ -99,4 +120,18 @@ def run(args: argparse.Namespace) -> int:
         best = max(res.history, key=lambda h: h.get("val_add_s_or_add_01d", -1.0))
         print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val ADD(-S)-0.1d "
               f"{100 * best['val_add_s_or_add_01d']:.1f} %)")
+    return 0
+
+
+def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
+    """``simtest train segmentation``: the segmentation network of ``segicp``."""
+    from simtest.estimators.segicp.train import SegTrainConfig, train_segmentation
+
+    cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, **common)
+    res = train_segmentation(cfg, resume=args.resume, progress=not args.quiet)
+    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
+    print(f"model: {res.model_path}")
+    if res.best_path is not None:
+        best = max(res.history, key=lambda h: h.get("val_miou", -1.0))
+        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val mIoU {100 * best['val_miou']:.1f} %)")
     return 0

@@ -5,6 +5,12 @@ and returning pose estimates in the camera frame (OpenCV convention, metres). Es
 (``oracle``, ``icp``, ``umeyama``, ...), by ``module:attr`` or ``path/to/file.py:attr`` for user code, or by the
 name an installed package registers in the ``simtest.estimators`` entry-point group, with keyword options:
 ``load_estimator("mypkg.est:MyEstimator", threshold=0.5)``. The contract is written out in ``docs/plugins.md``.
+
+Ground truth reaches an estimator only when it declares that it needs it: ``needs_gt_masks = True`` (class
+or instance attribute) gives the targets' ground-truth visible masks and boxes ("GT detections"; its runs are
+labelled ``NAME (GT masks)`` in every table, :func:`estimator_label`), ``needs_gt = True`` (the ``oracle``)
+also gives their poses. Any other estimator sees the images, ``K``, the object set and the ids of the objects
+to look for, never masks, boxes or poses (:func:`gt_access`).
 """
 
 from __future__ import annotations
@@ -32,10 +38,27 @@ if TYPE_CHECKING:
 
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
            "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
-           "installed_estimators"]
+           "installed_estimators", "gt_access", "estimator_label", "GT_MASKS_LABEL"]
 
 #: Entry-point group under which installed packages register estimators by name.
 ENTRY_POINT_GROUP = "simtest.estimators"
+
+#: Appended to the label of an estimator that is given ground-truth masks.
+GT_MASKS_LABEL = " (GT masks)"
+
+
+def gt_access(estimator: Any) -> tuple[bool, bool]:
+    """``(masks, poses)``: whether an (instantiated) estimator is given the targets' ground-truth visible masks
+    and boxes (``needs_gt_masks`` or ``needs_gt``), and their ground-truth poses (``needs_gt``)."""
+    poses = bool(getattr(estimator, "needs_gt", False))
+    return poses or bool(getattr(estimator, "needs_gt_masks", False)), poses
+
+
+def estimator_label(name: str, estimator: Any) -> str:
+    """The label of an estimator's runs in tables and plots: ``name``, plus `` (GT masks)`` when it declares
+    ``needs_gt_masks`` (the ``oracle``, whose name says it, is not relabelled)."""
+    gt_masks = bool(getattr(estimator, "needs_gt_masks", False))
+    return name + GT_MASKS_LABEL if gt_masks and not name.endswith(GT_MASKS_LABEL) else name
 
 
 @dataclass(frozen=True)
@@ -50,11 +73,12 @@ class Observation:
         objects: The :class:`~simtest.objects.ObjectSet` estimates refer to: ``objects.get(obj_id)`` gives the
             :class:`~simtest.objects.ObjectModel` (mesh, vertices, surface samples with normals, symmetries,
             keypoints, diameter; metres, model frame).
-        target_obj_ids: Objects to estimate (``None``: whatever the estimator finds).
-        masks: Optional per-target visible masks (H, W) bool, same order as ``target_obj_ids``
-            (evaluation "with GT detections", as common protocols allow).
-        boxes: Optional per-target boxes [x, y, w, h] (pixels).
-        gt_poses: Ground-truth ``(R, t)`` per target; only for the ``oracle`` (calibration), ``None`` otherwise.
+        target_obj_ids: Objects to estimate, one entry per instance, as BOP's localisation task names them
+            (``None``: whatever the estimator finds).
+        masks: Per-target ground-truth visible masks (H, W) bool, same order as ``target_obj_ids``; only for
+            estimators declaring ``needs_gt_masks`` (or ``needs_gt``), ``None`` otherwise.
+        boxes: Per-target ground-truth visible boxes [x, y, w, h] (pixels); given with ``masks``.
+        gt_poses: Ground-truth ``(R, t)`` per target; only for ``needs_gt`` (the ``oracle``), ``None`` otherwise.
         scene_id, im_id: Where the image came from (for logging).
     """
 
@@ -77,9 +101,11 @@ class Observation:
         return np.random.default_rng([int(seed), max(self.scene_id, 0), max(self.im_id, 0)])
 
     def require_targets(self, estimator: str) -> None:
-        """Raise :class:`ConfigError` unless target ids and visible masks were given (``targets='gt-masks'``)."""
+        """Raise :class:`ConfigError` unless target ids and ground-truth visible masks were given (the estimator
+        declares ``needs_gt_masks`` and is evaluated with ``targets='gt-masks'``)."""
         if self.target_obj_ids is None or self.masks is None:
-            raise ConfigError(f"{estimator}: needs target object ids and masks; evaluate with targets='gt-masks'")
+            raise ConfigError(f"{estimator}: needs target object ids and ground-truth masks; declare "
+                              "needs_gt_masks = True and evaluate with targets='gt-masks'")
 
 
 @dataclass(frozen=True)
@@ -457,5 +483,6 @@ for _name, _target in {
     "icp": "simtest.estimators.icp:ICPEstimator",
     "umeyama": "simtest.estimators.umeyama:UmeyamaEstimator",
     "keypoints": "simtest.estimators.keypoints:KeypointEstimator",
+    "segicp": "simtest.estimators.segicp:SegICPEstimator",
 }.items():
     register_estimator(_name, _target)

@@ -42,7 +42,11 @@ from scipy.spatial import cKDTree
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 
-__all__ = ["ICPEstimator", "backproject", "fibonacci_rotations", "ModelCloud", "model_cloud", "point_to_plane_icp"]
+#: Sources of the object masks (the ``masks`` option).
+MASK_SOURCES = ("gt", "segicp")
+
+__all__ = ["ICPEstimator", "MASK_SOURCES", "backproject", "fibonacci_rotations", "ModelCloud", "model_cloud",
+           "point_to_plane_icp"]
 
 log = logging.getLogger(__name__)
 
@@ -263,12 +267,25 @@ class ICPEstimator:
         min_fitness: Fraction of inliers below which the result is rejected (no estimate).
         silhouette_weight: Weight of the free-space violation term of the candidate score.
         seed: Seed of the point subsampling (combined with scene and image ids).
+        masks: Where the object pixels come from: ``"gt"``, the observation's ground-truth visible masks
+            (the estimator declares ``needs_gt_masks`` and is labelled ``icp (GT masks)``), or ``"segicp"``,
+            the segmentation network of :mod:`simtest.estimators.segicp` (no ground truth read).
+        checkpoint: Segmentation checkpoint for ``masks="segicp"`` (default: the shipped one, for
+            ``builtin-small``).
     """
+
+    #: Whether the evaluation passes ground-truth visible masks (instances: ``masks == "gt"``).
+    needs_gt_masks = True
 
     def __init__(self, max_iterations: int = 30, coarse_rotations: int = 600, refine_top: int = 4,
                  model_points: int = 2000, max_points: int = 800, coarse_points: int = 100, min_points: int = 30,
                  inlier_threshold_mm: float = 5.0, min_fitness: float = 0.5, silhouette_weight: float = 1.0,
-                 seed: int = 0) -> None:
+                 seed: int = 0, masks: str = "gt", checkpoint: str | None = None) -> None:
+        if masks not in MASK_SOURCES:
+            raise ConfigError(f"icp: masks must be one of {', '.join(MASK_SOURCES)}, got {masks!r}")
+        if checkpoint is not None and masks != "segicp":
+            raise ConfigError(f"icp: checkpoint={checkpoint!r} is a segmentation checkpoint; it needs "
+                              "masks='segicp'")
         for name, val, lo in (("max_iterations", max_iterations, 1), ("coarse_rotations", coarse_rotations, 1),
                               ("refine_top", refine_top, 1), ("model_points", model_points, 10),
                               ("max_points", max_points, 10), ("coarse_points", coarse_points, 10),
@@ -293,6 +310,13 @@ class ICPEstimator:
         self.seed = int(seed)
         self.rotations = fibonacci_rotations(int(coarse_rotations))
         self.last_failures: list[dict[str, Any]] = []
+        self.masks = masks
+        self.needs_gt_masks = masks == "gt"
+        self.segmenter = None
+        if masks == "segicp":
+            from simtest.estimators.segicp.infer import Segmenter
+
+            self.segmenter = Segmenter(checkpoint)
 
     # --- scoring -------------------------------------------------------------------------------------------
     @staticmethod
@@ -343,51 +367,74 @@ class ICPEstimator:
         return centroid[None] - np.einsum("mij,mj->mi", Rs, c_vis)
 
     # --- estimation ------------------------------------------------------------------------------------------
-    def _fail(self, obj_id: int, k: int, reason: str, obs: Observation) -> None:
-        log.info("icp: scene %d image %d target %d (obj %d): %s", obs.scene_id, obs.im_id, k, obj_id, reason)
+    def _fail(self, obj_id: int, k: int | None, reason: str, obs: Observation) -> None:
+        log.info("icp: scene %d image %d target %s (obj %d): %s", obs.scene_id, obs.im_id, k, obj_id, reason)
         self.last_failures.append({"obj_id": int(obj_id), "target_index": k, "reason": reason})
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """One estimate per target with enough depth (see the module doc).
 
+        With ``masks="gt"`` the targets' visible masks come from the observation; with ``masks="segicp"``
+        from the segmentation network of :mod:`simtest.estimators.segicp`.
+
         Raises:
-            ConfigError: The observation has no targets or masks (evaluate with ``targets="gt-masks"``).
+            ConfigError: ``masks="gt"`` and the observation has no targets or masks.
         """
         self.last_failures = []
         obs = observation
-        obs.require_targets("icp")
+        if self.masks == "segicp":
+            from simtest.estimators.segicp.infer import estimate_segmented
+
+            return estimate_segmented(self, obs)
+        if obs.target_obj_ids is None or obs.masks is None:
+            raise ConfigError("icp: needs the targets' ground-truth visible masks (evaluate with "
+                              "targets='gt-masks'), or use masks='segicp' (or the segicp estimator) to find the "
+                              "objects with the segmentation network")
         rng = obs.rng(self.seed)
-        K = np.asarray(obs.K, dtype=np.float64)
-        depth = np.asarray(obs.depth, dtype=np.float64)
         out = []
         for k, (obj_id, mask) in enumerate(zip(obs.target_obj_ids, obs.masks)):
-            mask = np.asarray(mask, dtype=bool)
-            if not mask.any():
-                self._fail(obj_id, k, "empty mask", obs)
-                continue
-            pts = backproject(depth, K, mask)
-            if len(pts) < self.min_points:
-                self._fail(obj_id, k, f"too few points: {len(pts)} valid depth pixels in the mask "
-                                      f"(min_points={self.min_points})", obs)
-                continue
-            obj = obs.objects.get(obj_id)
-            cloud = model_cloud(obj, self.model_points)
-            med = np.median(pts, axis=0)
-            pts = pts[np.linalg.norm(pts - med, axis=1) <= cloud.diameter]
-            if len(pts) < self.min_points:
-                self._fail(obj_id, k, f"too few points after outlier removal: {len(pts)}", obs)
-                continue
-            if len(pts) > self.max_points:
-                pts = pts[rng.choice(len(pts), self.max_points, replace=False)]
-            res = self._estimate_one(pts, cloud, obj, {"K": K, "mask": mask, "depth": depth}, rng)
-            R, t, info = res
-            if info["fitness"] < self.min_fitness:
-                self._fail(obj_id, k, f"not converged: fitness {info['fitness']:.2f} < min_fitness "
-                                      f"{self.min_fitness} (rmse {info['rmse_m'] * 1000:.1f} mm)", obs)
-                continue
-            out.append(PoseEstimate(obj_id=int(obj_id), R=R, t=t, score=float(info["fitness"]), target_index=k,
-                                    info=info))
+            est = self.fit_mask(obs, int(obj_id), np.asarray(mask, dtype=bool), k, rng)
+            if est is not None:
+                out.append(est)
         return out
+
+    def fit_mask(self, obs: Observation, obj_id: int, mask: np.ndarray, k: int | None,
+                 rng: np.random.Generator) -> PoseEstimate | None:
+        """The pose of object ``obj_id`` from the depth pixels of ``mask`` (H, W) bool, or None (the reason
+        appended to :attr:`last_failures`).
+
+        Args:
+            obs: The observation (depth in metres, ``K``, the object set).
+            obj_id: Object id whose model is fitted.
+            mask: Pixels of the object (ground-truth or predicted).
+            k: Target index the estimate answers (None: found by the estimator itself).
+            rng: Generator of the point subsampling.
+        """
+        K = np.asarray(obs.K, dtype=np.float64)
+        depth = np.asarray(obs.depth, dtype=np.float64)
+        if not mask.any():
+            self._fail(obj_id, k, "empty mask", obs)
+            return None
+        pts = backproject(depth, K, mask)
+        if len(pts) < self.min_points:
+            self._fail(obj_id, k, f"too few points: {len(pts)} valid depth pixels in the mask "
+                                  f"(min_points={self.min_points})", obs)
+            return None
+        obj = obs.objects.get(obj_id)
+        cloud = model_cloud(obj, self.model_points)
+        med = np.median(pts, axis=0)
+        pts = pts[np.linalg.norm(pts - med, axis=1) <= cloud.diameter]
+        if len(pts) < self.min_points:
+            self._fail(obj_id, k, f"too few points after outlier removal: {len(pts)}", obs)
+            return None
+        if len(pts) > self.max_points:
+            pts = pts[rng.choice(len(pts), self.max_points, replace=False)]
+        R, t, info = self._estimate_one(pts, cloud, obj, {"K": K, "mask": mask, "depth": depth}, rng)
+        if info["fitness"] < self.min_fitness:
+            self._fail(obj_id, k, f"not converged: fitness {info['fitness']:.2f} < min_fitness "
+                                  f"{self.min_fitness} (rmse {info['rmse_m'] * 1000:.1f} mm)", obs)
+            return None
+        return PoseEstimate(obj_id=int(obj_id), R=R, t=t, score=float(info["fitness"]), target_index=k, info=info)
 
     def _estimate_one(self, pts: np.ndarray, cloud: ModelCloud, obj: Any, ctx: dict[str, Any],
                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:

@@ -159,6 +159,9 @@ class UmeyamaEstimator:
         seed: Seed (combined with scene and image ids).
     """
 
+    #: Reads the targets' ground-truth visible masks (labelled ``umeyama (GT masks)``).
+    needs_gt_masks = True
+
     def __init__(self, correspondences: str = "nn", reference_set: str | None = "builtin",
                  reference_instance: int | None = None, iterations: int = 10, ransac_iterations: int = 50,
                  ransac_threshold_mm: float = 5.0, nocs_noise_mm: float = 0.0, outlier_rate: float = 0.0,

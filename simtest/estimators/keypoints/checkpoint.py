@@ -55,7 +55,9 @@ def _describe(rec: dict[str, Any]) -> str:
     return ", ".join(f"{i} {n} (mesh {h[:10]})" for i, n, h in zip(rec["obj_ids"], rec["names"], rec["mesh_hashes"]))
 
 
-def check_objects(trained: dict[str, Any], objects: Any, where: str = "checkpoint") -> None:
+def check_objects(trained: dict[str, Any], objects: Any, where: str = "checkpoint",
+                  hint: str = "Train a model for this object set (simtest train keypoints --data DATASET) or "
+                              "evaluate on a dataset of the trained objects") -> None:
     """Raise :class:`ConfigError` naming both sets unless ``objects`` is the set ``trained`` was made for.
 
     Same ids, and per id the same mesh hash (or, after a float32 file round trip, the same vertex count and
@@ -76,8 +78,7 @@ def check_objects(trained: dict[str, Any], objects: Any, where: str = "checkpoin
                                 f"{here['mesh_hashes'][k][:10]})")
     if problems:
         raise ConfigError(f"{where} was trained for objects [{_describe(trained)}] but the objects given are "
-                          f"[{_describe(here)}]: {'; '.join(problems)}. Train a model for this object set "
-                          "(simtest train keypoints --data DATASET) or evaluate on a dataset of the trained objects")
+                          f"[{_describe(here)}]: {'; '.join(problems)}. {hint}")
 
 
 def save_checkpoint(path: str | Path, ckpt: dict[str, Any]) -> Path:
@@ -96,11 +97,12 @@ def save_checkpoint(path: str | Path, ckpt: dict[str, Any]) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path, map_location: str = "cpu") -> dict[str, Any]:
-    """Read a checkpoint with ``weights_only=True``.
+def load_checkpoint(path: str | Path, map_location: str = "cpu", fmt: str = FORMAT) -> dict[str, Any]:
+    """Read a checkpoint with ``weights_only=True``; ``fmt`` is the expected ``format`` entry (the keypoint
+    estimator's by default).
 
     Raises:
-        ConfigError: Missing file, unreadable, or not a keypoint-estimator checkpoint.
+        ConfigError: Missing file, unreadable, or a checkpoint of another format.
     """
     import torch
 
@@ -111,7 +113,8 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> dict[str, An
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling failure is a bad file
         raise ConfigError(f"checkpoint {str(path)!r} could not be read: {type(exc).__name__}: {exc}") from exc
-    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+    if not isinstance(ckpt, dict) or ckpt.get("format") != fmt:
         got = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
-        raise ConfigError(f"{path}: not a keypoint-estimator checkpoint (format {got!r}, expected {FORMAT!r})")
+        kind = "keypoint-estimator" if fmt == FORMAT else fmt.split("/")[0].removeprefix("simtest-")
+        raise ConfigError(f"{path}: not a {kind} checkpoint (format {got!r}, expected {fmt!r})")
     return ckpt

@@ -166,8 +166,8 @@ class KeypointEstimator:
         min_conf: Confidence threshold of the fused predictions (confidence = 1 / expected offset error in
             units of the network's ``offset_scale`` pixels).
         pnp: ``"epnp"`` or ``"ransac"`` (see :func:`solve_pnp`).
-        use_masks: Group cells with the observation's visible masks when it has them; otherwise (or False) by
-            the predicted segmentation.
+        use_masks: Group cells with the targets' ground-truth visible masks (the estimator then declares
+            ``needs_gt_masks``); False: by the predicted segmentation, reading no ground truth.
         min_cells: Smallest connected component (cells) kept as an instance in segmentation mode.
         threads: torch CPU threads (None: torch's default).
 
@@ -214,6 +214,8 @@ class KeypointEstimator:
         self.min_conf = float(min_conf)
         self.pnp = pnp
         self.use_masks = bool(use_masks)
+        #: Ground-truth visible masks are passed (and the runs labelled ``(GT masks)``) only when used.
+        self.needs_gt_masks = self.use_masks
         self.min_cells = int(min_cells)
         self.last_failures: list[dict[str, Any]] = []
         self._checked: set[int] = set()

@@ -1,0 +1,120 @@
+"""A tiny U-Net for per-class semantic segmentation of RGB (optionally RGB-D) images (torch).
+
+Encoder stages at strides 2, 4, 8 and 16 (the blocks of :mod:`simtest.estimators.keypoints.model`), a decoder
+with skip connections back to stride 2, and a 1x1 classifier whose logits are upsampled bilinearly to the
+input size. Class 0 is background; class ``c`` (1-based) is the ``c``-th object id of the checkpoint's object
+record (sorted ids).
+
+The optional depth channel is the planar depth relative to the median of the image's valid depth, clipped
+to +-``DEPTH_RANGE_M`` and divided by it (0 where depth is missing), so the network sees shape, not distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from simtest.estimators.keypoints.model import _conv, _Residual
+
+__all__ = ["SegNetConfig", "SegNet", "depth_channel", "DEPTH_RANGE_M"]
+
+#: Half-range (metres) of the relative depth input channel.
+DEPTH_RANGE_M = 0.25
+
+
+@dataclass(frozen=True)
+class SegNetConfig:
+    """Architecture of :class:`SegNet` (stored in checkpoints).
+
+    Attributes:
+        num_classes: Object classes (background excluded).
+        depth_input: Whether depth is a fourth input channel.
+        widths: Channels of the encoder stages at strides 2, 4, 8, 16 (the decoder mirrors them).
+    """
+
+    num_classes: int
+    depth_input: bool = False
+    widths: tuple[int, int, int, int] = (16, 24, 48, 64)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["widths"] = list(self.widths)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "SegNetConfig":
+        d = dict(d)
+        d["widths"] = tuple(int(w) for w in d["widths"])
+        return SegNetConfig(**d)
+
+
+def depth_channel(depth: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) depth in metres -> the normalised relative depth channel (see the module doc)."""
+    valid = depth > 0
+    out = torch.zeros_like(depth)
+    for b in range(depth.shape[0]):
+        v = depth[b][valid[b]]
+        if v.numel():
+            rel = (depth[b] - v.median()).clamp(-DEPTH_RANGE_M, DEPTH_RANGE_M) / DEPTH_RANGE_M
+            out[b] = torch.where(valid[b], rel, torch.zeros_like(rel))
+    return out
+
+
+class SegNet(nn.Module):
+    """``forward(x)`` takes ``(B, 3 or 4, H, W)``: RGB in [0, 1] (then the depth channel of
+    :func:`depth_channel`), ``H`` and ``W`` multiples of 16; returns ``(B, C+1, H, W)`` class logits."""
+
+    MEAN = (0.485, 0.456, 0.406)
+    STD = (0.229, 0.224, 0.225)
+
+    def __init__(self, cfg: SegNetConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        w1, w2, w3, w4 = cfg.widths
+        cin = 4 if cfg.depth_input else 3
+        self.stem = nn.Sequential(_conv(cin, w1, 2), _conv(w1, w1))
+        self.s4 = nn.Sequential(_conv(w1, w2, 2), _Residual(w2))
+        self.s8 = nn.Sequential(_conv(w2, w3, 2), _Residual(w3))
+        self.s16 = nn.Sequential(_conv(w3, w4, 2), _Residual(w4, dilation=2))
+        self.up8 = _conv(w4 + w3, w3)
+        self.up4 = _conv(w3 + w2, w2)
+        self.up2 = _conv(w2 + w1, w1)
+        self.head = nn.Conv2d(w1, cfg.num_classes + 1, 1)
+        self.register_buffer("mean", torch.tensor(self.MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
+
+    def init_weights(self, generator: torch.Generator) -> None:
+        """Deterministic initialisation from ``generator`` (Kaiming convolutions, a small head that starts
+        out predicting background)."""
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=generator)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+            elif isinstance(m, nn.BatchNorm2d):
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
+        nn.init.normal_(self.head.weight, std=0.01, generator=generator)
+        nn.init.zeros_(self.head.bias)
+        with torch.no_grad():
+            self.head.bias[0] = 2.0
+
+    @staticmethod
+    def _up(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
+        return F.interpolate(x, size=ref.shape[-2:], mode="bilinear", align_corners=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        rgb = (x[:, :3] - self.mean) / self.std
+        x = torch.cat([rgb, x[:, 3:]], 1) if self.cfg.depth_input else rgb
+        f2 = self.stem(x)
+        f4 = self.s4(f2)
+        f8 = self.s8(f4)
+        f16 = self.s16(f8)
+        u8 = self.up8(torch.cat([self._up(f16, f8), f8], 1))
+        u4 = self.up4(torch.cat([self._up(u8, f4), f4], 1))
+        u2 = self.up2(torch.cat([self._up(u4, f2), f2], 1))
+        return F.interpolate(self.head(u2), size=x.shape[-2:], mode="bilinear", align_corners=False)

@@ -1,0 +1,314 @@
+"""Training loop of the segmentation network of ``segicp`` (``simtest train segmentation``).
+
+Samples come from :class:`simtest.data.PoseDataset` (visible masks after the on-the-fly corruptions of
+:func:`simtest.data.augmentation`), optionally as crops; the per-pixel target is the class of the visible
+mask covering the pixel (0 = background). Loss: cross-entropy plus the soft Dice loss of the object classes
+present in the batch (small objects count as much as the large background).
+
+Every random choice is seeded from ``seed`` (weights, sample order per epoch, corruptions per sample and
+epoch). After each epoch the full state goes to ``OUT/last.pt`` (atomic write), so ``resume=True`` continues
+after the last finished epoch; with a validation dataset the mean IoU of the object classes is measured on
+full images and the best epoch is kept in ``OUT/best.pt``. The final weights go to ``OUT/model.pt``. All
+checkpoints are dicts of tensors and plain types (``torch.load(..., weights_only=True)``)::
+
+    {"format": "simtest-segmentation/1", "net": SegNetConfig dict, "objects": object record,
+     "model": state_dict, "epoch": int, "optimizer": state_dict | None, "history": [...], "train": settings,
+     "focal_px": median fx of the training images (pixels)}
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from simtest.errors import ConfigError
+
+__all__ = ["SegTrainConfig", "SegTrainResult", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
+           "FORMAT", "net_input"]
+
+FORMAT = "simtest-segmentation/1"
+
+
+@dataclass(frozen=True)
+class SegTrainConfig:
+    """Settings of one segmentation training run (recorded in the checkpoints).
+
+    Attributes:
+        data, split: Training BOP dataset folder and split. out: Run folder.
+        val, val_split, val_images: Validation dataset (None: none), its split, first N images only.
+        epochs, batch_size: Epochs in total (a resumed run continues up to it), images per step.
+        lr, weight_decay: Peak AdamW learning rate (warm-up then cosine decay) and weight decay.
+        augment, augment_p: Augmentation names (:func:`simtest.data.augmentation`) and the probability
+            that a sample is corrupted at all.
+        crop: ``(height, width)`` training crops (pixels) around a random object, or None for full images.
+        depth_input: Feed relative depth as a fourth channel.
+        widths: Encoder channels at strides 2, 4, 8, 16.
+        device, seed, workers, threads: As ``simtest train keypoints``.
+        max_images: Train on the first N images only (None: all).
+    """
+
+    data: str
+    out: str
+    split: str = "train_pbr"
+    val: str | None = None
+    val_split: str = "train_pbr"
+    val_images: int | None = None
+    epochs: int = 12
+    batch_size: int = 8
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    augment: tuple[str, ...] = ("occlusion", "weather")
+    augment_p: float = 0.5
+    crop: tuple[int, int] | None = None
+    depth_input: bool = False
+    widths: tuple[int, int, int, int] = (16, 24, 48, 64)
+    device: str = "cpu"
+    seed: int = 0
+    workers: int = 0
+    threads: int | None = None
+    max_images: int | None = None
+
+    def __post_init__(self) -> None:
+        for name, lo in (("epochs", 1), ("batch_size", 1), ("workers", 0)):
+            if int(getattr(self, name)) < lo:
+                raise ConfigError(f"segmentation training: {name} must be >= {lo}, got {getattr(self, name)!r}")
+        if not self.lr > 0:
+            raise ConfigError(f"segmentation training: lr must be > 0, got {self.lr!r}")
+        if not 0.0 <= self.augment_p <= 1.0:
+            raise ConfigError(f"segmentation training: augment_p must be in [0, 1], got {self.augment_p!r}")
+        if self.seed is None or int(self.seed) < 0:
+            raise ConfigError(f"segmentation training: seed must be a non-negative integer, got {self.seed!r}")
+        if self.device not in ("cpu", "cuda") and not str(self.device).startswith("cuda:"):
+            raise ConfigError(f"segmentation training: device must be cpu or cuda[:N], got {self.device!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        for k in ("augment", "crop", "widths"):
+            d[k] = None if d[k] is None else list(d[k])
+        return d
+
+
+@dataclass
+class SegTrainResult:
+    """What a run produced: checkpoint paths, per-epoch history, wall time of this call (s)."""
+
+    model_path: Path
+    last_path: Path
+    best_path: Path | None
+    history: list[dict[str, Any]] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=(16, 24, 48, 64)):
+    """A freshly initialised :class:`SegNet`, deterministic in ``seed`` (the global RNG is left as it was)."""
+    import torch
+
+    from simtest.estimators.segicp.model import SegNet, SegNetConfig
+
+    cfg = SegNetConfig(num_classes=int(num_classes), depth_input=bool(depth_input), widths=tuple(widths))
+    with torch.random.fork_rng(devices=[]):
+        net = SegNet(cfg)
+    net.init_weights(torch.Generator().manual_seed(int(seed)))
+    return net
+
+
+def net_input(rgb, depth, depth_input: bool):
+    """The network input of a batch: RGB (B, 3, H, W) in [0, 1], plus the depth channel when asked, padded
+    at the bottom and right to multiples of 16."""
+    import torch
+    from torch.nn import functional as F
+
+    from simtest.estimators.segicp.model import depth_channel
+
+    x = torch.cat([rgb, depth_channel(depth)], 1) if depth_input else rgb
+    H, W = x.shape[-2:]
+    return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))
+
+
+def label_targets(batch: dict[str, Any], size: tuple[int, int]):
+    """(B, h, w) int64 class per pixel from a collated batch's visible masks (0 = background), on the padded
+    grid ``size``."""
+    import torch
+
+    B = batch["rgb"].shape[0]
+    H, W = batch["rgb"].shape[-2:]
+    target = torch.zeros((B, size[0], size[1]), dtype=torch.int64)
+    for k in range(len(batch["labels"])):
+        view = target[int(batch["batch_index"][k]), :H, :W]
+        view[batch["masks"][k]] = int(batch["labels"][k])
+    return target
+
+
+def seg_loss(logits, target) -> dict[str, Any]:
+    """Cross-entropy plus the soft Dice loss of the object classes present in ``target``."""
+    import torch
+    from torch.nn import functional as F
+
+    ce = F.cross_entropy(logits, target)
+    prob = logits.softmax(1)
+    onehot = F.one_hot(target, logits.shape[1]).permute(0, 3, 1, 2).to(prob.dtype)
+    inter = (prob * onehot).sum((0, 2, 3))[1:]
+    union = (prob + onehot).sum((0, 2, 3))[1:]
+    present = onehot.sum((0, 2, 3))[1:] > 0
+    dice = 1.0 - (2.0 * inter + 1.0) / (union + 1.0)
+    dl = dice[present].mean() if bool(present.any()) else torch.zeros((), dtype=prob.dtype)
+    return {"loss": ce + dl, "ce": ce.detach(), "dice": dl.detach()}
+
+
+def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int, total: int,
+                 progress: bool) -> dict[str, float]:
+    """One epoch of optimisation; returns the mean losses."""
+    import torch
+    from torch.utils.data import DataLoader
+    from tqdm import tqdm
+
+    from simtest.data import collate
+    from simtest.estimators.keypoints.train import _epoch_generator, _lr_at
+
+    dataset.set_epoch(epoch)
+    loader = DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+                        num_workers=int(cfg.workers), collate_fn=collate, generator=_epoch_generator(cfg.seed, epoch))
+    sums = {"loss": 0.0, "ce": 0.0, "dice": 0.0}
+    n = 0
+    bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
+               dynamic_ncols=True, leave=False)
+    for i, batch in enumerate(bar):
+        for g in opt.param_groups:
+            g["lr"] = _lr_at(epoch * steps + i, total, cfg.lr)
+        x = net_input(batch["rgb"], batch["depth"], cfg.depth_input).to(cfg.device)
+        target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
+        losses = seg_loss(net(x), target)
+        opt.zero_grad(set_to_none=True)
+        losses["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+        opt.step()
+        for k in sums:
+            sums[k] += float(losses[k].detach())
+        n += 1
+        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}")
+    bar.close()
+    return {k: v / max(n, 1) for k, v in sums.items()}
+
+
+def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
+    """Mean IoU (object classes present in the validation images) and pixel accuracy on full images."""
+    import torch
+
+    net.eval()
+    C = net.cfg.num_classes + 1
+    inter, union = np.zeros(C), np.zeros(C)
+    correct = total = 0
+    with torch.inference_mode():
+        for i in range(len(dataset)):
+            s = dataset[i]
+            batch = {"rgb": s["rgb"][None], "masks": s["masks"], "labels": s["labels"],
+                     "batch_index": torch.zeros(len(s["labels"]), dtype=torch.int64)}
+            x = net_input(s["rgb"][None], s["depth"][None], cfg.depth_input).to(cfg.device)
+            H, W = s["rgb"].shape[-2:]
+            pred = net(x).argmax(1)[0, :H, :W].cpu().numpy()
+            tgt = label_targets(batch, tuple(x.shape[-2:]))[0, :H, :W].numpy()
+            for c in range(C):
+                p, t = pred == c, tgt == c
+                inter[c] += np.count_nonzero(p & t)
+                union[c] += np.count_nonzero(p | t)
+            correct += int(np.count_nonzero(pred == tgt))
+            total += pred.size
+    net.train()
+    seen = union[1:] > 0
+    iou = inter[1:][seen] / union[1:][seen]
+    return {"val_miou": float(iou.mean()) if len(iou) else 0.0, "val_pixel_acc": correct / max(total, 1)}
+
+
+def _datasets(cfg: SegTrainConfig, objects: Any):
+    """The training dataset (augmented, optionally cropped) and the validation dataset (or None)."""
+    from simtest.data import PoseDataset, augmentation
+
+    train = PoseDataset(cfg.data, cfg.split, objects=objects, transform=augmentation(list(cfg.augment),
+                        p=cfg.augment_p), seed=int(cfg.seed), crop=cfg.crop, crop_jitter=0.5,
+                        max_images=cfg.max_images)
+    val = None
+    if cfg.val is not None:
+        val = PoseDataset(cfg.val, cfg.val_split, objects=objects, max_images=cfg.val_images)
+    return train, val
+
+
+def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: bool = True,
+                       log: Callable[[str], None] = print) -> SegTrainResult:
+    """Train the segmentation network on ``cfg.data``; see the module doc for outputs and resuming.
+
+    Raises:
+        ConfigError: Bad settings; an existing run in ``cfg.out`` without ``resume``; a resumed checkpoint or
+            a validation dataset for a different object set.
+        DatasetError: Missing dataset or split.
+    """
+    import torch
+
+    from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint, object_record, save_checkpoint
+    from simtest.io.files import atomic_write_text
+    from simtest.objects.loaders import load_dataset_objects
+
+    t_start = time.perf_counter()
+    if cfg.threads is not None:
+        torch.set_num_threads(int(cfg.threads))
+    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device {cfg.device!r} asked but CUDA is not available to this torch build; use cpu")
+    out = Path(cfg.out)
+    last_path, best_path, model_path = out / "last.pt", out / "best.pt", out / "model.pt"
+    if last_path.exists() and not resume:
+        raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
+                          "output folder")
+    objects = load_dataset_objects(cfg.data)
+    record = object_record(objects)
+    if cfg.val is not None:
+        check_objects(record, load_dataset_objects(cfg.val), where=f"training dataset {cfg.data}")
+    dataset, val = _datasets(cfg, objects)
+    focal = float(dataset.load_numpy(0)["K"][0, 0])
+    net = build_segnet(dataset.num_classes, int(cfg.seed), cfg.depth_input, cfg.widths).to(cfg.device)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    history: list[dict[str, Any]] = []
+    start_epoch, best = 0, -1.0
+    if resume and last_path.exists():
+        ck = load_checkpoint(last_path, fmt=FORMAT)
+        check_objects(ck["objects"], objects, where=f"checkpoint {last_path}")
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        history = list(ck["history"])
+        start_epoch = int(ck["epoch"]) + 1
+        best = max([h.get("val_miou", -1.0) for h in history] + [-1.0])
+        log(f"resuming {out} after epoch {start_epoch} of {cfg.epochs}")
+    steps = len(dataset) // cfg.batch_size or 1
+
+    def checkpoint(epoch: int, with_optimizer: bool) -> dict[str, Any]:
+        return {"format": FORMAT, "net": net.cfg.to_dict(), "objects": record,
+                "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": int(epoch),
+                "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
+                "train": cfg.to_dict(), "focal_px": focal}
+
+    net.train()
+    for epoch in range(start_epoch, cfg.epochs):
+        t0 = time.perf_counter()
+        rec: dict[str, Any] = {"epoch": epoch, **_train_epoch(net, opt, dataset, cfg, epoch, steps,
+                                                              steps * cfg.epochs, progress)}
+        rec["train_seconds"] = time.perf_counter() - t0
+        msg = f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (ce {rec['ce']:.3f}, dice {rec['dice']:.3f}), " \
+              f"{rec['train_seconds']:.0f} s"
+        if val is not None:
+            rec.update(validate_segmentation(net, val, cfg))
+            msg += f"; val mIoU {100 * rec['val_miou']:.1f} %"
+        history.append(rec)
+        if val is not None and rec["val_miou"] > best:
+            best = rec["val_miou"]
+            save_checkpoint(best_path, checkpoint(epoch, False))
+        log(msg)
+        save_checkpoint(last_path, checkpoint(epoch, True))
+        atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
+    final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
+    save_checkpoint(model_path, checkpoint(final_epoch, False))
+    return SegTrainResult(model_path=model_path, last_path=last_path,
+                          best_path=best_path if best_path.exists() else None, history=history,
+                          seconds=time.perf_counter() - t_start)
