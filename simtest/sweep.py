@@ -153,6 +153,7 @@ DEMO_SWEEP: dict[str, Any] = {
         {"name": "oracle-15deg-25mm", "estimator": "oracle",
          "options": {"rot_noise_deg": 15.0, "trans_noise_mm": 25.0}},
         {"name": "icp", "estimator": "icp"},
+        {"name": "segicp", "estimator": "segicp"},
     ],
     "dataset": {"generate": {"objects": "builtin-small", "scenes": 3, "frames_per_scene": 3,
                              "camera": {"width": 320, "height": 240}}},

@@ -24,7 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
                    help="estimator option (repeatable), parsed as for simtest eval; e.g. --opt trans_noise_mm=10")
     p.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
-    p.add_argument("--objects", default="builtin", help="object set: builtin, builtin-small, or a path")
+    p.add_argument("--objects", default=None,
+                   help="object set: builtin, builtin-small, or a path (default: the estimator's own set when it "
+                        "declares one, e.g. builtin-small for segicp's shipped checkpoint; else builtin)")
     p.add_argument("--units", default="auto", choices=["m", "cm", "mm", "auto"],
                    help="units of mesh files (auto: metres, refusing a diameter outside 1 cm .. 1.5 m)")
     p.add_argument("--scale", type=float, default=1.0, help="factor on top of --units (default 1)")
@@ -64,16 +66,17 @@ def _targets(text: str | None) -> tuple:
 
 def run(args: argparse.Namespace) -> int:
     from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
-    from simtest.estimators.base import check_estimator_options, parse_options
+    from simtest.estimators.base import check_estimator_options, default_object_set, parse_options
     from simtest.io.files import prepare_out_dir
 
     prepare_out_dir(args.out, overwrite=args.overwrite)  # before anything is loaded
     options = parse_options(args.opt)
     check_estimator_options(args.estimator, options)  # before the robot and the objects are loaded
+    objects = args.objects if args.objects is not None else default_object_set(args.estimator, options)
 
     cfg = GraspRunConfig(
         estimator=args.estimator, estimator_options=options, episodes=args.episodes,
-        seed=args.seed, objects=args.objects, units=args.units, scale=args.scale, targets=_targets(args.target),
+        seed=args.seed, objects=objects, units=args.units, scale=args.scale, targets=_targets(args.target),
         n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,

@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
            "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
-           "installed_estimators", "gt_access", "estimator_label", "GT_MASKS_LABEL"]
+           "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL"]
 
 #: Entry-point group under which installed packages register estimators by name.
 ENTRY_POINT_GROUP = "simtest.estimators"
@@ -347,6 +347,15 @@ def _import_file(spec: str, path_text: str, attr: str) -> Any:
         where = f" (line {exc.lineno})" if isinstance(exc, SyntaxError) else ""
         raise ConfigError(f"estimator {spec!r}: importing {path}{where} raised {type(exc).__name__}: {exc}") from exc
     return module
+
+
+def default_object_set(spec: str | Any, options: dict[str, Any], fallback: str = "builtin") -> str:
+    """The object set an estimator works on by default: its class attribute ``default_object_set`` (e.g.
+    ``segicp``'s shipped checkpoint knows ``builtin-small``) unless it is given its own ``checkpoint``; else
+    ``fallback``."""
+    target = _resolve(spec) if isinstance(spec, str) else spec
+    own = getattr(target, "default_object_set", None)
+    return own if isinstance(own, str) and own and not options.get("checkpoint") else fallback
 
 
 def check_estimator_options(spec: str | Any, options: dict[str, Any]) -> None:

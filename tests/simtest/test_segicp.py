@@ -162,3 +162,11 @@ def test_sweep_labels_gt_mask_runs(tmp_path):
     assert "| icp (GT masks) |" in tables and "| segicp |" in tables
     assert {r["estimator"] for r in read_csv(tmp_path / "s" / "summary.csv")} == {"icp (GT masks)", "segicp"}
     assert "icp (GT masks)" in (tmp_path / "s" / "report.html").read_text()
+
+
+def test_grasp_defaults_to_the_shipped_checkpoints_object_set():
+    from simtest.estimators.base import default_object_set
+
+    assert default_object_set("segicp", {}) == "builtin-small"
+    assert default_object_set("segicp", {"checkpoint": "my.pt"}) == "builtin"
+    assert default_object_set("oracle", {}) == "builtin"

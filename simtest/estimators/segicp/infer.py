@@ -194,6 +194,8 @@ class SegICPEstimator(ICPEstimator):
     """
 
     needs_gt_masks = False
+    #: The object set of the shipped checkpoint (``simtest grasp`` uses it unless told ``--objects``).
+    default_object_set = "builtin-small"
 
     def __init__(self, checkpoint: str | None = None, device: str = "cpu", min_region_pixels: int = 40,
                  threads: int | None = None, erode_px: int = 0, flip: bool = True, coarse_rotations: int = 600,
