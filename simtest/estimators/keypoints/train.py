@@ -13,15 +13,13 @@ mesh hashes, keypoints).
 from __future__ import annotations
 
 import json
-import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from simtest.errors import ConfigError
+from simtest.estimators.training import TrainResult, epoch_loader, lr_at, pad16
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model"]
 
@@ -94,17 +92,6 @@ class TrainConfig:
         return d
 
 
-@dataclass
-class TrainResult:
-    """What a run produced: checkpoint paths, per-epoch history (loss, validation scores), wall time (s)."""
-
-    model_path: Path
-    last_path: Path
-    best_path: Path | None
-    history: list[dict[str, Any]] = field(default_factory=list)
-    seconds: float = 0.0
-
-
 def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48)):
     """A freshly initialised :class:`KeypointNet`, deterministic in ``seed`` (the global RNG is left as it was)."""
     import torch
@@ -117,28 +104,6 @@ def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32,
         net = KeypointNet(cfg)
     net.init_weights(torch.Generator().manual_seed(int(seed)))
     return net
-
-
-def _epoch_generator(seed: int, epoch: int):
-    import torch
-
-    state = np.random.SeedSequence(int(seed), spawn_key=(int(epoch), 0x5EED)).generate_state(2, np.uint64)
-    return torch.Generator().manual_seed(int(state[0] >> np.uint64(1)))
-
-
-def _lr_at(step: int, total: int, peak: float) -> float:
-    warm = max(1, int(0.03 * total))
-    if step < warm:
-        return peak * (step + 1) / warm
-    p = min(1.0, (step - warm) / max(1, total - warm))
-    return peak * (0.02 + 0.98 * 0.5 * (1.0 + math.cos(math.pi * p)))
-
-
-def _pad16(x):
-    from torch.nn import functional as F
-
-    H, W = x.shape[-2:]
-    return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))
 
 
 def validate(net, record: dict[str, Any], val: str, split: str, device: str, max_images: int | None
@@ -160,15 +125,11 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
                  progress: bool) -> tuple[dict[str, float], int]:
     """One epoch of optimisation (cosine learning rate per step); returns the summed losses and the batch count."""
     import torch
-    from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from simtest.data import collate
     from simtest.estimators.keypoints.loss import make_targets, total_loss
 
-    dataset.set_epoch(epoch)
-    loader = DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-                        num_workers=int(cfg.workers), collate_fn=collate, generator=_epoch_generator(cfg.seed, epoch))
+    loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
     sums = {"loss": 0.0, "seg": 0.0, "kp": 0.0}
     n = 0
     bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
@@ -176,8 +137,8 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
     for i, batch in enumerate(bar):
         step = epoch * steps_per_epoch + i
         for g in opt.param_groups:
-            g["lr"] = _lr_at(step, total_steps, cfg.lr)
-        x = _pad16(batch["rgb"].to(cfg.device))
+            g["lr"] = lr_at(step, total_steps, cfg.lr)
+        x = pad16(batch["rgb"].to(cfg.device))
         pred = net(x)
         batch = {k: (v.to(cfg.device) if torch.is_tensor(v) else v) for k, v in batch.items()}
         batch["rgb"] = x

@@ -20,15 +20,16 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.estimators.training import TrainResult, epoch_loader, lr_at
 
-__all__ = ["SegTrainConfig", "SegTrainResult", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
+__all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
            "FORMAT", "net_input"]
 
 FORMAT = "simtest-segmentation/1"
@@ -93,17 +94,6 @@ class SegTrainConfig:
         return d
 
 
-@dataclass
-class SegTrainResult:
-    """What a run produced: checkpoint paths, per-epoch history, wall time of this call (s)."""
-
-    model_path: Path
-    last_path: Path
-    best_path: Path | None
-    history: list[dict[str, Any]] = field(default_factory=list)
-    seconds: float = 0.0
-
-
 def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=(16, 24, 48, 64)):
     """A freshly initialised :class:`SegNet`, deterministic in ``seed`` (the global RNG is left as it was)."""
     import torch
@@ -164,22 +154,17 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
                  progress: bool) -> dict[str, float]:
     """One epoch of optimisation; returns the mean losses."""
     import torch
-    from torch.utils.data import DataLoader
     from tqdm import tqdm
 
-    from simtest.data import collate
-    from simtest.estimators.keypoints.train import _epoch_generator, _lr_at
 
-    dataset.set_epoch(epoch)
-    loader = DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-                        num_workers=int(cfg.workers), collate_fn=collate, generator=_epoch_generator(cfg.seed, epoch))
+    loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
     sums = {"loss": 0.0, "ce": 0.0, "dice": 0.0}
     n = 0
     bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
                dynamic_ncols=True, leave=False)
     for i, batch in enumerate(bar):
         for g in opt.param_groups:
-            g["lr"] = _lr_at(epoch * steps + i, total, cfg.lr)
+            g["lr"] = lr_at(epoch * steps + i, total, cfg.lr)
         x = net_input(batch["rgb"], batch["depth"], cfg.depth_input).to(cfg.device)
         target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
         losses = seg_loss(net(x), target)
@@ -238,7 +223,7 @@ def _datasets(cfg: SegTrainConfig, objects: Any):
 
 
 def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: bool = True,
-                       log: Callable[[str], None] = print) -> SegTrainResult:
+                       log: Callable[[str], None] = print) -> TrainResult:
     """Train the segmentation network on ``cfg.data``; see the module doc for outputs and resuming.
 
     Raises:
@@ -309,6 +294,6 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
         atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
     final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
     save_checkpoint(model_path, checkpoint(final_epoch, False))
-    return SegTrainResult(model_path=model_path, last_path=last_path,
+    return TrainResult(model_path=model_path, last_path=last_path,
                           best_path=best_path if best_path.exists() else None, history=history,
                           seconds=time.perf_counter() - t_start)
