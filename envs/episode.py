@@ -43,7 +43,7 @@ import simtest  # noqa: F401
 import mujoco
 
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
-from simtest.envs.planner import GraspPlan, GraspPlanner
+from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
 from simtest.estimators.base import Observation, PoseEstimate, gt_access, load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
 from simtest.geometry import Pose
@@ -95,6 +95,8 @@ class EpisodeResult:
         traceback: The last frames of the estimator's traceback (``file:line in function: source > ...``) when
             it raised, exited or timed out.
         warnings: Estimates that were returned but not used, and why (``; ``-separated).
+        planner_obstacles: Where the planner's collision check took the obstacles from: ``"sim"`` (the
+            simulator's geometry) or ``"observed"`` (the observation's depth image).
         trace: The estimator's full traceback (not written to ``episodes.csv``; ``--fail-fast`` prints it).
         frames: Video frames (third-person | wrist), only when recording.
     """
@@ -121,6 +123,7 @@ class EpisodeResult:
     error: str = ""
     traceback: str = ""
     warnings: str = ""
+    planner_obstacles: str = "sim"
     trace: str = field(default="", repr=False)
     frames: list = field(default=None, repr=False)  # type: ignore[assignment]
 
@@ -354,7 +357,9 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
             ``Observation.gt_poses``; those with ``needs_gt_masks`` (or ``needs_gt``) the target's
             ground-truth visible mask and box (the "GT detections" protocol); every estimator gets the
             target's object id, no other ground truth.
-        planner: The grasp planner (default :class:`GraspPlanner`).
+        planner: The grasp planner (default :class:`GraspPlanner`). With ``obstacles="observed"`` it gets the
+            obstacles the observation's depth image shows (:func:`~simtest.envs.planner.observed_obstacles`,
+            the target removed at its estimated pose).
         seed: Env seed of the episode (scene, corruption and, through ``Observation.scene_id``, oracle noise).
         options: ``reset`` options (objects, target, n_distractors, occlusion, corruption, depth_noise, ...).
         record: Keep video frames (third-person | wrist) in ``EpisodeResult.frames``.
@@ -376,7 +381,7 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     t_sim0 = float(u.data.time)
     occ = u.occlusion
     result = EpisodeResult(seed=seed, target_obj_id=tid, target_name=obj.name, success=False, reason="none",
-                           occlusion=f"L{u.config.occlusion}",
+                           occlusion=f"L{u.config.occlusion}", planner_obstacles=planner.obstacles,
                            occluded_fraction=float("nan") if occ is None or occ.occluded_fraction is None
                            else occ.occluded_fraction)
     recorder = _Recorder(u, record_every) if record else None
@@ -434,7 +439,8 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     # 3. Plan from the estimated pose, camera -> base -> world.
     T_world_obj = (Pose.from_matrix(info["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])
                    @ Pose(R_e, t_e))
-    planned = planner.plan(u, obj, T_world_obj)
+    points = (observed_obstacles(u, obs, obj, T_world_obj) if planner.obstacles == "observed" else None)
+    planned = planner.plan(u, obj, T_world_obj, obstacle_points=points)
     if planned.plan is None:
         return finish(planned.reason)
     result.grasp_index = planned.plan.index

@@ -13,9 +13,17 @@ kept when
    on the finger pads (flat objects are held near the fingertips);
 3. IK reaches the pre-grasp, grasp and lift poses (within 0.5 mm / 0.3 deg);
 4. with ``check_collisions``, the arm at the pre-grasp and grasp configurations (gripper open) does not
-   penetrate the table, the distractors or the occluders. Obstacles are taken from the simulator's geometry,
-   as a depth-based occupancy map would give them; the target itself is known only through its estimate
-   (the candidates already keep the fingers out of its estimated surface).
+   penetrate the table, the distractors or the occluders. The target itself is known only through its
+   estimate (the candidates already keep the fingers out of its estimated surface). Where the obstacles come
+   from is the planner's ``obstacles`` setting (:data:`OBSTACLE_SOURCES`):
+
+   * ``"sim"``: the simulator's geometry (its contacts), as a perfect occupancy map would give them;
+   * ``"observed"``: only what the camera saw, :func:`observed_obstacles`: the observation's depth image
+     back-projected into the world, minus the points within ``target_margin`` of the target's surface at its
+     *estimated* pose, minus the table top (and below) and the robot's own geoms at the capture
+     configuration. The hand and fingers at a configuration (their collision geoms' boxes, grown by
+     ``obstacle_margin``) must contain none of these points. The table is known workspace: the arm's
+     contacts with it are still checked on the simulator's geometry, nothing else is.
 
 Candidates are ranked by ``top_down_weight * (-approach_z) + score - shift_weight * contact_shift / 12 mm``
 (top-down grasps preferred, then the sampler's antipodal quality, then contacts on the middle of the pads
@@ -38,7 +46,11 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.objects.grasps import PANDA, gripper_boxes
 
-__all__ = ["GraspPlan", "PlanResult", "GraspPlanner"]
+__all__ = ["GraspPlan", "PlanResult", "GraspPlanner", "OBSTACLE_SOURCES", "observed_obstacles",
+           "points_in_geoms"]
+
+#: Where the planner's collision check takes the obstacles from (see the module docstring).
+OBSTACLE_SOURCES = ("sim", "observed")
 
 
 @dataclass(frozen=True)
@@ -112,6 +124,100 @@ def _box_corners(boxes: np.ndarray) -> np.ndarray:
     return np.concatenate(out, axis=0)
 
 
+def points_in_geoms(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray, points: np.ndarray,
+                    margin: float = 0.0) -> np.ndarray:
+    """Which points (N, 3), world frame, m, lie inside any of ``geoms``' bounding boxes grown by ``margin`` (m).
+
+    Each geom's box is its local axis-aligned bounding box (``model.geom_aabb``) at its world pose in ``data``
+    (after forward kinematics), so boxes follow the geoms' orientation.
+
+    Returns:
+        (N,) bool.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    inside = np.zeros(len(pts), dtype=bool)
+    for g in np.asarray(geoms, dtype=int):
+        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:] + margin
+        R = data.geom_xmat[g].reshape(3, 3)
+        local = (pts - data.geom_xpos[g]) @ R - centre
+        inside |= (np.abs(local) <= half).all(axis=1)
+    return inside
+
+
+def _voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point (the first) per ``voxel``-sized cube (m)."""
+    if len(points) == 0 or voxel <= 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
+def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin: float = 0.01,
+                       table_margin: float = 0.005, self_margin: float = 0.01,
+                       voxel: float = 0.004) -> np.ndarray:
+    """The obstacles the camera saw: world points (M, 3), metres, from an observation's depth image.
+
+    The depth image (planar, metres, 0 = missing) is back-projected with ``obs["K"]`` and moved into the world
+    with the camera pose the observation carries (``T_world_base @ obs["T_base_cam"]``, OpenCV frame). Removed:
+
+    * points within ``target_margin`` of the target's surface (:meth:`ObjectModel.surface_cloud`) at its
+      *estimated* pose ``T_world_obj`` (the target is what the gripper must touch);
+    * points less than ``table_margin`` above the known table top ``env.grasp_scene.table_height``, or below it
+      (the table is known workspace, checked separately);
+    * points inside the robot's own collision geoms (grown by ``self_margin``) at the arm's current
+      configuration, which must be the one of the capture (the robot knows its own joints);
+
+    and the rest is thinned to one point per ``voxel`` cube.
+
+    Args:
+        env: The (unwrapped) :class:`~simtest.envs.grasp_env.PandaGraspEnv`, in the state of the capture.
+        obs: The observation (``depth``, ``K``, ``T_base_cam``).
+        obj: The target's :class:`simtest.objects.ObjectModel`.
+        T_world_obj: The target's estimated pose in the world (m).
+    """
+    from scipy.spatial import cKDTree
+
+    from simtest.estimators.icp import backproject
+
+    T_world_cam = env.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
+    pts = backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)) @ T_world_cam.R.T + T_world_cam.t
+    pts = pts[np.isfinite(pts).all(axis=1) & (pts[:, 2] > env.grasp_scene.table_height + table_margin)]
+    surface = np.asarray(obj.surface_cloud(4000)[0]) @ T_world_obj.R.T + T_world_obj.t
+    dist, _ = cKDTree(surface).query(pts, distance_upper_bound=target_margin)
+    pts = pts[~np.isfinite(dist)]
+    mujoco.mj_kinematics(env.model, env.data)
+    pts = pts[~points_in_geoms(env.model, env.data, env.ids.robot_geoms, pts, self_margin)]
+    return _voxel_downsample(pts, voxel)
+
+
+def _hand_geoms(model: mujoco.MjModel, ids) -> np.ndarray:
+    """Collision geoms of the hand and fingers: the robot's geoms on the hand body and its descendants."""
+    def under_hand(body: int) -> bool:
+        while body > 0:
+            if body == ids.hand_body:
+                return True
+            body = int(model.body_parentid[body])
+        return False
+
+    return np.array([g for g in ids.robot_geoms if under_hand(int(model.geom_bodyid[g]))], dtype=int)
+
+
+def _table_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Geoms of the table (named ``table*``)."""
+    return np.array([g for g in range(model.ngeom)
+                     if (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith("table")], dtype=int)
+
+
+@dataclass(frozen=True)
+class _Obstacles:
+    """Observed obstacles of one planning call: the points (world, m) and the geoms to test them against."""
+
+    points: np.ndarray
+    hand_geoms: np.ndarray
+    table_geoms: np.ndarray
+
+
 class GraspPlanner:
     """Chooses a feasible grasp of an object from its estimated pose (see the module docstring).
 
@@ -130,18 +236,28 @@ class GraspPlanner:
         clearance: Height of the open gripper's lowest point above the object's estimated top before it
             descends to a pre-grasp pose that is lower than that, m.
         open_margin: Opening beyond the contact width for the approach (both fingers together), m.
+        obstacles: Obstacle source of the collision check, one of :data:`OBSTACLE_SOURCES`: ``"sim"`` (the
+            simulator's geometry) or ``"observed"`` (the observed point cloud passed to :meth:`plan`).
+        obstacle_margin: With ``"observed"``: how far the hand's and fingers' boxes are grown, m.
     """
 
     def __init__(self, max_tilt: float = np.deg2rad(60.0), table_clearance: float = 0.002,
                  pregrasp: float = 0.10, lift: float = 0.15, top_down_weight: float = 2.0,
                  max_candidates: int = 30, check_collisions: bool = True, max_contact_z: float = 0.020,
-                 shift_weight: float = 0.3, clearance: float = 0.03, open_margin: float = 0.05) -> None:
+                 shift_weight: float = 0.3, clearance: float = 0.03, open_margin: float = 0.05,
+                 obstacles: str = "sim", obstacle_margin: float = 0.005) -> None:
         if not 0 < max_tilt <= np.pi / 2:
             raise ConfigError(f"max_tilt must be in (0, pi/2] rad, got {max_tilt!r}")
         if not pregrasp > 0 or not lift > 0:
             raise ConfigError(f"pregrasp and lift must be > 0 m, got {pregrasp!r} and {lift!r}")
         if max_candidates < 1:
             raise ConfigError(f"max_candidates must be >= 1, got {max_candidates!r}")
+        if obstacles not in OBSTACLE_SOURCES:
+            raise ConfigError(f"planner obstacles must be one of {', '.join(OBSTACLE_SOURCES)}; got {obstacles!r}")
+        if not obstacle_margin >= 0:
+            raise ConfigError(f"obstacle_margin must be >= 0 m, got {obstacle_margin!r}")
+        self.obstacles = obstacles
+        self.obstacle_margin = float(obstacle_margin)
         self.max_tilt = float(max_tilt)
         self.table_clearance = float(table_clearance)
         self.pregrasp = float(pregrasp)
@@ -196,7 +312,7 @@ class GraspPlanner:
         ok &= contact_z + backoff <= self.max_contact_z
         return ok, np.where(ok, backoff, 0.0)
 
-    def plan(self, env, obj, T_world_obj: Pose) -> PlanResult:
+    def plan(self, env, obj, T_world_obj: Pose, obstacle_points: np.ndarray | None = None) -> PlanResult:
         """Choose a grasp for ``obj`` at the estimated ``T_world_obj`` in ``env``'s current state.
 
         Args:
@@ -204,8 +320,20 @@ class GraspPlanner:
                 never stepped).
             obj: The target's :class:`simtest.objects.ObjectModel`.
             T_world_obj: The *estimated* object pose in the world (m).
+            obstacle_points: With ``obstacles="observed"`` (required then): the observed obstacles, (M, 3)
+                world points, m (:func:`observed_obstacles`); ignored with ``"sim"``.
+
+        Raises:
+            ConfigError: ``obstacles="observed"`` without ``obstacle_points``.
         """
         model, data, ids = env.model, env.data, env.ids
+        observed = None
+        if self.obstacles == "observed":
+            if obstacle_points is None:
+                raise ConfigError("GraspPlanner(obstacles='observed').plan needs obstacle_points (the observed "
+                                  "obstacle cloud, see observed_obstacles)")
+            observed = _Obstacles(np.asarray(obstacle_points, dtype=np.float64).reshape(-1, 3),
+                                  _hand_geoms(model, ids), _table_geoms(model))
         poses, widths, scores, contact_z = self.candidates_world(obj, T_world_obj)
         n = len(poses)
         ok, backoff = self.geometric_filter(poses, env.grasp_scene.table_height, contact_z)
@@ -228,7 +356,7 @@ class GraspPlanner:
                 g = Pose.from_matrix(poses[i])
                 if flipped:
                     g = symmetric_grasp(g)
-                res = self._check(model, data, ids, env, g, q_now, top_z)
+                res = self._check(model, data, ids, env, g, q_now, top_z, observed)
                 if res is None:
                     continue
                 any_ik = True
@@ -246,7 +374,8 @@ class GraspPlanner:
                 return PlanResult(plan, "ok", n, len(idx), n_tried)
         return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried)
 
-    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray, top_z: float):
+    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray, top_z: float,
+               observed: _Obstacles | None = None):
         """IK (and collisions) of one grasp: ``None`` if IK fails, ``"collision"``, or the solutions."""
         pre = Pose(g.R, g.t - self.pregrasp * g.R[:, 2])
         # The lowest point of the open gripper (fingers and palm as boxes) must clear the object's top.
@@ -265,18 +394,24 @@ class GraspPlanner:
         r_lift = solve_ik(model, data, ids, lift, r_grasp.q)
         if not r_lift.success:
             return None
-        if self.check_collisions and (self._collides(env, r_pre.q) or self._collides(env, r_grasp.q)):
+        if self.check_collisions and (self._collides(env, r_pre.q, observed)
+                                     or self._collides(env, r_grasp.q, observed)):
             return "collision"
         return r_above.q, r_pre.q, r_grasp.q, r_lift.q, above, pre, lift
 
-    def _collides(self, env, q: np.ndarray) -> bool:
-        """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target."""
+    def _collides(self, env, q: np.ndarray, observed: _Obstacles | None = None) -> bool:
+        """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target
+        (simulator geometry), or with ``observed``: the table (simulator geometry) or an observed obstacle
+        point (inside the hand's or fingers' boxes grown by ``obstacle_margin``)."""
         model, ids = env.model, env.ids
         s = env.planning_data
         s.qpos[:] = env.data.qpos
         s.qpos[ids.arm_qpos] = q
         s.qpos[ids.finger_qpos] = GRIPPER_OPEN / 2
         mujoco.mj_fwdPosition(model, s)
+        if observed is not None and len(observed.points) and points_in_geoms(
+                model, s, observed.hand_geoms, observed.points, self.obstacle_margin).any():
+            return True
         n = s.ncon
         if n == 0:
             return False
@@ -285,4 +420,6 @@ class GraspPlanner:
         robot = np.isin(geoms, ids.robot_geoms)
         target = np.isin(geoms, env.target_geoms)
         hit = (robot[:, 0] ^ robot[:, 1]) & ~target.any(axis=1) & (dist < -0.001)
+        if observed is not None:
+            hit &= np.isin(geoms, observed.table_geoms).any(axis=1)
         return bool(hit.any())

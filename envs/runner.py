@@ -32,7 +32,7 @@ __all__ = ["GraspRunConfig", "GraspRunReport", "episode_seed", "wilson_interval"
 CSV_COLUMNS = ["episode", "seed", "target_obj_id", "target_name", "success", "reason", "add_s", "re_deg",
                "re_sym_deg", "te", "mssd", "estimate_s", "wall_s", "sim_s", "lift_height", "occlusion",
                "occluded_fraction", "visible_pixels", "grasp_index", "approach_tilt_deg", "error", "traceback",
-               "warnings"]
+               "warnings", "planner_obstacles"]
 #: Episode outcomes that are faults of the estimator (``fail_fast`` stops at the first).
 ESTIMATOR_FAULTS = ("estimator_error", "estimator_timeout")
 #: Video frames are recorded every this many control periods.
@@ -80,6 +80,9 @@ class GraspRunConfig:
             episode ends as ``estimator_timeout`` and the run goes on.
         fail_fast: Stop at the first episode the estimator fails (``estimator_error`` / ``estimator_timeout``)
             by raising :class:`~simtest.errors.EstimatorError` with its traceback.
+        planner_obstacles: Where the grasp planner's collision check takes the obstacles from
+            (:data:`simtest.envs.planner.OBSTACLE_SOURCES`): ``"sim"`` (the simulator's geometry) or
+            ``"observed"`` (only what the observation's depth image shows; the table stays known).
     """
 
     estimator: str = "oracle"
@@ -102,6 +105,7 @@ class GraspRunConfig:
     video_episodes: int = 5
     timeout: float | None = DEFAULT_TIMEOUT_S
     fail_fast: bool = False
+    planner_obstacles: str = "sim"
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -165,13 +169,15 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     from simtest.envs.grasp_env import PandaGraspEnv
+    from simtest.envs.planner import GraspPlanner
     from simtest.estimators.base import load_estimator
 
     env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
                         object_scale=cfg.scale,
                         render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
-    return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir}
+    return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
+            "planner": GraspPlanner(obstacles=cfg.planner_obstacles)}
 
 
 def _run_one(index: int, ctx: dict | None = None) -> dict:
@@ -181,8 +187,9 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
     cfg: GraspRunConfig = ctx["cfg"]
     seed = episode_seed(cfg.seed, index)
     record = bool(cfg.video and ctx["out"] is not None and index < cfg.video_episodes)
-    res = run_episode(ctx["env"], ctx["estimator"], seed=seed, options=cfg.reset_options(index, ctx["targets"]),
-                      record=record, record_every=RECORD_EVERY, timeout=cfg.timeout)
+    res = run_episode(ctx["env"], ctx["estimator"], ctx["planner"], seed=seed,
+                      options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
+                      timeout=cfg.timeout)
     row = {"episode": index, **res.to_row()}
     if record and res.frames:
         from simtest.envs.grasp_env import CONTROL_DT
@@ -250,6 +257,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     if cfg.seed < 0:
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
     check_timeout(cfg.timeout)
+    check_planner_obstacles(cfg.planner_obstacles)
     from simtest.envs.grasp_env import EpisodeConfig
 
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
@@ -290,12 +298,27 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     summary = summarize(rows)
     summary["config"] = cfg.to_dict()
     summary["estimator_label"] = _estimator_label(cfg)
+    summary["planner_obstacles"] = cfg.planner_obstacles
     summary["wall_s_total"] = time.perf_counter() - t0
     summary["command_line"] = list(command_line) if command_line is not None else None
     report = GraspRunReport(rows, summary, out)
     if out is not None:
         _write_outputs(report, out)
     return report
+
+
+def check_planner_obstacles(value: Any) -> str:
+    """``value`` if it is a planner obstacle source (:data:`simtest.envs.planner.OBSTACLE_SOURCES`).
+
+    Raises:
+        ConfigError: Naming the field, the bad value and the allowed ones.
+    """
+    from simtest.envs.planner import OBSTACLE_SOURCES
+
+    if value not in OBSTACLE_SOURCES:
+        raise ConfigError(f"GraspRunConfig.planner_obstacles must be one of {', '.join(OBSTACLE_SOURCES)} "
+                          f"(sim: the simulator's geometry; observed: the observation's depth image); got {value!r}")
+    return value
 
 
 def _check_fail_fast(cfg: GraspRunConfig, row: dict) -> None:
@@ -378,7 +401,7 @@ def summary_markdown(s: dict) -> str:
                   f"weather {cfg.get('weather') or 'none'}"
                   + (f" (severity {cfg.get('severity')})" if cfg.get("weather") else "")
                   + f", depth noise {cfg.get('depth_noise') or 'none'}, distractors {cfg.get('n_distractors')}, "
-                  f"seed {cfg.get('seed')}.", ""]
+                  f"seed {cfg.get('seed')}, planner obstacles {cfg.get('planner_obstacles', 'sim')}.", ""]
     if s.get("command_line"):
         lines += ["```", " ".join(s["command_line"]), "```", ""]
     lines += [f"**Success: {s['successes']}/{s['episodes']} = {_pct(s['success_rate'])}** "

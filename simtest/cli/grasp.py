@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--severity", type=int, default=3, help="corruption severity 1..5 (default 3)")
     p.add_argument("--depth-noise", default=None, choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),
                    help="depth-noise preset of the observation (default: none)")
+    p.add_argument("--planner-obstacles", default="sim", choices=["sim", "observed"],
+                   help="obstacles of the grasp planner's collision check: sim (the simulator's geometry of "
+                        "distractors and occluders, default) or observed (only the points of the observation's "
+                        "depth image, the target removed at its estimated pose; the table stays known)")
     p.add_argument("--width", type=int, default=320, help="wrist camera width, pixels (default 320)")
     p.add_argument("--height", type=int, default=None, help="wrist camera height (default 3/4 of the width)")
     p.add_argument("--seed", type=int, default=0, help="master seed; episode i uses SeedSequence child i")
@@ -81,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout,
-        fail_fast=args.fail_fast)
+        fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles)
     try:
         report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
                                     command_line=["simtest", *sys.argv[1:]])
