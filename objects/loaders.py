@@ -236,7 +236,6 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     sym_d, sym_c = _symmetries_m(e.symmetry, factor) if e.symmetry is not None else ((), ())
     extra = {"units": unit, "scale": factor, "origin_offset": center.tolist()}
     if e.symmetry is not None:
-        extra["symmetry_declared"] = True
         extra["symmetry"] = "declared"  # detection leaves it alone, even a declared "none"
     obj = ObjectModel(
         obj_id=obj_id, name=e.name or name or stem,

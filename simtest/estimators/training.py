@@ -8,13 +8,16 @@ so a resumed run shuffles exactly as an uninterrupted one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["TrainResult", "epoch_generator", "lr_at", "epoch_loader", "pad16"]
+from simtest.errors import ConfigError
+
+__all__ = ["TrainResult", "epoch_generator", "lr_at", "epoch_loader", "pad16", "optimizer_step", "check_device",
+           "check_settings", "settings_dict", "init_conv_weights"]
 
 
 @dataclass
@@ -64,3 +67,58 @@ def pad16(x):
 
     H, W = x.shape[-2:]
     return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))
+
+
+def optimizer_step(net, opt, losses: dict, sums: dict[str, float]) -> None:
+    """Back-propagate ``losses["loss"]``, clip the gradient norm at 10, step ``opt``, and add every loss named
+    in ``sums`` to it."""
+    import torch
+
+    opt.zero_grad(set_to_none=True)
+    losses["loss"].backward()
+    torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+    opt.step()
+    for k in sums:
+        sums[k] += float(losses[k].detach())
+
+
+def check_device(device: str, who: str) -> None:
+    """Raise :class:`ConfigError` (naming ``who``) unless ``device`` is ``cpu``, ``cuda`` or ``cuda:N``."""
+    if device not in ("cpu", "cuda") and not str(device).startswith("cuda:"):
+        raise ConfigError(f"{who}: device must be cpu or cuda[:N], got {device!r}")
+
+
+def check_settings(cfg: Any, who: str) -> None:
+    """The checks every training config shares: ``epochs``, ``batch_size`` >= 1, ``workers`` >= 0, ``lr`` > 0,
+    ``augment_p`` in [0, 1], ``seed`` a non-negative integer, a known ``device``; errors name ``who``."""
+    for name, lo in (("epochs", 1), ("batch_size", 1), ("workers", 0)):
+        if int(getattr(cfg, name)) < lo:
+            raise ConfigError(f"{who}: {name} must be >= {lo}, got {getattr(cfg, name)!r}")
+    if not cfg.lr > 0:
+        raise ConfigError(f"{who}: lr must be > 0, got {cfg.lr!r}")
+    if not 0.0 <= cfg.augment_p <= 1.0:
+        raise ConfigError(f"{who}: augment_p must be in [0, 1], got {cfg.augment_p!r}")
+    if cfg.seed is None or int(cfg.seed) < 0:
+        raise ConfigError(f"{who}: seed must be a non-negative integer, got {cfg.seed!r}")
+    check_device(cfg.device, who)
+
+
+def settings_dict(cfg: Any) -> dict[str, Any]:
+    """A training config as plain JSON-able data (tuples as lists), as checkpoints record it."""
+    d = asdict(cfg)
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def init_conv_weights(net, generator) -> None:
+    """Deterministic initialisation from ``generator``: Kaiming-normal convolutions (fan out) with zero bias,
+    batch norms at identity."""
+    from torch import nn
+
+    for m in net.modules():
+        if isinstance(m, nn.Conv2d):
+            nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=generator)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.BatchNorm2d):
+            nn.init.ones_(m.weight)
+            nn.init.zeros_(m.bias)

@@ -269,7 +269,7 @@ def test_manifest_names_categories_symmetries_mass(tmp_path):
     np.testing.assert_allclose(can.symmetries_discrete[0][:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
     assert abs(can.mass - 0.35) < 1e-9 and can.friction == 0.8
     assert box.symmetry_label() == "discrete(1)" and box.graspable is False and box.density == 250
-    assert tool.symmetry_label() == "none" and tool.extra["symmetry_declared"] is True
+    assert tool.symmetry_label() == "none" and tool.extra["symmetry"] == "declared"
 
 
 def test_manifest_errors_name_the_entry(tmp_path):

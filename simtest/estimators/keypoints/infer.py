@@ -24,6 +24,7 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+from simtest.estimators.training import check_device
 
 __all__ = ["KeypointEstimator", "fuse_keypoints", "solve_pnp", "mask_cells", "PNP_METHODS", "predict_maps"]
 
@@ -188,8 +189,7 @@ class KeypointEstimator:
             raise ConfigError(f"keypoints: unknown pnp {pnp!r}; valid: {', '.join(PNP_METHODS)}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
-        if device not in ("cpu", "cuda") and not str(device).startswith("cuda:"):
-            raise ConfigError(f"keypoints: device must be cpu or cuda[:N], got {device!r}")
+        check_device(device, "keypoints")
         if threads is not None:
             torch.set_num_threads(int(threads))
         from simtest.estimators.keypoints.model import KeypointNet, NetConfig

@@ -20,6 +20,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from simtest.estimators.training import init_conv_weights
+
 __all__ = ["NetConfig", "KeypointNet", "cell_centers"]
 
 
@@ -102,14 +104,7 @@ class KeypointNet(nn.Module):
 
     def init_weights(self, generator: torch.Generator) -> None:
         """Deterministic initialisation from ``generator`` (Kaiming for convolutions; small heads)."""
-        for m in self.modules():
-            if isinstance(m, nn.Conv2d):
-                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=generator)
-                if m.bias is not None:
-                    nn.init.zeros_(m.bias)
-            elif isinstance(m, nn.BatchNorm2d):
-                nn.init.ones_(m.weight)
-                nn.init.zeros_(m.bias)
+        init_conv_weights(self, generator)
         for head in (self.seg_head[-1], self.kp_head[-1]):
             nn.init.normal_(head.weight, std=0.01, generator=generator)
             nn.init.zeros_(head.bias)

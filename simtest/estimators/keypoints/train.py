@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 from simtest.errors import ConfigError
-from simtest.estimators.training import TrainResult, epoch_loader, lr_at, pad16
+from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, lr_at, optimizer_step, pad16,
+                                        settings_dict)
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model"]
 
@@ -72,24 +73,10 @@ class TrainConfig:
     threads: int | None = None
 
     def __post_init__(self) -> None:
-        if int(self.epochs) < 1:
-            raise ConfigError(f"epochs must be >= 1, got {self.epochs!r}")
-        if int(self.batch_size) < 1:
-            raise ConfigError(f"batch size must be >= 1, got {self.batch_size!r}")
-        if not self.lr > 0:
-            raise ConfigError(f"learning rate must be > 0, got {self.lr!r}")
-        if self.seed is None or int(self.seed) < 0:
-            raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if int(self.workers) < 0:
-            raise ConfigError(f"workers must be >= 0, got {self.workers!r}")
-        if self.device not in ("cpu", "cuda") and not str(self.device).startswith("cuda:"):
-            raise ConfigError(f"device must be cpu or cuda[:N], got {self.device!r}")
+        check_settings(self, "keypoint training")
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        for k in ("augment", "crop", "widths", "decoder"):
-            d[k] = None if d[k] is None else list(d[k])
-        return d
+        return settings_dict(self)
 
 
 def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48)):
@@ -144,12 +131,7 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
         batch["rgb"] = x
         tg = make_targets(batch, tuple(pred["seg"].shape[-2:]), net.cfg.stride, net.cfg.offset_scale)
         losses = total_loss(pred, tg, cfg.seg_weight)
-        opt.zero_grad(set_to_none=True)
-        losses["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-        opt.step()
-        for k in sums:
-            sums[k] += float(losses[k].detach())
+        optimizer_step(net, opt, losses, sums)
         n += 1
         bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", seg=f"{sums['seg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
     bar.close()

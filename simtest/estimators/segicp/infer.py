@@ -27,6 +27,7 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.icp import ICPEstimator
+from simtest.estimators.training import check_device
 
 __all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME"]
 
@@ -68,8 +69,7 @@ class Segmenter:
 
         if int(min_region_pixels) < 1:
             raise ConfigError(f"segicp: min_region_pixels must be >= 1, got {min_region_pixels!r}")
-        if device not in ("cpu", "cuda") and not str(device).startswith("cuda:"):
-            raise ConfigError(f"segicp: device must be cpu or cuda[:N], got {device!r}")
+        check_device(device, "segicp")
         if threads is not None:
             torch.set_num_threads(int(threads))
         self.shipped = checkpoint is None

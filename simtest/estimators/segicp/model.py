@@ -19,6 +19,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from simtest.estimators.keypoints.model import _conv, _Residual
+from simtest.estimators.training import init_conv_weights
 
 __all__ = ["SegNetConfig", "SegNet", "depth_channel", "DEPTH_RANGE_M"]
 
@@ -90,14 +91,7 @@ class SegNet(nn.Module):
     def init_weights(self, generator: torch.Generator) -> None:
         """Deterministic initialisation from ``generator`` (Kaiming convolutions, a small head that starts
         out predicting background)."""
-        for m in self.modules():
-            if isinstance(m, nn.Conv2d):
-                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=generator)
-                if m.bias is not None:
-                    nn.init.zeros_(m.bias)
-            elif isinstance(m, nn.BatchNorm2d):
-                nn.init.ones_(m.weight)
-                nn.init.zeros_(m.bias)
+        init_conv_weights(self, generator)
         nn.init.normal_(self.head.weight, std=0.01, generator=generator)
         nn.init.zeros_(self.head.bias)
         with torch.no_grad():

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.estimators.training import TrainResult, epoch_loader, lr_at
+from simtest.estimators.training import TrainResult, check_settings, epoch_loader, lr_at, optimizer_step, settings_dict
 
 __all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
            "FORMAT", "net_input"]
@@ -75,23 +75,10 @@ class SegTrainConfig:
     max_images: int | None = None
 
     def __post_init__(self) -> None:
-        for name, lo in (("epochs", 1), ("batch_size", 1), ("workers", 0)):
-            if int(getattr(self, name)) < lo:
-                raise ConfigError(f"segmentation training: {name} must be >= {lo}, got {getattr(self, name)!r}")
-        if not self.lr > 0:
-            raise ConfigError(f"segmentation training: lr must be > 0, got {self.lr!r}")
-        if not 0.0 <= self.augment_p <= 1.0:
-            raise ConfigError(f"segmentation training: augment_p must be in [0, 1], got {self.augment_p!r}")
-        if self.seed is None or int(self.seed) < 0:
-            raise ConfigError(f"segmentation training: seed must be a non-negative integer, got {self.seed!r}")
-        if self.device not in ("cpu", "cuda") and not str(self.device).startswith("cuda:"):
-            raise ConfigError(f"segmentation training: device must be cpu or cuda[:N], got {self.device!r}")
+        check_settings(self, "segmentation training")
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        for k in ("augment", "crop", "widths"):
-            d[k] = None if d[k] is None else list(d[k])
-        return d
+        return settings_dict(self)
 
 
 def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=(16, 24, 48, 64)):
@@ -153,7 +140,6 @@ def seg_loss(logits, target) -> dict[str, Any]:
 def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int, total: int,
                  progress: bool) -> dict[str, float]:
     """One epoch of optimisation; returns the mean losses."""
-    import torch
     from tqdm import tqdm
 
 
@@ -168,12 +154,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
         x = net_input(batch["rgb"], batch["depth"], cfg.depth_input).to(cfg.device)
         target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
         losses = seg_loss(net(x), target)
-        opt.zero_grad(set_to_none=True)
-        losses["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-        opt.step()
-        for k in sums:
-            sums[k] += float(losses[k].detach())
+        optimizer_step(net, opt, losses, sums)
         n += 1
         bar.set_postfix(loss=f"{sums['loss'] / n:.3f}")
     bar.close()
