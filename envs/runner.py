@@ -170,14 +170,14 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     from simtest.envs.grasp_env import PandaGraspEnv
     from simtest.envs.planner import GraspPlanner
-    from simtest.estimators.base import load_estimator
+    from simtest.estimators.base import estimator_label, load_estimator
 
     env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
                         object_scale=cfg.scale,
                         render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
     return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
-            "planner": GraspPlanner(obstacles=cfg.planner_obstacles)}
+            "planner": GraspPlanner(obstacles=cfg.planner_obstacles), "label": estimator_label(cfg.estimator, est)}
 
 
 def _run_one(index: int, ctx: dict | None = None) -> dict:
@@ -190,7 +190,7 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
     res = run_episode(ctx["env"], ctx["estimator"], ctx["planner"], seed=seed,
                       options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
                       timeout=cfg.timeout)
-    row = {"episode": index, **res.to_row()}
+    row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
     if record and res.frames:
         from simtest.envs.grasp_env import CONTROL_DT
 
@@ -297,7 +297,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     rows.sort(key=lambda r: r["episode"])
     summary = summarize(rows)
     summary["config"] = cfg.to_dict()
-    summary["estimator_label"] = _estimator_label(cfg)
+    summary["estimator_label"] = rows[0]["estimator_label"]  # from the estimator the episodes ran
     summary["planner_obstacles"] = cfg.planner_obstacles
     summary["wall_s_total"] = time.perf_counter() - t0
     summary["command_line"] = list(command_line) if command_line is not None else None
@@ -327,13 +327,6 @@ def _check_fail_fast(cfg: GraspRunConfig, row: dict) -> None:
         trace = str(row.get("trace") or row.get("traceback") or "").rstrip()
         raise EstimatorError(f"{cfg.estimator} failed in episode {row['episode']} (seed {row['seed']}, "
                              f"{row['reason']}): {row['error']}" + (f"\n{trace}" if trace else ""))
-
-
-def _estimator_label(cfg: GraspRunConfig) -> str:
-    """The estimator's label in tables: its name, plus `` (GT masks)`` when it is given ground-truth masks."""
-    from simtest.estimators.base import estimator_label, load_estimator
-
-    return estimator_label(cfg.estimator, load_estimator(cfg.estimator, **cfg.estimator_options))
 
 
 def _tick(bar, rows: list[dict]) -> None:
