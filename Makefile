@@ -14,9 +14,9 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 ifneq ($(TORCH_WHEEL),)
-	$(PY) -m pip install -q -e ".[dev,train,pbr]" -c constraints/ci.txt
+	$(PY) -m pip install -q -e ".[dev,train,pbr,ray]" -c constraints/ci.txt
 else
-	$(PY) -m pip install -q -e ".[dev,pbr]"
+	$(PY) -m pip install -q -e ".[dev,pbr,ray]"
 endif
 	touch $(STAMP)
 

@@ -1,0 +1,116 @@
+"""The unit runner: local in-process, a local spawn pool, and a real local Ray instance give the same results;
+a Ray worker lost mid-unit is retried; a unit's own exception reaches the driver unchanged."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, thread_share
+from simtest.errors import ConfigError
+
+_STATE: dict = {}
+
+
+def _init(offset: int) -> None:
+    _STATE["offset"] = offset
+
+
+def _square_plus(unit: int) -> tuple[int, int]:
+    return unit, unit * unit + _STATE.get("offset", 0)
+
+
+def _die_once(unit: tuple[int, str]) -> int:
+    """Kills its worker process the first time it runs unit 1 (a marker file remembers), like a lost node."""
+    i, marker = unit
+    if i == 1 and not os.path.exists(marker):
+        Path(marker).write_text("died")
+        os._exit(1)
+    return i * 10
+
+
+def _raise(unit: int) -> int:
+    raise ConfigError(f"bad unit {unit}")
+
+
+def test_backend_settings_are_checked():
+    with pytest.raises(ConfigError, match="backend must be one of local, ray; got 'dask'"):
+        Backend("dask")
+    with pytest.raises(ConfigError, match="needs backend 'ray'"):
+        Backend("local", address="auto")
+    with pytest.raises(ConfigError, match="workers must be an integer >= 1; got 0"):
+        Backend("local", workers=0)
+    assert check_backend("ray", "auto", 2) == "ray"
+    assert thread_share(2, 2) == 1 and thread_share(1, 8) == 8 and thread_share(16, 2) == 1
+
+
+def test_missing_cluster_is_one_clear_error():
+    pytest.importorskip("ray")
+    import ray
+
+    if ray.is_initialized():
+        pytest.skip("a Ray instance is already running in this process")
+    with pytest.raises(BackendError, match="cannot start Ray at 127.0.0.1:1"):
+        list(run_units(_square_plus, [1], Backend("ray", 1, address="127.0.0.1:1")))
+
+
+def test_local_in_process_and_pool_agree():
+    _init(0)
+    inline = sorted(run_units(_square_plus, range(6), Backend("local", 1)))
+    stats = RunStats()
+    pooled = sorted(run_units(_square_plus, range(6), Backend("local", 2), init=_init, init_args=(0,),
+                              stats=stats))
+    assert inline == pooled == [(i, i * i) for i in range(6)]
+    assert stats.finished == 6 and stats.retried == 0
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray = pytest.importorskip("ray")
+    # the workers import this module's unit functions by name
+    here = str(Path(__file__).parent)
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING",
+             runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}})
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_gives_the_local_results_and_runs_the_initialiser(local_ray):
+    stats = RunStats()
+    out = sorted(run_units(_square_plus, list(range(6)), Backend("ray", 2), init=_init, init_args=(100,),
+                           stats=stats))
+    assert out == [(i, i * i + 100) for i in range(6)]
+    assert stats.finished == 6 and stats.backend == "ray" and stats.cluster_cpus == 2
+    assert "ray: 6 units done, 0 retried, 0 failed" in stats.summary()
+
+
+def test_ray_retries_a_unit_whose_worker_died(local_ray, tmp_path, capsys):
+    stats = RunStats()
+    units = [(i, str(tmp_path / "marker")) for i in range(3)]
+    out = sorted(run_units(_die_once, units, Backend("ray", 2), stats=stats))
+    assert out == [0, 10, 20]
+    assert stats.retried == 1 and not stats.failures
+    assert "lost its worker" in capsys.readouterr().err
+
+
+def test_ray_gives_up_after_the_retries(local_ray, tmp_path):
+    stats = RunStats()
+    units = [(0, ""), (1, "")]  # unit 1 kills its worker every time
+    got = []
+    with pytest.raises(BackendError, match=r"1 unit\(s\) were lost with their workers more than 1 time"):
+        for r in run_units(_die_once_always, units, Backend("ray", 2, retries=1), stats=stats):
+            got.append(r)
+    assert got == [0] and stats.retried == 1 and len(stats.failures) == 1
+
+
+def _die_once_always(unit: tuple[int, str]) -> int:
+    if unit[0] == 1:
+        os._exit(1)
+    return unit[0]
+
+
+def test_ray_passes_the_units_exception_through(local_ray):
+    with pytest.raises(ConfigError, match="bad unit"):
+        list(run_units(_raise, [1, 2], Backend("ray", 2)))
