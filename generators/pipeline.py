@@ -313,14 +313,12 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         atomic_write_json(out / MANIFEST, {
             "format": "bop-scenewise", "generator": "simtest", "versions": _versions(cfg), "seed": cfg.seed,
             "config": cfg.to_dict(), "object_set": objects.name, "objects": [
-                {"obj_id": o.obj_id, "name": o.name, "category": o.category, "source": o.source} for o in objects],
+                {"obj_id": e.obj_id, "name": e.name, "category": e.category, "source": e.source}
+                for e in objects.entries],
             "command_line": list(command_line if command_line is not None else sys.argv),
             "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
     write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
-    if not (out / "models" / "models_info.json").exists():
-        from simtest.io.bop_models import write_bop_models
-
-        write_bop_models(objects, out / "models")
+    _write_models(objects, out / "models", split_dir)
     done = {int(p.name) for p in scene_dirs(split_dir)}
     todo = [i for i in range(cfg.scenes) if i not in done]
     for partial in split_dir.glob(".*.partial"):
@@ -342,12 +340,35 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
             with ctx.Pool(min(cfg.workers, len(todo)), initializer=_worker_init, initargs=(cfg.to_dict(),)) as pool:
                 for rep in pool.imap_unordered(_worker_scene, [(i, str(split_dir)) for i in todo]):
                     _account(report, rep, bar)
+        _write_models(objects, out / "models", split_dir, scenes_done=True)
     finally:
         if bar is not None:
             bar.close()
     report.seconds = time.perf_counter() - t0
     report.scenes.sort(key=lambda s: s.scene_id)
     return report
+
+
+def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool = False) -> None:
+    """Write the BOP ``models/`` folder: every object of the set, before the scenes; for a lazily read set
+    (a large mesh library, :class:`~simtest.objects.lazy.LazyObjectSet`) only the objects the written scenes
+    use, after them, so a set's size does not add to the cost of its scenes."""
+    from simtest.io.bop import read_json
+    from simtest.io.bop_models import INFO_FILE, write_bop_models
+    from simtest.objects.lazy import LazyObjectSet
+
+    info = models_dir / INFO_FILE
+    if not isinstance(objects, LazyObjectSet):
+        if not scenes_done and not info.exists():
+            write_bop_models(objects, models_dir)
+        return
+    if not scenes_done:
+        return
+    used = {int(g["obj_id"]) for d in scene_dirs(split_dir) for gts in read_json(d / "scene_gt.json").values()
+            for g in gts}
+    have = {int(k) for k in read_json(info)} if info.exists() else set()
+    if used - have:
+        write_bop_models(objects.subset(sorted(used | have)), models_dir)
 
 
 def _account(report: GenerateReport, rep: SceneReport, bar) -> None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -41,12 +42,13 @@ from simtest.io.bop_models import (INFO_FILE, MM_PER_M, find_models_dir, read_mo
 from simtest.objects.appearance import Appearance, appearance_from_visual
 from simtest.objects.collision import open_mesh_note
 from simtest.objects.manifest import Manifest, ManifestEntry, read_manifest
-from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet, mesh_diameter, validate_mesh
+from simtest.objects.model import (ContinuousSymmetry, ObjectEntry, ObjectModel, ObjectSet, mesh_diameter,
+                                   validate_mesh)
 from simtest.objects.symmetry_detect import SYMMETRY_POLICIES, apply_symmetry_policy
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
            "read_bop_models", "load_dataset_objects", "MESH_EXTENSIONS", "UNITS", "MIN_DIAMETER_M",
-           "AUTO_MIN_DIAMETER_M", "AUTO_MAX_DIAMETER_M", "MAX_DIAMETER_M", "LoadedMesh"]
+           "AUTO_MIN_DIAMETER_M", "AUTO_MAX_DIAMETER_M", "MAX_DIAMETER_M", "LoadedMesh", "LAZY_MIN_OBJECTS"]
 
 #: Mesh formats, the preferred one first when a folder holds several files with one base name.
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
@@ -57,6 +59,9 @@ AUTO_MAX_DIAMETER_M = 1.5
 #: Whatever the units, a diameter (metres) below this is degenerate, above it absurd.
 MIN_DIAMETER_M = 0.005
 MAX_DIAMETER_M = 3.0
+#: A mesh folder with more objects than this is read lazily by default (:func:`load_mesh_folder`): reading and
+#: examining a mesh eagerly costs 0.1-0.3 s for simple shapes (symmetry detection), seconds for scans.
+LAZY_MIN_OBJECTS = 16
 #: Default density (kg/m^3) of loaded meshes.
 DEFAULT_DENSITY = 500.0
 #: Mesh formats simtest does not read; a folder holding them says so.
@@ -297,7 +302,14 @@ def _folder_ids(paths: list[Path], folder: Path) -> list[int]:
     return ids
 
 
-def _load_manifest_folder(folder: Path, manifest: Manifest, units: str, scale: float) -> ObjectSet:
+def _default_category(stem: str) -> str:
+    """Category of a file outside category folders: the stem without a trailing ``_<number>``."""
+    return re.sub(r"_\d+$", "", stem) or stem
+
+
+def _manifest_objects(folder: Path, manifest: Manifest, units: str, scale: float
+                      ) -> tuple[list[ObjectEntry], Callable[[ObjectEntry], ObjectModel]]:
+    """Entries of the files a manifest lists (no mesh read) and the loader that reads one of them."""
     entries = manifest.entries
     listed = {(folder / e.file).resolve() for e in entries}
     unlisted = sorted(str(p.relative_to(folder)) for p in folder.rglob("*")
@@ -306,11 +318,54 @@ def _load_manifest_folder(folder: Path, manifest: Manifest, units: str, scale: f
         warnings.warn(f"{folder}: mesh files not listed in {manifest.path.name} skipped: {', '.join(unlisted)}",
                       stacklevel=3)
     paths = [folder / e.file for e in entries]
-    ids = _manifest_ids(entries, paths)
-    objects = [load_mesh_file(p, obj_id, manifest.units or units, density=manifest.density or DEFAULT_DENSITY,
+    by_id: dict[int, ManifestEntry] = {}
+    out = []
+    for p, obj_id, e in zip(paths, _manifest_ids(entries, paths), entries):
+        by_id[obj_id] = e
+        category = e.category or Path(e.file).parent.name or _default_category(p.stem)
+        out.append(ObjectEntry(obj_id, e.name or p.stem, category, str(p)))
+
+    def load(entry: ObjectEntry) -> ObjectModel:
+        return load_mesh_file(entry.source, entry.obj_id, manifest.units or units,
+                              density=manifest.density or DEFAULT_DENSITY,
                               scale=manifest.scale if manifest.scale is not None else scale,
-                              category=Path(e.file).parent.name or None, entry=e)
-               for p, obj_id, e in zip(paths, ids, entries)]
+                              category=entry.category, entry=by_id[entry.obj_id])
+
+    return out, load
+
+
+def _tree_objects(folder: Path, chosen: list[tuple[Path, str | None]], units: str, scale: float
+                  ) -> tuple[list[ObjectEntry], Callable[[ObjectEntry], ObjectModel]]:
+    """Entries of the files of a folder without manifest (ids, names and categories from the paths, no mesh
+    read; a name found in several category folders gets its category as prefix) and their loader."""
+    paths = [p for p, _ in chosen]
+    cats = [c or _default_category(p.stem) for p, c in chosen]
+    stems = [p.stem for p in paths]
+    names = [f"{c}_{s}" if stems.count(s) > 1 else s for s, c in zip(stems, cats)]
+    entries = [ObjectEntry(i, n, c, str(p)) for i, n, c, p in zip(_folder_ids(paths, folder), names, cats, paths)]
+
+    def load(entry: ObjectEntry) -> ObjectModel:
+        return load_mesh_file(entry.source, entry.obj_id, units, name=entry.name, category=entry.category,
+                              scale=scale)
+
+    return entries, load
+
+
+def _read_all(folder: Path, entries: list[ObjectEntry], load: Callable[[ObjectEntry], ObjectModel],
+              notes: list[str], skip_degenerate: bool) -> ObjectSet:
+    """Read every object now; degenerate or empty meshes are left out and noted when ``skip_degenerate``."""
+    objects = []
+    for entry in entries:
+        try:
+            objects.append(load(entry))
+        except AssetError as exc:
+            if not skip_degenerate or ("degenerate" not in str(exc) and "empty" not in str(exc)):
+                raise
+            notes.append(f"rejected {exc}")
+    if notes:
+        warnings.warn(f"{folder}: " + "; ".join(notes), stacklevel=3)
+    if not objects:
+        raise AssetError(f"{folder}: no usable mesh: " + "; ".join(notes))
     objects.sort(key=lambda o: o.obj_id)
     return ObjectSet(objects, name=str(folder))
 
@@ -326,51 +381,49 @@ def _manifest_ids(entries: tuple[ManifestEntry, ...], paths: list[Path]) -> list
     return [e.obj_id if e.obj_id is not None else next(free) for e in entries]
 
 
-def load_mesh_folder(folder: str | Path, units: str = "auto", scale: float = 1.0) -> ObjectSet:
+def load_mesh_folder(folder: str | Path, units: str = "auto", scale: float = 1.0,
+                     lazy: bool | None = None) -> ObjectSet:
     """The objects of a mesh folder: as its ``objects.toml`` says, else one per base name (see the module
     docstring). Skipped files and degenerate meshes are reported in one warning naming them.
+
+    Args:
+        folder: The folder.
+        units, scale: As in :func:`load_object_set`.
+        lazy: ``True``: a :class:`~simtest.objects.lazy.LazyObjectSet` (ids, names and categories from the
+            paths and manifest now, each mesh read on first use; a broken mesh raises then, naming its file);
+            ``False``: read every mesh now; ``None``: lazy when the folder holds more than
+            :data:`LAZY_MIN_OBJECTS` objects.
 
     Raises:
         AssetError: Missing folder, no usable mesh files, duplicate ids, a bad manifest, or a file error
             other than a degenerate mesh (units, unreadable files).
     """
+    from simtest.objects.lazy import LazyObjectSet
+
     folder = Path(folder)
     if not folder.is_dir():
         raise AssetError(f"{folder}: folder not found")
     manifest = read_manifest(folder)
+    notes: list[str] = []
     if manifest is not None:
-        return _load_manifest_folder(folder, manifest, units, scale)
-    chosen, notes = _base_name_files(folder)
-    if not chosen:
-        raise AssetError(f"{folder}: no mesh files ({', '.join(MESH_EXTENSIONS)}) in the folder or its subfolders")
-    paths = [p for p, _ in chosen]
-    objects = []
-    for obj_id, (path, category) in zip(_folder_ids(paths, folder), chosen):
-        try:
-            objects.append(load_mesh_file(path, obj_id, units, category=category, scale=scale))
-        except AssetError as exc:
-            if "degenerate" not in str(exc) and "empty" not in str(exc):
-                raise
-            notes.append(f"rejected {exc}")
+        entries, load = _manifest_objects(folder, manifest, units, scale)
+    else:
+        chosen, notes = _base_name_files(folder)
+        if not chosen:
+            raise AssetError(f"{folder}: no mesh files ({', '.join(MESH_EXTENSIONS)}) in the folder or its "
+                             "subfolders")
+        entries, load = _tree_objects(folder, chosen, units, scale)
+    if lazy is None:
+        lazy = len(entries) > LAZY_MIN_OBJECTS
+    if not lazy:
+        return _read_all(folder, entries, load, notes, skip_degenerate=manifest is None)
     if notes:
         warnings.warn(f"{folder}: " + "; ".join(notes), stacklevel=2)
-    if not objects:
-        raise AssetError(f"{folder}: no usable mesh: " + "; ".join(notes))
-    _unique_names(objects)
-    objects.sort(key=lambda o: o.obj_id)
-    return ObjectSet(objects, name=str(folder))
-
-
-def _unique_names(objects: list[ObjectModel]) -> None:
-    """Prefix ``category_`` to names that occur in more than one category folder (in place)."""
-    names = [o.name for o in objects]
-    for i, o in enumerate(objects):
-        if names.count(o.name) > 1:
-            objects[i] = dataclasses.replace(o, name=f"{o.category}_{o.name}")
+    return LazyObjectSet(entries, load, name=str(folder))
 
 
 def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int = 0,
-                    scale: float = 1.0, symmetry: str = "auto") -> ObjectSet:
+                    scale: float = 1.0, symmetry: str = "auto", lazy: bool | None = None) -> ObjectSet:
     """An object set by name or path.
 
     Args:
@@ -383,7 +436,10 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
             built-in sets.
         symmetry: ``"auto"``: mesh files that declare no symmetry get the detected ones
             (:func:`~simtest.objects.symmetry_detect.apply_symmetry_policy`); ``"none"``: they get none.
-            Built-in sets and BOP models folders keep their own symmetries.
+            Built-in sets and BOP models folders keep their own symmetries. A lazy set detects them for an
+            object when it is read.
+        lazy: For a mesh folder, whether meshes are read on first use (see :func:`load_mesh_folder`; ``None``:
+            when it holds more than :data:`LAZY_MIN_OBJECTS` objects). Other sets are read at once.
 
     Raises:
         AssetError: Unknown name or missing path (listing the built-in names), or any loading error.
@@ -401,7 +457,7 @@ def load_object_set(spec: str | Path = "builtin", units: str = "auto", seed: int
     if path.is_dir():
         if (path / INFO_FILE).exists() or (path / "models" / INFO_FILE).exists():
             return read_bop_models(path, units="mm" if units == "auto" else units, scale=scale)
-        return apply_symmetry_policy(load_mesh_folder(path, units, scale), symmetry)
+        return apply_symmetry_policy(load_mesh_folder(path, units, scale, lazy=lazy), symmetry)
     if path.is_file():
         return apply_symmetry_policy(ObjectSet([load_mesh_file(path, units=units, scale=scale)], name=str(path)),
                                      symmetry)

@@ -22,6 +22,7 @@ from simtest.objects.appearance import Appearance
 
 __all__ = [
     "ContinuousSymmetry",
+    "ObjectEntry",
     "ObjectModel",
     "ObjectSet",
     "farthest_point_sampling",
@@ -47,6 +48,16 @@ class ContinuousSymmetry:
 
     axis: tuple[float, float, float]
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ObjectEntry:
+    """What a set knows of an object without reading its mesh: id, name, category and where it comes from."""
+
+    obj_id: int
+    name: str
+    category: str
+    source: str = ""
 
 
 def farthest_point_sampling(points: np.ndarray, k: int, start: int = 0) -> np.ndarray:
@@ -411,6 +422,11 @@ class ObjectSet(Sequence[ObjectModel]):
     @property
     def categories(self) -> list[str]:
         return sorted({o.category for o in self._objects})
+
+    @property
+    def entries(self) -> list[ObjectEntry]:
+        """Id, name, category and source of every object, in set order (a lazy set reads no mesh for them)."""
+        return [ObjectEntry(o.obj_id, o.name, o.category, o.source) for o in self._objects]
 
     def __repr__(self) -> str:
         return f"ObjectSet(name={self.name!r}, {len(self)} objects)"

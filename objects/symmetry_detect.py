@@ -14,14 +14,19 @@ perpendicular directions towards the farthest surface point (the flip axes of a 
 continuous symmetry is tried first (several unrelated angles), else the 2, 3, 4, 5 and 6-fold rotations.
 The discrete rotations found generate a group, whose elements are all checked and returned.
 
-Results are cached in-process per mesh hash and tolerance.
+Results are cached in-process per mesh hash and tolerance, and on disk (``<cache_dir>/symmetry/``, next to the
+collision cache of :mod:`simtest.objects.collision`), so a mesh library's objects are examined once, when a
+scene first uses them.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
+import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,18 +35,21 @@ from scipy.spatial import cKDTree
 
 from simtest.errors import ConfigError
 from simtest.geometry import rotation_about
+from simtest.io.files import atomic_write_json
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ["detect_symmetries", "apply_symmetry_policy", "symmetry_status", "SYMMETRY_POLICIES",
-           "DEFAULT_TOLERANCE"]
+__all__ = ["detect_symmetries", "apply_symmetry_policy", "with_symmetry_policy", "symmetry_status",
+           "SYMMETRY_POLICIES", "DEFAULT_TOLERANCE", "symmetry_cache_path"]
 
 #: ``auto``: objects without declared symmetries get the detected ones; ``none``: no detection.
 SYMMETRY_POLICIES = ("auto", "none")
 #: Largest surface deviation of a symmetry, as a fraction of the object diameter.
 DEFAULT_TOLERANCE = 0.01
+log = logging.getLogger(__name__)
+
 #: Angles (radians) tried for a continuous symmetry: unrelated to each other, so that no discrete n-fold
 #: symmetry (n <= 12) passes them all.
 _CONTINUOUS_ANGLES = (1.37, 0.41, 2.29, 3.61, 5.03)
@@ -57,6 +65,8 @@ _MAX_GROUP = 60
 
 _CACHE: dict[tuple[str, float], tuple[tuple[np.ndarray, ...], tuple[ContinuousSymmetry, ...]]] = {}
 _CACHE_MAX = 256
+#: Bump when detection changes, so stale on-disk results are not reused.
+_DISK_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -230,9 +240,45 @@ def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_T
     if key not in _CACHE:
         if len(_CACHE) >= _CACHE_MAX:
             _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = _detect(mesh, mesh_hash, diameter, tol)
+        found = _read_cached(mesh_hash, tol)
+        if found is None:
+            found = _detect(mesh, mesh_hash, diameter, tol)
+            _write_cached(mesh_hash, tol, found)
+        _CACHE[key] = found
     discrete, continuous = _CACHE[key]
     return [d.copy() for d in discrete], list(continuous)
+
+
+def symmetry_cache_path(mesh_hash: str, tol: float = DEFAULT_TOLERANCE) -> Path:
+    """The on-disk cache file of the symmetries detected for a mesh hash and tolerance."""
+    from simtest.objects.model import cache_dir
+
+    return cache_dir() / "symmetry" / f"{mesh_hash}_v{_DISK_VERSION}_{float(tol):g}.json"
+
+
+def _read_cached(mesh_hash: str, tol: float
+                 ) -> tuple[tuple[np.ndarray, ...], tuple[ContinuousSymmetry, ...]] | None:
+    """Cached symmetries (metres) or ``None``; an unreadable entry is ignored (and recomputed)."""
+    path = symmetry_cache_path(mesh_hash, tol)
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        discrete = tuple(np.asarray(T, dtype=np.float64).reshape(4, 4) for T in data["discrete"])
+        continuous = tuple(ContinuousSymmetry(tuple(float(v) for v in c["axis"]), tuple(float(v) for v in c["offset"]))
+                           for c in data["continuous"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        log.warning("ignoring unreadable symmetry cache %s: %s", path, exc)
+        return None
+    return discrete, continuous
+
+
+def _write_cached(mesh_hash: str, tol: float,
+                  found: tuple[tuple[np.ndarray, ...], tuple[ContinuousSymmetry, ...]]) -> None:
+    discrete, continuous = found
+    atomic_write_json(symmetry_cache_path(mesh_hash, tol), {
+        "discrete": [np.asarray(T, dtype=np.float64).reshape(-1).tolist() for T in discrete],
+        "continuous": [{"axis": list(c.axis), "offset": list(c.offset)} for c in continuous]})
 
 
 def _detect(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float, tol: float
@@ -270,26 +316,30 @@ def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float =
 
     An object keeps its own symmetries when it declares any, or when ``extra["symmetry"]`` is already set
     (``"declared"`` by a manifest, even one that declares no symmetry). Each object without them records
-    ``extra["symmetry"]``: ``"detected"`` (used), or ``"off"`` (``policy="none"``: not detected).
+    ``extra["symmetry"]``: ``"detected"`` (used), or ``"off"`` (``policy="none"``: not detected). A
+    :class:`~simtest.objects.lazy.LazyObjectSet` gets the policy applied to each object as it is read.
 
     Raises:
         ConfigError: ``policy`` is not one of :data:`SYMMETRY_POLICIES`.
     """
+    from simtest.objects.lazy import LazyObjectSet
+
     if policy not in SYMMETRY_POLICIES:
         raise ConfigError(f"symmetry must be one of {', '.join(SYMMETRY_POLICIES)}, got {policy!r}")
-    out = []
-    for obj in objects:
-        if obj.is_symmetric or "symmetry" in obj.extra:
-            out.append(obj)
-            continue
-        if policy == "none":
-            out.append(dataclasses.replace(obj, extra={**obj.extra, "symmetry": "off"}))
-            continue
-        discrete, continuous = detect_symmetries(obj, tol)
-        out.append(dataclasses.replace(obj, symmetries_discrete=tuple(discrete),
-                                       symmetries_continuous=tuple(continuous),
-                                       extra={**obj.extra, "symmetry": "detected"}))
-    return ObjectSet(out, name=objects.name)
+    if isinstance(objects, LazyObjectSet):
+        return objects.mapped(lambda obj: with_symmetry_policy(obj, policy, tol))
+    return ObjectSet([with_symmetry_policy(obj, policy, tol) for obj in objects], name=objects.name)
+
+
+def with_symmetry_policy(obj: ObjectModel, policy: str = "auto", tol: float = DEFAULT_TOLERANCE) -> ObjectModel:
+    """One object under :func:`apply_symmetry_policy` (``policy`` already checked)."""
+    if obj.is_symmetric or "symmetry" in obj.extra:
+        return obj
+    if policy == "none":
+        return dataclasses.replace(obj, extra={**obj.extra, "symmetry": "off"})
+    discrete, continuous = detect_symmetries(obj, tol)
+    return dataclasses.replace(obj, symmetries_discrete=tuple(discrete), symmetries_continuous=tuple(continuous),
+                               extra={**obj.extra, "symmetry": "detected"})
 
 
 def symmetry_status(obj: ObjectModel, tol: float = DEFAULT_TOLERANCE) -> str:

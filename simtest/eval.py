@@ -32,6 +32,10 @@ Scoring protocol
   without VSD the AR is the mean of AR_MSSD and AR_MSPD and is labelled so); mean time per image.
   BOP19 is evaluated image by image; pooled recalls are exact because each recall is a count of matched
   targets, so the per-image ARs weighted by their target counts add up to the pooled AR.
+* **Per category** (when the dataset's objects fall into categories: more than one, fewer than objects): the
+  same aggregates pooled over the targets of each category's objects, Acc@pi/6 and Acc@pi/18 among them
+  (the compositional / viewpoint protocol, ``e = ||logm(R_p^T R_gt)||_F / sqrt(2)`` over the symmetry set);
+  ``metrics.json`` ``per_category`` and a category table in ``metrics.md``.
 
 Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
 target), ``failures.csv`` (image, object, kind, message, exception type, the last frames of the estimator's
@@ -60,7 +64,7 @@ from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_
 from simtest.metrics.bop19 import VISIB_GT_MIN, ResultRow
 from simtest.metrics.registry import NDEG_MCM, definitions
 from simtest.objects.loaders import load_dataset_objects
-from simtest.scoring import score_estimates
+from simtest.scoring import aggregate_by_category, has_categories, score_estimates
 from simtest.tables import failure_counts, format_table, overall_table
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
@@ -92,6 +96,8 @@ class EvalReport:
         settings: What was evaluated (dataset, split, estimator, targets, vsd).
         num_failed_images: Images on which the estimator failed as a whole (raised, exited, timed out,
             returned no list, or returned only invalid estimates).
+        per_category: ``{category: metrics}`` (the per-object keys plus ``num_objects``) when the dataset's
+            objects fall into categories (:func:`simtest.scoring.has_categories`), else empty.
     """
 
     overall: dict[str, Any]
@@ -104,6 +110,7 @@ class EvalReport:
     paths: dict[str, Path] = field(default_factory=dict)
     settings: dict[str, Any] = field(default_factory=dict)
     num_failed_images: int = 0
+    per_category: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def all_images_failed(self) -> bool:
         """Whether the estimator failed on every image (raised, exited, timed out, returned no list, or
@@ -125,6 +132,8 @@ class EvalReport:
         return {"settings": self.settings, "num_images": self.num_images, "overall": jsonable(self.overall),
                 "per_object": {str(k): {"name": self.object_names.get(k, str(k)), **jsonable(v)}
                                for k, v in sorted(self.per_object.items())},
+                **({"per_category": {k: jsonable(v) for k, v in self.per_category.items()}}
+                   if self.per_category else {}),
                 "num_failures": len(self.failures), "failures_by_kind": failure_counts(self.failures),
                 "definitions": METRIC_DEFINITIONS}
 
@@ -256,7 +265,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
-                        num_failed_images=failed_images)
+                        num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
@@ -305,6 +314,13 @@ def _stop(est: Any, failure: dict[str, Any], trace: str) -> None:
         where += f" object {failure['obj_id']}"
     raise EstimatorError(f"{type(est).__name__} failed on {where} ({failure['kind']}): {failure['message']}"
                          + (f"\n{trace.rstrip()}" if trace else ""))
+
+def _per_category(objects, rows: list[dict[str, Any]], per_object: dict[int, dict[str, Any]]
+                  ) -> dict[str, dict[str, Any]]:
+    """Metrics per object category when the dataset's objects have categories (else ``{}``)."""
+    categories = {e.obj_id: e.category for e in objects.entries}
+    return aggregate_by_category(rows, per_object, categories) if has_categories(categories) else {}
+
 
 def _check_out(out_dir: str | Path | None, dataset_dir: Path, overwrite: bool) -> None:
     if out_dir is not None:
@@ -363,7 +379,8 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd)}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
-                        object_names=names, num_images=len(refs), settings=settings)
+                        object_names=names, num_images=len(refs), settings=settings,
+                        per_category=_per_category(objects, err_rows, per_object))
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=False)
     return report

@@ -22,9 +22,10 @@ from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, 
 from simtest.metrics.bop19 import evaluate_bop19
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, re_sym, te, vsd
 from simtest.metrics.registry import NDEG_MCM
+from simtest.metrics.viewpoint import PI_6, PI_18, accuracy_at
 from simtest.objects.loaders import load_dataset_objects
 
-__all__ = ["score_estimates", "aggregate"]
+__all__ = ["score_estimates", "aggregate", "aggregate_by_category", "has_categories"]
 
 
 def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dict[int, int]:
@@ -62,14 +63,51 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "auc_adds": ycb_auc(adds),
         "auc_add_s_or_add": ycb_auc(addsa),
         "adds_lt_2cm": float(np.mean(adds < ADDS_2CM)),
-        "acc_pi_6": float(np.mean(np.radians(re_s) < np.pi / 6)),
-        "acc_pi_18": float(np.mean(np.radians(re_s) < np.pi / 18)),
+        "acc_pi_6": accuracy_at(np.radians(re_s), PI_6),
+        "acc_pi_18": accuracy_at(np.radians(re_s), PI_18),
         "median_re_deg": float(np.median(re_s)),
         "median_te_m": float(np.median(te_m)),
         "mean_add_s_or_add_m": float(np.mean(addsa[np.isfinite(addsa)])) if np.isfinite(addsa).any() else inf,
     }
     for nd, mc in NDEG_MCM:
         out[f"{nd:g}deg{mc:g}cm"] = float(np.mean((re_s <= nd) & (te_m <= mc / 100.0)))
+    return out
+
+
+def has_categories(categories: dict[int, str]) -> bool:
+    """Whether ``{obj_id: category}`` groups objects: more than one category, and fewer than objects."""
+    return 1 < len(set(categories.values())) < len(categories)
+
+
+def aggregate_by_category(rows: list[dict[str, Any]], per_object: dict[int, dict[str, Any]],
+                          categories: dict[int, str]) -> dict[str, dict[str, Any]]:
+    """Aggregates per object category (sorted by name), pooled over the targets of the category's objects.
+
+    The metrics of :func:`aggregate` (Acc@pi/6 and Acc@pi/18 of the viewpoint protocol among them) come from
+    the category's error rows; BOP19's AR_VSD / AR_MSSD / AR_MSPD are the per-object recalls weighted by
+    their target counts (exact: each recall is a count of matched targets), AR their mean; ``num_objects``
+    counts the category's objects with targets.
+
+    Args:
+        rows: Per-target error rows (``obj_id``, ``matched``, errors; see :func:`score_estimates`).
+        per_object: ``{obj_id: metrics}`` of the same rows (for the BOP19 recalls).
+        categories: ``{obj_id: category}``; an object missing here counts as category ``"?"``.
+    """
+    by_cat: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        by_cat[categories.get(r["obj_id"], "?")].append(r)
+    out: dict[str, dict[str, Any]] = {}
+    for cat in sorted(by_cat):
+        objs = sorted({r["obj_id"] for r in by_cat[cat]})
+        m = aggregate(by_cat[cat])
+        m["num_objects"] = len(objs)
+        n = [per_object[o]["num_targets"] for o in objs]
+        for k in ("ar_vsd", "ar_mssd", "ar_mspd"):
+            vals = [per_object[o].get(k, float("nan")) for o in objs]
+            m[k] = float(np.dot(vals, n) / sum(n)) if sum(n) else float("nan")
+        ars = [m[k] for k in ("ar_vsd", "ar_mssd", "ar_mspd") if math.isfinite(m[k])]
+        m["ar"] = float(np.mean(ars)) if ars else float("nan")
+        out[cat] = m
     return out
 
 

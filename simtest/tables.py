@@ -13,13 +13,16 @@ from typing import Any
 from simtest.metrics.bop19 import VISIB_GT_MIN
 from simtest.metrics.registry import NDEG_MCM, metric
 
-__all__ = ["format_table", "overall_table", "failure_counts", "TABLE_METRICS", "SUMMARY_METRICS"]
+__all__ = ["format_table", "category_table", "overall_table", "failure_counts", "TABLE_METRICS", "SUMMARY_METRICS",
+           "CATEGORY_METRICS"]
 
 #: Metric keys of the Markdown table's columns (after the object name), in order. ``ar_vsd`` is dropped when
 #: VSD was not evaluated.
 TABLE_METRICS: tuple[str, ...] = ("num_targets", "add_s_or_add_01d", "auc_adds", "auc_add_s_or_add", "adds_lt_2cm",
                                   "acc_pi_6", "acc_pi_18", "median_re_deg", "median_te_m", "5deg5cm", "10deg5cm",
                                   "ar", "ar_vsd", "ar_mssd", "ar_mspd")
+#: Metric keys of the per-category table's columns (after the category name), in order.
+CATEGORY_METRICS: tuple[str, ...] = ("num_objects", *TABLE_METRICS)
 #: Metric keys of the terminal summary, in order.
 SUMMARY_METRICS: tuple[str, ...] = (
     "add_s_or_add_01d", "auc_adds", "auc_add_s_or_add", "adds_lt_2cm", "acc_pi_6", "acc_pi_18", "median_re_deg",
@@ -54,8 +57,32 @@ def format_table(report: Any) -> str:
               f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
               "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
-    return f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + head + "\n".join(
+    text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + head + "\n".join(
         body) + "\n" + footer
+    per_category = getattr(report, "per_category", None)
+    return text + ("\n" + category_table(report) if per_category else "")
+
+
+def category_table(report: Any) -> str:
+    """A Markdown table with one row per object category (``report.per_category``) and one overall, headed
+    ``#### Per category``; empty when the report has no categories."""
+    if not getattr(report, "per_category", None):
+        return ""
+    vsd_on = bool(report.settings.get("vsd", True))
+    keys = [k for k in CATEGORY_METRICS if vsd_on or k != "ar_vsd"]
+    headers = [("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]
+    cols = ["Category", *headers]
+
+    def line(name: str, values: dict[str, Any]) -> str:
+        return "| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in keys]) + " |"
+
+    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
+    body = [line(c, m) for c, m in report.per_category.items()]
+    overall = {**report.overall, "num_objects": sum(m["num_objects"] for m in report.per_category.values())}
+    body.append(line("**All**", overall))
+    return (f"#### Per category ({len(report.per_category)} categories)\n\n" + head + "\n".join(body) + "\n"
+            "Acc@π/6, Acc@π/18: the viewpoint protocol's rotation accuracy, e = ||logm(R_p^T R_gt)||_F / √2 "
+            "(smallest over the object's symmetries; misses count as π).\n")
 
 
 def overall_table(report: Any) -> str:

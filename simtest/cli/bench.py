@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp|metrics|corruptions|panda``: speed figures measured in the same run (ratios
+"""``simtest bench generate|grasp|metrics|corruptions|panda|objects``: speed figures measured in the same run (ratios
 against raw MuJoCo)."""
 
 from __future__ import annotations
@@ -43,6 +43,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                          help="Panda model mj_step/s (at rest and moving) and one scripted grasp, no rendering")
     pa.add_argument("--steps", type=int, default=5000, help="mj_step calls per timing (default 5000)")
     pa.set_defaults(func=_panda)
+    ob = bsub.add_parser("objects", parents=[common_parser()],
+                         help="load time and first-scene time of a 20- vs a 200-object generated mesh library")
+    ob.add_argument("--sizes", default="20,200", help="objects per set, comma-separated (default 20,200)")
+    ob.add_argument("--categories", default="4,40", help="categories per set, comma-separated (default 4,40)")
+    ob.add_argument("--width", type=int, default=320)
+    ob.add_argument("--height", type=int, default=240)
+    ob.add_argument("--objects-per-scene", type=int, default=5)
+    ob.set_defaults(func=_objects)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -95,6 +103,23 @@ def _corruptions(args: argparse.Namespace) -> int:
     from simtest.benchmarks.corruptions import run, table
 
     print(table(run(args.width, args.height, args.severity)))
+    return 0
+
+
+def _objects(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.objects import bench_objects
+    from simtest.errors import ConfigError
+
+    try:
+        sizes = tuple(int(v) for v in args.sizes.split(","))
+        cats = tuple(int(v) for v in args.categories.split(","))
+    except ValueError:
+        raise ConfigError(f"--sizes and --categories must be comma-separated integers, got {args.sizes!r} and "
+                          f"{args.categories!r}") from None
+    if len(sizes) != len(cats) or len(sizes) < 2 or not all(1 <= c <= n for n, c in zip(sizes, cats)):
+        raise ConfigError(f"--sizes and --categories need two or more entries each, with 1 <= categories <= "
+                          f"objects, got {args.sizes!r} and {args.categories!r}")
+    print(bench_objects(sizes, cats, args.width, args.height, args.objects_per_scene).table())
     return 0
 
 

@@ -8,7 +8,10 @@ from pathlib import Path
 from simtest.cli.common import common_parser
 from simtest.errors import AssetError
 
-__all__ = ["register", "object_table"]
+__all__ = ["register", "object_table", "category_table", "entry_table"]
+
+#: A set with more objects than this (in several categories) is listed with its category table first.
+SUMMARY_MIN_OBJECTS = 30
 
 
 def register(subparsers) -> None:
@@ -30,6 +33,10 @@ def register(subparsers) -> None:
     p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
     common(p_list)
     p_list.add_argument("--no-grasps", action="store_true", help="skip grasp sampling (faster)")
+    p_list.add_argument("--by-category", action="store_true",
+                        help="print only the category table (objects and ids per category; reads no mesh)")
+    p_list.add_argument("--category", metavar="NAME[,NAME]",
+                        help="list only the objects of these categories (with sizes, mass, symmetry, grasps)")
     p_list.set_defaults(func=_cmd_list)
 
     p_exp = sub.add_parser("export", parents=[common_parser()], help="write the set as a BOP models/ folder (millimetres)")
@@ -78,10 +85,78 @@ def _load(args):
     return load_object_set(args.set, units=args.units, seed=args.seed, scale=args.scale, symmetry=args.symmetry)
 
 
+def _id_ranges(ids: list[int]) -> str:
+    """``"1-5, 9, 12-13"`` for sorted ids."""
+    out: list[str] = []
+    start = prev = None
+    for i in ids + [None]:
+        if start is not None and (i is None or i != prev + 1):
+            out.append(str(start) if start == prev else f"{start}-{prev}")
+            start = None
+        if i is not None and start is None:
+            start = i
+        prev = i
+    return ", ".join(out)
+
+
+def _text_table(header: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header] + rows)
+
+
+def category_table(objects) -> str:
+    """A fixed-width text table with one row per category: its number of objects and their ids (from the
+    set's entries: no mesh is read)."""
+    by_cat: dict[str, list[int]] = {}
+    for e in objects.entries:
+        by_cat.setdefault(e.category, []).append(e.obj_id)
+    rows = [[c, str(len(ids)), _id_ranges(sorted(ids))] for c, ids in sorted(by_cat.items())]
+    return _text_table(["category", "objects", "obj_ids"], rows)
+
+
+def entry_table(entries, root: str | None = None) -> str:
+    """A fixed-width text table of object entries: id, name, category, file (relative to ``root`` when it lies
+    in it; no mesh is read)."""
+    def where(source: str) -> str:
+        if root and Path(source).is_relative_to(root):
+            return str(Path(source).relative_to(root))
+        return source
+
+    return _text_table(["id", "name", "category", "file"],
+                       [[str(e.obj_id), e.name, e.category, where(e.source)] for e in entries])
+
+
+def _chosen_categories(objects, text: str | None) -> list[str] | None:
+    """The categories named by ``--category`` (unknown names list the known ones), or ``None``."""
+    if text is None:
+        return None
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    unknown = [n for n in names if n not in objects.categories]
+    if unknown or not names:
+        raise AssetError(f"--category {text!r}: unknown category {', '.join(unknown) or '(none given)'}; "
+                         f"known: {', '.join(objects.categories)}")
+    return names
+
+
 def _cmd_list(args) -> int:
+    from simtest.objects.lazy import LazyObjectSet
+
     objects = _load(args)
-    print(f"# {objects.name}: {len(objects)} objects, categories: {', '.join(objects.categories)}")
-    print(object_table(objects, grasps=not args.no_grasps))
+    cats = objects.categories
+    chosen = _chosen_categories(objects, args.category)
+    listed = ": " + ", ".join(cats) if len(cats) <= 8 else ""
+    print(f"# {objects.name}: {len(objects)} objects in {len(cats)} categories{listed}")
+    if len(cats) > 1 and (args.by_category or (chosen is None and len(objects) > SUMMARY_MIN_OBJECTS)):
+        print(category_table(objects))
+        if args.by_category:
+            return 0
+        print()
+    ids = [e.obj_id for e in objects.entries if chosen is None or e.category in chosen]
+    if isinstance(objects, LazyObjectSet) and chosen is None:
+        print("# meshes are read on first use; --category NAME lists sizes, mass, symmetry and grasps")
+        print(entry_table(objects.entries, objects.name))
+        return 0
+    print(object_table([objects.get(i) for i in ids], grasps=not args.no_grasps))
     return 0
 
 

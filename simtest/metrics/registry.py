@@ -76,6 +76,8 @@ def _ndeg(nd: float, mc: float) -> Metric:
 METRICS: tuple[Metric, ...] = (
     Metric("num_targets", "N", "ground-truth instances with visib_fract >= 0.1 (BOP19 targets)", 1.0, "", None,
            sweepable=False),
+    Metric("num_objects", "objects", "objects of the category with targets in the evaluated images", 1.0, "",
+           None, sweepable=False),
     Metric("num_matched", "matched", "targets with an estimate assigned by the matching", 1.0, "", None,
            sweepable=False),
     Metric("add_s_or_add_01d", "ADD(-S)-0.1d",
