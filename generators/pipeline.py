@@ -24,14 +24,13 @@ from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
 from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
+from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
 from simtest.rng import child_rng
 
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
 MANIFEST = "manifest.json"
-#: Folder (in the dataset root) of the labels an unlabelled split withholds: ``withheld/<split>/<scene>/``.
-WITHHELD = "withheld"
 
 log = logging.getLogger(__name__)
 
@@ -270,7 +269,8 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
 
 def _is_generated(name: str, cfg: GenerateConfig) -> bool:
     """Whether a top-level entry of a dataset folder is one ``generate`` writes (or its atomic temporary)."""
-    return name in (MANIFEST, "camera.json", "models", cfg.split, WITHHELD) or (name.startswith(".") and name.endswith(".tmp"))
+    return name in (MANIFEST, "camera.json", "models", cfg.split, WITHHELD) or (
+        name.startswith(".") and name.endswith(".tmp"))
 
 
 def _only_generated(out: Path, cfg: GenerateConfig) -> bool:

@@ -69,8 +69,9 @@ def _scene_gt_dir(scene_dir: Path, labels: Path | None) -> Path:
     if not (gt_dir / "scene_gt.json").is_file():
         where = ("this split has no labels" if labels is None
                  else f"the labels folder {labels} has no scene {scene_dir.parent.name}/{scene_dir.name}")
-        raise DatasetError(f"{gt_dir / 'scene_gt.json'}: no ground truth to score against ({where}); for a split "
-                           "generated with --unlabelled give its withheld labels with --labels DATASET/withheld")
+        raise DatasetError(f"{gt_dir / 'scene_gt.json'}: file is missing; no ground truth to score against "
+                           f"({where}); for a split generated with --unlabelled give its withheld labels with "
+                           "--labels DATASET/withheld")
     return gt_dir
 
 

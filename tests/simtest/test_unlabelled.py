@@ -74,7 +74,7 @@ def test_eval_scores_with_withheld_labels_and_refuses_without(pair, tmp_path, ca
     assert metrics["overall"]["num_targets"] == a.overall["num_targets"]
     assert metrics["settings"]["labels"] == str(target / "withheld")
     # a split without labels in a dataset whose manifest does not say so: refused, naming the file
-    with pytest.raises(DatasetError, match=r"scene_gt.json: no ground truth to score against.*--labels"):
+    with pytest.raises(DatasetError, match=r"scene_gt.json: file is missing; no ground truth to score.*--labels"):
         evaluate(copy, "oracle", vsd=False, progress=False, split="train_pbr",
                  labels=tmp_path)  # a labels folder without this split
 
