@@ -156,6 +156,10 @@ class GenerateConfig:
     materials: MaterialConfig = field(default_factory=MaterialConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     occlusion: OcclusionConfig = field(default_factory=OcclusionConfig)
+    # scene_captions.json per scene: referring expressions per instance (simtest.generators.captions)
+    captions: bool = False
+    # the split holds only rgb/, depth/ and scene_camera.json; every label goes to <out>/withheld/<split>/
+    unlabelled: bool = False
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":

@@ -24,6 +24,7 @@ from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
 from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
+from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
 from simtest.rng import child_rng
 
@@ -206,8 +207,17 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
         "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
         "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
         "spec": scene.spec.to_dict()})
-    writer.close()
+    if cfg.captions:  # per scene, after every frame: scene_captions.json from the settled poses and image 0
+        from simtest.generators.captions import write_scene_captions
+
+        write_scene_captions(writer.dir, scene, objects, cameras[0][0], cfg.scene.table_height)
+    writer.close(labels_dir=withheld_dir(split_dir, scene_id) if cfg.unlabelled else None)
     return report
+
+
+def withheld_dir(split_dir: Path, scene_id: int) -> Path:
+    """Where an unlabelled split's scene ``scene_id`` keeps its labels: ``<out>/withheld/<split>/<scene>``."""
+    return split_dir.parent / WITHHELD / split_dir.name / f"{scene_id:06d}"
 
 
 def _pbr_renderer(cfg: GenerateConfig, scene):
@@ -259,7 +269,8 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
 
 def _is_generated(name: str, cfg: GenerateConfig) -> bool:
     """Whether a top-level entry of a dataset folder is one ``generate`` writes (or its atomic temporary)."""
-    return name in (MANIFEST, "camera.json", "models", cfg.split) or (name.startswith(".") and name.endswith(".tmp"))
+    return name in (MANIFEST, "camera.json", "models", cfg.split, WITHHELD) or (
+        name.startswith(".") and name.endswith(".tmp"))
 
 
 def _only_generated(out: Path, cfg: GenerateConfig) -> bool:
@@ -305,6 +316,10 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = _load_objects(cfg)
+    if cfg.captions:
+        from simtest.generators.captions import check_caption_objects
+
+        check_caption_objects(objects)
     out.mkdir(parents=True, exist_ok=True)
     split_dir = out / cfg.split
     split_dir.mkdir(exist_ok=True)
@@ -316,6 +331,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
                 {"obj_id": e.obj_id, "name": e.name, "category": e.category, "source": e.source}
                 for e in objects.entries],
             "command_line": list(command_line if command_line is not None else sys.argv),
+            "unlabelled": cfg.unlabelled, "captions": cfg.captions,
             "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
     write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
     _write_models(objects, out / "models", split_dir)

@@ -309,6 +309,10 @@ class PoseDataset:
             if want - known:
                 raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
             dirs = [d for d in dirs if int(d.name) in want]
+        if dirs and not (dirs[0] / "scene_gt.json").is_file():
+            raise DatasetError(f"{dirs[0]} has no scene_gt.json: split {split!r} is unlabelled; read its images "
+                               "with simtest.mixing.UnlabelledDataset (labels withheld by generate --unlabelled "
+                               "are in DATASET/withheld/, for evaluation)")
         entries: list[_ImageEntry] = []
         for d in dirs:
             for im_id, info in sorted(bop.read_scene(d, gt_obj_ids).items()):

@@ -155,7 +155,7 @@ def _observation(ref: ImageRef, objects, targets: str, width: int, height: int, 
     if targets == "gt-masks":
         kw["target_obj_ids"] = tuple(g.obj_id for _, g in tg)
         if gt_masks or needs_gt:
-            kw["masks"] = tuple(bop.read_mask(ref.scene_dir, ref.im_id, j, visible=True) for j, _ in tg)
+            kw["masks"] = tuple(bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) for j, _ in tg)
             kw["boxes"] = tuple(tuple(int(v) for v in g.bbox_visib) for _, g in tg)
         if needs_gt:
             kw["gt_poses"] = tuple((g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy()) for _, g in tg)
@@ -175,7 +175,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
              timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
-             fail_fast: bool = False) -> EvalReport:
+             fail_fast: bool = False, labels: str | Path | None = None) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -200,6 +200,9 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
             estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
         fail_fast: Stop at the first fault of the estimator (any failure kind but ``no-estimate``) by raising
             :class:`~simtest.errors.EstimatorError` with its traceback; nothing is written.
+        labels: Folder of withheld labels (``<labels>/<split>/<scene>/scene_gt.json`` and masks) for a split
+            without them; default ``<dataset>/withheld`` when the manifest says ``"unlabelled": true``
+            (:func:`simtest.io.dataset.labels_root`). Images and depth come from the split either way.
 
     Returns:
         The :class:`EvalReport`.
@@ -234,7 +237,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
     known = set(objects.ids)
-    refs = select_images(root, split, scenes, max_images, known)
+    refs = select_images(root, split, scenes, max_images, known, labels)
     width, height = image_size(root)
     results: list[ResultRow] = []
     scales: dict[int, float] = {}
@@ -262,7 +265,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else ""),
                 "gt_masks": labelled, "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit}
+                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
+                "labels": None if labels is None else str(labels)}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
@@ -333,7 +337,8 @@ def _describe(spec: Any, est: Any) -> str:
 
 def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
-                  progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False) -> EvalReport:
+                  progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
+                  labels: str | Path | None = None) -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -345,7 +350,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
         out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
             or objects) and ``metrics.md``.
-        overwrite: As in :func:`evaluate`.
+        overwrite, labels: As in :func:`evaluate`.
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
@@ -354,7 +359,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     _check_out(out_dir, root, overwrite)
     rows = read_bop_results(results_csv)
     objects = load_dataset_objects(root)
-    refs = select_images(root, split, scenes, max_images, objects.ids)
+    refs = select_images(root, split, scenes, max_images, objects.ids, labels)
     selected = {(r.scene_id, r.im_id) for r in refs}
     known = set(objects.ids)
     failures = []
@@ -377,7 +382,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     overall["median_time_per_image_s"] = float(np.median(t)) if t else float("nan")
     settings = {"dataset": str(root), "split": split, "results": str(results_csv),
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd)}
+                "vsd": bool(vsd), "labels": None if labels is None else str(labels)}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))

@@ -33,6 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="give the estimator the target object ids, plus their ground-truth visible masks if it "
                         "declares needs_gt_masks (runs labelled 'NAME (GT masks)') (default), or nothing")
     p.add_argument("--split", default="train_pbr", help="split folder (default: train_pbr)")
+    p.add_argument("--labels", metavar="DIR",
+                   help="withheld labels of an unlabelled split (DIR/SPLIT/SCENE/scene_gt.json); default "
+                        "DATASET/withheld when the dataset was generated with --unlabelled")
     p.add_argument("--scenes", metavar="ID,ID", help="scene ids to evaluate (default: all)")
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD (faster; AR is then mean of MSSD and MSPD)")
@@ -53,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"--scenes must be comma-separated integers, got {args.scenes!r}") from None
     common = dict(split=args.split, scenes=scenes, max_images=args.max_images, vsd=not args.no_vsd,
-                  progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite)
+                  progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite, labels=args.labels)
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")

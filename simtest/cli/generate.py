@@ -36,6 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--rgb-format", choices=["jpg", "png"],
                    help="rgb/ image format: jpg (BOP's PBR layout, default) or png (lossless)")
+    p.add_argument("--captions", action="store_true", default=None,
+                   help="also write scene_captions.json per scene: referring expressions per instance "
+                        "(category, colour, size, relations in the first image's camera)")
+    p.add_argument("--unlabelled", action="store_true", default=None,
+                   help="unlabelled split: only rgb, depth and camera files in the split; the labels go to "
+                        "OUT/withheld/SPLIT/ (for evaluation: simtest eval reads them from there)")
     p.add_argument("--workers", type=int, help="worker processes (each owns whole scenes)")
     p.add_argument("--seed", type=int, help="master seed (default 0)")
     p.add_argument("--out", help="dataset folder (required unless --print-config)")
@@ -55,7 +61,7 @@ def config_from_args(args: argparse.Namespace):
         "objects": args.objects, "units": args.units, "scale": args.scale, "scenes": args.scenes,
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
-        "render.rgb_format": args.rgb_format,
+        "render.rgb_format": args.rgb_format, "captions": args.captions, "unlabelled": args.unlabelled,
         "workers": args.workers, "seed": args.seed, "occlusion.level": args.occlusion,
         "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,

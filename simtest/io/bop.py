@@ -37,6 +37,7 @@ __all__ = [
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
     "dataset_split_dir", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
     "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
+    "withhold_labels", "UNLABELLED_KEEP",
 ]
 
 #: The only metres <-> millimetres factor in simtest.
@@ -272,8 +273,15 @@ class SceneWriter:
             "iscrowd": 0, "area": int(np.count_nonzero(mask_visib)), "bbox": bbox, "segmentation": rle,
             "ignore": bool(inst.visib_fract < 0.1), "width": int(w), "height": int(h)})
 
-    def close(self) -> Path:
-        """Write the scene JSON files and move the finished scene into place; returns its folder."""
+    def close(self, labels_dir: str | Path | None = None) -> Path:
+        """Write the scene JSON files and move the finished scene into place; returns its folder.
+
+        Args:
+            labels_dir: Withhold the labels: everything but ``rgb/``, ``depth/`` and ``scene_camera.json``
+                (ground truth, masks, scene records) moves to this folder, with a copy of
+                ``scene_camera.json``. It is put in place (atomically) before the scene, so a complete scene
+                folder always has its labels.
+        """
         self._drain()
         self._pool.shutdown()
         atomic_write_text(self.dir / "scene_camera.json", dump_json_keyed(self.scene_camera))
@@ -285,10 +293,32 @@ class SceneWriter:
                 "info": {"description": f"scene {self.scene_id}"}, "licenses": [], "images": self.coco_images,
                 "annotations": self.coco_annotations,
                 "categories": [{"id": c, "name": str(c), "supercategory": "object"} for c in cats]}, indent=None)
+        if labels_dir is not None:
+            withhold_labels(self.dir, Path(labels_dir))
         if self.final_dir.exists():
             shutil.rmtree(self.final_dir)
         os.replace(self.dir, self.final_dir)
         return self.final_dir
+
+
+#: What a scene folder of an unlabelled split keeps (see :func:`withhold_labels`).
+UNLABELLED_KEEP: tuple[str, ...] = ("rgb", "depth", "scene_camera.json")
+
+
+def withhold_labels(scene_dir: Path, labels_dir: Path) -> None:
+    """Move every entry of ``scene_dir`` except :data:`UNLABELLED_KEEP` to ``labels_dir`` (replacing it), with a
+    copy of ``scene_camera.json``; ``labels_dir`` appears whole (assembled in a hidden sibling, then renamed)."""
+    partial = labels_dir.parent / f".{labels_dir.name}.partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True)
+    for entry in sorted(scene_dir.iterdir()):
+        if entry.name not in UNLABELLED_KEEP:
+            os.replace(entry, partial / entry.name)
+    shutil.copyfile(scene_dir / "scene_camera.json", partial / "scene_camera.json")
+    if labels_dir.exists():
+        shutil.rmtree(labels_dir)
+    os.replace(partial, labels_dir)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -14,7 +14,11 @@ import numpy as np
 from simtest.errors import ConfigError, DatasetError
 from simtest.io import bop
 
-__all__ = ["ImageRef", "select_images", "image_size", "image_targets", "describe_dataset"]
+__all__ = ["ImageRef", "select_images", "image_size", "image_targets", "describe_dataset", "labels_root",
+           "WITHHELD"]
+
+#: Folder (in a dataset root) holding the labels of an unlabelled split: ``withheld/<split>/<scene>/``.
+WITHHELD = "withheld"
 
 
 @dataclass(frozen=True)
@@ -25,10 +29,55 @@ class ImageRef:
     im_id: int
     scene_dir: Path
     info: dict  # read_scene entry: K, depth_scale, gt
+    label_dir: Path | None = None  # where the labels (scene_gt*, masks) are, when not in scene_dir
+
+    @property
+    def gt_dir(self) -> Path:
+        """The folder holding this image's ground truth and masks."""
+        return self.scene_dir if self.label_dir is None else self.label_dir
+
+
+def labels_root(dataset_dir: Path, labels: str | Path | None) -> Path | None:
+    """The folder holding withheld labels (``<labels>/<split>/<scene>/``), or None when they are in the split.
+
+    ``labels`` given: that folder. Not given: ``<dataset>/withheld`` if the dataset's ``manifest.json`` says
+    ``"unlabelled": true``, else None.
+
+    Raises:
+        DatasetError: ``labels`` is not a folder, or the dataset is unlabelled and its withheld folder is gone.
+    """
+    root = Path(dataset_dir)
+    if labels is not None:
+        path = Path(labels)
+        if not path.is_dir():
+            raise DatasetError(f"labels folder {str(path)!r} does not exist; give the folder holding "
+                               f"<split>/<scene>/scene_gt.json (e.g. {root / WITHHELD})")
+        return path
+    manifest = root / "manifest.json"
+    if not (manifest.is_file() and bop.read_json(manifest).get("unlabelled") is True):
+        return None
+    if not (root / WITHHELD).is_dir():
+        raise DatasetError(f"dataset {root} is unlabelled (manifest.json: \"unlabelled\": true) and its withheld "
+                           f"labels folder {root / WITHHELD} is missing; give the labels with --labels DIR")
+    return root / WITHHELD
+
+
+def _scene_gt_dir(scene_dir: Path, labels: Path | None) -> Path:
+    """The folder with ``scene_gt.json`` of one scene; :class:`DatasetError` saying how to give labels when
+    there is none."""
+    gt_dir = scene_dir if labels is None else labels / scene_dir.parent.name / scene_dir.name
+    if not (gt_dir / "scene_gt.json").is_file():
+        where = ("this split has no labels" if labels is None
+                 else f"the labels folder {labels} has no scene {scene_dir.parent.name}/{scene_dir.name}")
+        raise DatasetError(f"{gt_dir / 'scene_gt.json'}: file is missing; no ground truth to score against "
+                           f"({where}); for a split generated with --unlabelled give its withheld labels with "
+                           "--labels DATASET/withheld")
+    return gt_dir
 
 
 def select_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
-                  max_images: int | None, obj_ids: Iterable[int]) -> list[ImageRef]:
+                  max_images: int | None, obj_ids: Iterable[int],
+                  labels: str | Path | None = None) -> list[ImageRef]:
     """The selected images with their validated ground truth (:func:`simtest.io.bop.read_scene`; a ground-truth
     ``obj_id`` outside ``obj_ids`` is a :class:`DatasetError`): scenes in order, images in order.
 
@@ -38,12 +87,16 @@ def select_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
         scenes: Scene ids to keep (default all).
         max_images: Keep only the first N images.
         obj_ids: The object ids of the dataset's models.
+        labels: Folder of withheld labels (``<labels>/<split>/<scene>/``); default: see :func:`labels_root`.
+            Images and depth are always read from the split.
 
     Raises:
         ConfigError: Unknown scene ids or a bad ``max_images``.
-        DatasetError: Missing split or no images, or invalid ground truth (naming the file and entry).
+        DatasetError: Missing split or no images, no ground truth (a split without labels and none given), or
+            invalid ground truth (naming the file and entry).
     """
     split_dir = bop.dataset_split_dir(dataset_dir, split)
+    label_root = labels_root(Path(dataset_dir), labels)
     obj_ids = sorted(obj_ids)
     if max_images is not None and int(max_images) < 1:
         raise ConfigError(f"max_images must be >= 1 or None, got {max_images!r}")
@@ -57,9 +110,10 @@ def select_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
         dirs = [d for d in dirs if int(d.name) in want]
     refs: list[ImageRef] = []
     for d in dirs:
-        frames = bop.read_scene(d, obj_ids)
+        gt_dir = _scene_gt_dir(d, label_root)
+        frames = bop.read_scene(gt_dir, obj_ids)
         for im_id in sorted(frames):
-            refs.append(ImageRef(int(d.name), im_id, d, frames[im_id]))
+            refs.append(ImageRef(int(d.name), im_id, d, frames[im_id], None if gt_dir == d else gt_dir))
             if max_images is not None and len(refs) >= int(max_images):
                 return refs
     if not refs:
