@@ -46,10 +46,12 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
+from simtest.pointcloud_stream import ObjectPoints, PointCloudSequence  # per-frame object point clouds (tracking)
 
 __all__ = [
     "PoseDataset", "Corrupt", "RandomCorrupt", "Compose", "collate", "sample_rng", "project_points",
     "canonical_symmetry", "KEYPOINT_TYPES", "TRAIN_WEATHER", "augmentation", "AUGMENTATIONS",
+    "PointCloudSequence", "ObjectPoints",
 ]
 
 #: Keypoint sets a dataset can return: the 8 bbox corners or the model's farthest-point-sampled surface points.

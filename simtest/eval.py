@@ -55,7 +55,9 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import GT_MASKS_LABEL, Estimator, Observation, gt_access, load_estimator
+from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, Observation, gt_access,
+                                     load_estimator, needs_gt_init, reset_estimator)
+from simtest.eval_tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
@@ -98,6 +100,7 @@ class EvalReport:
             returned no list, or returned only invalid estimates).
         per_category: ``{category: metrics}`` (the per-object keys plus ``num_objects``) when the dataset's
             objects fall into categories (:func:`simtest.scoring.has_categories`), else empty.
+        tracking: The tracking scores of a sequence evaluation (:mod:`simtest.eval_tracking`), else ``None``.
     """
 
     overall: dict[str, Any]
@@ -111,6 +114,7 @@ class EvalReport:
     settings: dict[str, Any] = field(default_factory=dict)
     num_failed_images: int = 0
     per_category: dict[str, dict[str, Any]] = field(default_factory=dict)
+    tracking: TrackingReport | None = None
 
     def all_images_failed(self) -> bool:
         """Whether the estimator failed on every image (raised, exited, timed out, returned no list, or
@@ -145,9 +149,12 @@ METRIC_DEFINITIONS = definitions()
 # ---------------------------------------------------------------------------------------------------------
 # Running an estimator
 def _observation(ref: ImageRef, objects, targets: str, width: int, height: int, needs_gt: bool,
-                 gt_masks: bool = False) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
+                 gt_masks: bool = False, frame_index: int = -1,
+                 initialised: set[int] | None = None) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
     """The estimator's view of one image: ground-truth masks and boxes only with ``gt_masks``, poses only with
-    ``needs_gt`` (see the module doc)."""
+    ``needs_gt`` (see the module doc). With ``initialised`` (a ``needs_gt_init`` estimator: the ``gt_id`` of the
+    scene's targets already given a pose), the targets' track ids, and the ground-truth pose of each target not
+    in it (then added)."""
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"])
     tg = image_targets(ref, VISIB_GT_MIN)
@@ -159,8 +166,13 @@ def _observation(ref: ImageRef, objects, targets: str, width: int, height: int, 
             kw["boxes"] = tuple(tuple(int(v) for v in g.bbox_visib) for _, g in tg)
         if needs_gt:
             kw["gt_poses"] = tuple((g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy()) for _, g in tg)
+        if initialised is not None:
+            kw["track_ids"] = tuple(j for j, _ in tg)
+            kw["init_poses"] = tuple(None if j in initialised else (g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy())
+                                     for j, g in tg)
+            initialised.update(j for j, _ in tg)
     obs = Observation(rgb=rgb, depth=depth, K=ref.info["K"].copy(), width=width, height=height, objects=objects,
-                      scene_id=ref.scene_id, im_id=ref.im_id, **kw)
+                      scene_id=ref.scene_id, im_id=ref.im_id, frame_index=frame_index, **kw)
     return obs, tg
 
 
@@ -175,7 +187,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
              timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
-             fail_fast: bool = False, labels: str | Path | None = None) -> EvalReport:
+             fail_fast: bool = False, labels: str | Path | None = None,
+             tracking: bool | None = None) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -203,6 +216,9 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         labels: Folder of withheld labels (``<labels>/<split>/<scene>/scene_gt.json`` and masks) for a split
             without them; default ``<dataset>/withheld`` when the manifest says ``"unlabelled": true``
             (:func:`simtest.io.dataset.labels_root`). Images and depth come from the split either way.
+        tracking: Also score the run as tracking (:mod:`simtest.eval_tracking`: per-frame 3D IoU, n deg m cm,
+            errors over time, frames tracked before loss; ``tracking.md``, ``tracking.csv``, ``tracking.png``
+            in ``out_dir``). ``None``: when the dataset's manifest says ``rig = "sequence"``.
 
     Returns:
         The :class:`EvalReport`.
@@ -230,9 +246,10 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
     gt_masks, needs_gt = gt_access(est)
-    if needs_gt and targets == "none":
-        raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt = True); use "
-                          "targets='gt-masks'")
+    gt_init = needs_gt_init(est)
+    if (needs_gt or gt_init) and targets == "none":
+        raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt or needs_gt_init = True); "
+                          "use targets='gt-masks'")
     gt_masks = gt_masks and targets == "gt-masks"
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
@@ -245,8 +262,14 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     times: list[float] = []
     failed_images = 0
     bar = tqdm(refs, desc="eval", unit="img", disable=not progress, dynamic_ncols=True)
+    scene, frame, initialised = None, 0, set()
     for ref in bar:
-        obs, _ = _observation(ref, objects, targets, width, height, needs_gt, gt_masks)
+        if ref.scene_id != scene:  # a new sequence
+            scene, frame, initialised = ref.scene_id, 0, set()
+            reset_estimator(est)
+        obs, _ = _observation(ref, objects, targets, width, height, needs_gt, gt_masks, frame,
+                              initialised if gt_init else None)
+        frame += 1
         dt, failed = _estimate_image(est, obs, ref, known, limit, results, scales, failures, fail_fast)
         times.append(dt)
         failed_images += failed
@@ -262,14 +285,17 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
     labelled = gt_masks and not needs_gt  # the oracle's name says it
     settings = {"dataset": str(root), "split": split,
-                "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else ""),
-                "gt_masks": labelled, "targets": targets,
+                "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else "")
+                + (GT_INIT_LABEL if gt_init else ""),
+                "gt_masks": labelled, "gt_init": gt_init, "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
                 "labels": None if labels is None else str(labels)}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
+    if tracking or (tracking is None and is_sequence_dataset(root)):
+        report.tracking = score_tracking(root, results, refs, objects, label=settings["estimator"])
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
@@ -412,3 +438,5 @@ def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
     atomic_write_text(paths["errors"], csv_text(report.errors, _ERROR_COLUMNS))
     atomic_write_text(paths["failures"], csv_text(report.failures, _FAILURE_COLUMNS))
     atomic_write_text(paths["table"], format_table(report))
+    if report.tracking is not None:
+        report.paths.update(write_tracking(report.tracking, out))

@@ -43,6 +43,10 @@ def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dic
     return out
 
 
+#: The matching of :func:`score_estimates`, for other scorers (tracking) that must match the same way.
+match_estimates = _match
+
+
 def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Aggregate metrics (:mod:`simtest.metrics.registry` keys) pooled over per-target error rows."""
     n = len(rows)

@@ -13,8 +13,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "eval", parents=[common_parser()],
         help="run a pose estimator on a BOP dataset (or score a BOP results CSV) and print the metrics",
-        description="Run an estimator (built-in name: oracle, icp, umeyama, keypoints, segicp; or module:attr) "
-                    "over a BOP dataset, or score a results CSV written by any estimator (--results). Writes results.csv (BOP "
+        description="Run an estimator (built-in name: oracle, icp, umeyama, keypoints, segicp, track-icp; or "
+                    "module:attr) over a BOP dataset, or score a results CSV written by any estimator (--results). Writes results.csv (BOP "
                     "format), metrics.json, errors.csv, failures.csv and metrics.md to --out (a new or empty "
                     "folder, or any folder with --overwrite; never the dataset folder or one inside it).",
     )
@@ -39,6 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", metavar="ID,ID", help="scene ids to evaluate (default: all)")
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD (faster; AR is then mean of MSSD and MSPD)")
+    p.add_argument("--tracking", action="store_true",
+                   help="also score as tracking (tracking.md, tracking.csv, tracking.png); the default for a "
+                        "dataset generated with --rig sequence")
     add_fault_options(p, "image", "an image over it is recorded in failures.csv as 'timeout' and the run goes on",
                       "failures go to failures.csv; exit code 1 if every image failed")
     add_no_progress_alias(p)
@@ -65,12 +68,17 @@ def run(args: argparse.Namespace) -> int:
         try:
             report = evaluate(args.data, args.estimator, targets=args.targets,
                               estimator_options=parse_options(args.opt), timeout=args.timeout,
-                              fail_fast=args.fail_fast, **common)
+                              fail_fast=args.fail_fast, tracking=True if args.tracking else None, **common)
         except EstimatorError as exc:
             print(f"simtest eval: estimator failed (--fail-fast): {exc}", file=sys.stderr)
             return 1
     print(format_table(report))
     print(overall_table(report))
+    if report.tracking is not None:
+        from simtest.eval_tracking import tracking_table
+
+        print()
+        print(tracking_table(report.tracking))
     print()
     for name, path in report.paths.items():
         print(f"{name:<9} {path}")

@@ -10,7 +10,14 @@ Ground truth reaches an estimator only when it declares that it needs it: ``need
 or instance attribute) gives the targets' ground-truth visible masks and boxes ("GT detections"; its runs are
 labelled ``NAME (GT masks)`` in every table, :func:`estimator_label`), ``needs_gt = True`` (the ``oracle``)
 also gives their poses. Any other estimator sees the images, ``K``, the object set and the ids of the objects
-to look for, never masks, boxes or poses (:func:`gt_access`).
+to look for, never masks, boxes or poses (:func:`gt_access`). A tracker declares ``needs_gt_init = True``
+instead: it is given each target's ground-truth pose once, on the first frame of its sequence in which the
+target appears (``Observation.init_poses``), and stable track ids on every frame; its runs are labelled
+``NAME (GT init)`` (:func:`needs_gt_init`).
+
+Sequences: the evaluation calls an estimator's optional ``reset()`` before the first frame of every scene
+(a scene is one sequence), and gives frames in order with ``Observation.frame_index`` counting from 0 within
+the scene, so an estimator may keep state from frame to frame.
 """
 
 from __future__ import annotations
@@ -38,13 +45,16 @@ if TYPE_CHECKING:
 
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
            "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
-           "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL"]
+           "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL",
+           "GT_INIT_LABEL", "needs_gt_init", "reset_estimator"]
 
 #: Entry-point group under which installed packages register estimators by name.
 ENTRY_POINT_GROUP = "simtest.estimators"
 
 #: Appended to the label of an estimator that is given ground-truth masks.
 GT_MASKS_LABEL = " (GT masks)"
+#: Appended to the label of an estimator that is given the targets' ground-truth poses on their first frame.
+GT_INIT_LABEL = " (GT init)"
 
 
 def gt_access(estimator: Any) -> tuple[bool, bool]:
@@ -54,11 +64,27 @@ def gt_access(estimator: Any) -> tuple[bool, bool]:
     return poses or bool(getattr(estimator, "needs_gt_masks", False)), poses
 
 
+def needs_gt_init(estimator: Any) -> bool:
+    """Whether an (instantiated) estimator declares ``needs_gt_init``: it is given each target's ground-truth
+    pose on the target's first frame of a sequence only (``Observation.init_poses``), and track ids."""
+    return bool(getattr(estimator, "needs_gt_init", False)) and not bool(getattr(estimator, "needs_gt", False))
+
+
+def reset_estimator(estimator: Any) -> None:
+    """Call the estimator's optional ``reset()`` (start of a new sequence); estimators without one are
+    stateless and nothing happens."""
+    reset = getattr(estimator, "reset", None)
+    if callable(reset):
+        reset()
+
+
 def estimator_label(name: str, estimator: Any) -> str:
     """The label of an estimator's runs in tables and plots: ``name``, plus `` (GT masks)`` when it declares
-    ``needs_gt_masks`` (the ``oracle``, whose name says it, is not relabelled)."""
+    ``needs_gt_masks`` (the ``oracle``, whose name says it, is not relabelled) and `` (GT init)`` when it
+    declares ``needs_gt_init``."""
     gt_masks = bool(getattr(estimator, "needs_gt_masks", False))
-    return name + GT_MASKS_LABEL if gt_masks and not name.endswith(GT_MASKS_LABEL) else name
+    label = name + GT_MASKS_LABEL if gt_masks and not name.endswith(GT_MASKS_LABEL) else name
+    return label + GT_INIT_LABEL if needs_gt_init(estimator) and not label.endswith(GT_INIT_LABEL) else label
 
 
 @dataclass(frozen=True)
@@ -80,6 +106,12 @@ class Observation:
         boxes: Per-target ground-truth visible boxes [x, y, w, h] (pixels); given with ``masks``.
         gt_poses: Ground-truth ``(R, t)`` per target; only for ``needs_gt`` (the ``oracle``), ``None`` otherwise.
         scene_id, im_id: Where the image came from (for logging).
+        frame_index: Position of the image within its scene (sequence) in this evaluation, from 0; ``-1`` when
+            unknown. Frames of a scene come in order; ``reset()`` is called before frame 0.
+        track_ids: Per-target instance ids, stable across the frames of a scene (the BOP ``gt_id``); only for
+            ``needs_gt_init`` estimators, ``None`` otherwise.
+        init_poses: Per target, the ground-truth ``(R, t)`` on the first frame of the scene in which that target
+            appears and ``None`` on every later frame; only for ``needs_gt_init`` estimators.
     """
 
     rgb: np.ndarray
@@ -94,6 +126,9 @@ class Observation:
     gt_poses: tuple[tuple[np.ndarray, np.ndarray], ...] | None = None
     scene_id: int = -1
     im_id: int = -1
+    frame_index: int = -1
+    track_ids: tuple[int, ...] | None = None
+    init_poses: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
 
     def rng(self, seed: int) -> np.random.Generator:
         """An estimator's generator for this image: seeded by ``(seed, scene_id, im_id)``, so results do not
@@ -493,5 +528,6 @@ for _name, _target in {
     "umeyama": "simtest.estimators.umeyama:UmeyamaEstimator",
     "keypoints": "simtest.estimators.keypoints:KeypointEstimator",
     "segicp": "simtest.estimators.segicp:SegICPEstimator",
+    "track-icp": "simtest.estimators.track_icp:TrackICPEstimator",
 }.items():
     register_estimator(_name, _target)

@@ -1,7 +1,7 @@
 """The metric registry: every aggregate metric declared once (key, label, definition, direction, format).
 
-Evaluation tables (:mod:`simtest.eval_tables`), ``metrics.json`` definitions, sweep configs (which metrics to
-tabulate), sweep tables and the HTML report all read this table, so a new metric is added here and in the code
+Evaluation tables (:mod:`simtest.tables`, :mod:`simtest.eval_tracking`), ``metrics.json`` definitions, sweep
+configs (which metrics to tabulate), sweep tables and the HTML report all read this table, so a new metric is added here and in the code
 that computes it (:func:`simtest.scoring.aggregate` or the BOP19 evaluation), nowhere else.
 
 Values are stored in SI units or fractions (metres, degrees where the key says ``_deg``, seconds, fractions
@@ -114,6 +114,20 @@ METRICS: tuple[Metric, ...] = (
            digits=4, sweepable=False),
     Metric("median_time_per_image_s", "median time/image", "median wall time of estimate() per image", 1.0, "s",
            None, digits=4, sweepable=False),
+    # Tracking (simtest.eval_tracking): pooled over the target-frames of sequences, or averaged over tracks.
+    *(Metric(f"iou{round(th * 100):d}", f"IoU{round(th * 100):d}",
+             f"tracking: fraction of target-frames whose 3D IoU of the model's bounding box at the estimated and "
+             f"ground-truth pose is >= {th:g} (misses count as 0)", sweepable=False) for th in (0.25, 0.5, 0.75)),
+    Metric("mean_iou", "mean IoU", "tracking: mean 3D bounding-box IoU over target-frames (misses count as 0)",
+           sweepable=False),
+    Metric("mean_re_deg", "R_err", "tracking: mean rotation error re_sym over target-frames with an estimate", 1.0,
+           "deg", False, digits=2, sweepable=False),
+    Metric("mean_te_m", "T_err", "tracking: mean translation error over target-frames with an estimate", 100.0,
+           "cm", False, digits=2, sweepable=False),
+    Metric("tracked_fraction", "tracked", "tracking: mean over tracks of the fraction of the track's frames before "
+           "its first loss (no estimate, re_sym > 10 deg or te > 5 cm)", sweepable=False),
+    Metric("num_tracks", "tracks", "tracking: object instances followed through a sequence", 1.0, "", None,
+           sweepable=False),
 )
 
 _BY_KEY = {m.key: m for m in METRICS}
