@@ -364,7 +364,7 @@ def _describe(spec: Any, est: Any) -> str:
 def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
                   progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
-                  labels: str | Path | None = None) -> EvalReport:
+                  labels: str | Path | None = None, tracking: bool | None = None) -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -376,7 +376,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
         out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
             or objects) and ``metrics.md``.
-        overwrite, labels: As in :func:`evaluate`.
+        overwrite, labels, tracking: As in :func:`evaluate`.
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
@@ -412,6 +412,8 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))
+    if tracking or (tracking is None and is_sequence_dataset(root)):
+        report.tracking = score_tracking(root, used, refs, objects, label=str(results_csv))
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=False)
     return report

@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"--scenes must be comma-separated integers, got {args.scenes!r}") from None
     common = dict(split=args.split, scenes=scenes, max_images=args.max_images, vsd=not args.no_vsd,
-                  progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite, labels=args.labels)
+                  progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite, labels=args.labels,
+                  tracking=True if args.tracking else None)
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             report = evaluate(args.data, args.estimator, targets=args.targets,
                               estimator_options=parse_options(args.opt), timeout=args.timeout,
-                              fail_fast=args.fail_fast, tracking=True if args.tracking else None, **common)
+                              fail_fast=args.fail_fast, **common)
         except EstimatorError as exc:
             print(f"simtest eval: estimator failed (--fail-fast): {exc}", file=sys.stderr)
             return 1

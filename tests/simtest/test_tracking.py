@@ -197,3 +197,16 @@ def test_point_cloud_stream_lies_on_the_model_surface(sequence_dataset):
                               frames[3][0].points)
     with pytest.raises(ConfigError, match="num_points"):
         PointCloudSequence(sequence_dataset, scene=0, num_points=0)
+
+
+def test_scoring_a_results_file_gives_the_same_tracking_scores(tracked, sequence_dataset, tmp_path):
+    """A saved results.csv scored later (``simtest eval --results``) gives the live run's tracking table."""
+    from simtest.eval import score_results
+
+    report, out = tracked
+    again = score_results(out / "results.csv", sequence_dataset, vsd=False, progress=False,
+                          out_dir=tmp_path / "scored")
+    assert again.tracking is not None
+    for key in ("iou50", "5deg2cm", "10deg5cm", "tracked_fraction", "num_targets"):
+        assert again.tracking.overall[key] == pytest.approx(report.tracking.overall[key]), key
+    assert (tmp_path / "scored" / "tracking.csv").exists()
