@@ -106,6 +106,25 @@ def canonical_symmetry(R: np.ndarray, syms: np.ndarray) -> int:
 
 # ---------------------------------------------------------------------------------------------------------
 # Transforms: (sample dict of numpy arrays, rng) -> sample dict
+def crop_window(a: np.ndarray, y0: int, x0: int, height: int, width: int) -> np.ndarray:
+    """The ``height`` x ``width`` window of image ``a`` whose top-left pixel is ``(y0, x0)`` (may lie outside
+    the image: pixels past the border are zero)."""
+    h, w = a.shape[:2]
+    out = np.zeros((height, width) + a.shape[2:], dtype=a.dtype)
+    sy0, sx0, sy1, sx1 = max(0, y0), max(0, x0), min(h, y0 + height), min(w, x0 + width)
+    if sy1 > sy0 and sx1 > sx0:
+        out[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = a[sy0:sy1, sx0:sx1]
+    return out
+
+
+def crop_intrinsics(K: np.ndarray, y0: int, x0: int) -> np.ndarray:
+    """``K`` of the window whose top-left pixel is ``(y0, x0)``: the principal point moves by ``(-x0, -y0)``."""
+    K = np.array(K, np.float64, copy=True)
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return K
+
+
 @dataclass(frozen=True)
 class Corrupt:
     """Apply one :class:`simtest.corrupt.CorruptionSpec` with probability ``p``.
@@ -407,18 +426,10 @@ class PoseDataset:
         y0 = int(round(cy + jy * ch - 0.5 * ch))
         x0 = int(round(cx + jx * cw - 0.5 * cw))
 
-        def cut(a: np.ndarray, fill: Any = 0) -> np.ndarray:
-            out = np.full((ch, cw) + a.shape[2:], fill, dtype=a.dtype)
-            sy0, sx0 = max(0, y0), max(0, x0)
-            sy1, sx1 = min(h, y0 + ch), min(w, x0 + cw)
-            if sy1 > sy0 and sx1 > sx0:
-                out[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = a[sy0:sy1, sx0:sx1]
-            return out
+        def cut(a: np.ndarray) -> np.ndarray:
+            return crop_window(a, y0, x0, ch, cw)
 
-        K = s["K"].copy()
-        K[0, 2] -= x0
-        K[1, 2] -= y0
-        out = dict(s, rgb=cut(s["rgb"]), depth=cut(s["depth"]), K=K,
+        out = dict(s, rgb=cut(s["rgb"]), depth=cut(s["depth"]), K=crop_intrinsics(s["K"], y0, x0),
                    masks=np.stack([cut(m) for m in masks]) if len(masks) else np.zeros((0, ch, cw), bool))
         if "masks_amodal" in s:
             ma = s["masks_amodal"]

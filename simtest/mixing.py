@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.data import collate, sample_rng
+from simtest.data import collate, crop_intrinsics, crop_window, sample_rng
 from simtest.errors import ConfigError, DatasetError
 
 __all__ = ["UnlabelledDataset", "MixedDataset", "collate_mixed"]
@@ -161,16 +161,8 @@ def _random_crop(s: dict[str, Any], size: tuple[int, int], rng: np.random.Genera
     y0 = int(rng.integers(min(0, h - ch), max(0, h - ch) + 1))
     x0 = int(rng.integers(min(0, w - cw), max(0, w - cw) + 1))
 
-    def cut(a: np.ndarray) -> np.ndarray:
-        out = np.zeros((ch, cw) + a.shape[2:], dtype=a.dtype)
-        sy0, sx0, sy1, sx1 = max(0, y0), max(0, x0), min(h, y0 + ch), min(w, x0 + cw)
-        out[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = a[sy0:sy1, sx0:sx1]
-        return out
-
-    K = s["K"].copy()
-    K[0, 2] -= x0
-    K[1, 2] -= y0
-    return dict(s, rgb=cut(s["rgb"]), depth=cut(s["depth"]), K=K, masks=np.zeros((0, ch, cw), bool))
+    return dict(s, rgb=crop_window(s["rgb"], y0, x0, ch, cw), depth=crop_window(s["depth"], y0, x0, ch, cw),
+                K=crop_intrinsics(s["K"], y0, x0), masks=np.zeros((0, ch, cw), bool))
 
 
 class MixedDataset:
