@@ -37,6 +37,13 @@ Scoring protocol
   (the compositional / viewpoint protocol, ``e = ||logm(R_p^T R_gt)||_F / sqrt(2)`` over the symmetry set);
   ``metrics.json`` ``per_category`` and a category table in ``metrics.md``.
 
+Parallel runs
+-------------
+With a ``backend`` (:mod:`simtest.backend`: a local pool or Ray) the unit of work is one scene, its images in
+frame order; each worker process loads the estimator and the objects once. The workers send back their rows
+and the driver writes them in scene and image order, so the files are those of a one-worker run except the
+measured times (``results.csv`` ``time``, ``*_time_per_image_s``) and the ``backend`` / ``workers`` settings.
+
 Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
 target), ``failures.csv`` (image, object, kind, message, exception type, the last frames of the estimator's
 traceback) and ``metrics.md`` (Markdown tables, units in the column headers).

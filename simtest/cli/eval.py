@@ -44,7 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       "failures go to failures.csv; exit code 1 if every image failed")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="worker processes (or Ray CPUs); each loads the estimator once and runs whole scenes "
-                        "(default 1: this process); the output is the same for any N")
+                        "(default 1: this process); the files are the same for any N but for the measured times")
     add_backend_options(p)
     add_no_progress_alias(p)
     p.set_defaults(func=run)
