@@ -37,6 +37,13 @@ Scoring protocol
   (the compositional / viewpoint protocol, ``e = ||logm(R_p^T R_gt)||_F / sqrt(2)`` over the symmetry set);
   ``metrics.json`` ``per_category`` and a category table in ``metrics.md``.
 
+Parallel runs
+-------------
+With a ``backend`` (:mod:`simtest.backend`: a local pool or Ray) the unit of work is one scene, its images in
+frame order; each worker process loads the estimator and the objects once. The workers send back their rows
+and the driver writes them in scene and image order, so the files are those of a one-worker run except the
+measured times (``results.csv`` ``time``, ``*_time_per_image_s``) and the ``backend`` / ``workers`` settings.
+
 Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
 target), ``failures.csv`` (image, object, kind, message, exception type, the last frames of the estimator's
 traceback) and ``metrics.md`` (Markdown tables, units in the column headers).
@@ -46,17 +53,19 @@ from __future__ import annotations
 
 import json
 import logging
+import pickle
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from simtest.backend import Backend, RunStats, run_units
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, Observation, gt_access,
-                                     load_estimator, needs_gt_init, reset_estimator)
+from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, Observation, _is_file_target,
+                                     gt_access, load_estimator, needs_gt_init, reset_estimator)
 from simtest.eval_tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, call_estimator, check_estimate, check_timeout
 from simtest.io import bop
@@ -187,8 +196,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
              timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
-             fail_fast: bool = False, labels: str | Path | None = None,
-             tracking: bool | None = None) -> EvalReport:
+             fail_fast: bool = False, labels: str | Path | None = None, tracking: bool | None = None,
+             backend: Backend | None = None, stats: RunStats | None = None) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -219,6 +228,10 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         tracking: Also score the run as tracking (:mod:`simtest.eval_tracking`: per-frame 3D IoU, n deg m cm,
             errors over time, frames tracked before loss; ``tracking.md``, ``tracking.csv``, ``tracking.png``
             in ``out_dir``). ``None``: when the dataset's manifest says ``rig = "sequence"``.
+        backend: Where the images run (default: this process). Every worker loads the estimator and the
+            objects once; a unit of work is one scene, its images in frame order (see :func:`_scene_shards`).
+            The outputs are the same for every back end and worker count but for the measured times.
+        stats: Filled with the units finished, retried and failed (:class:`simtest.backend.RunStats`).
 
     Returns:
         The :class:`EvalReport`.
@@ -238,8 +251,6 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     estimator may also expose ``last_failures``: a list of ``{"obj_id", "reason"}`` dicts describing the
     targets it gave up on in its last call; they are recorded with kind ``no-estimate``.
     """
-    from tqdm import tqdm
-
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     root = Path(dataset_dir)
@@ -256,25 +267,13 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     known = set(objects.ids)
     refs = select_images(root, split, scenes, max_images, known, labels)
     width, height = image_size(root)
-    results: list[ResultRow] = []
-    scales: dict[int, float] = {}
-    failures: list[dict[str, Any]] = []
-    times: list[float] = []
-    failed_images = 0
-    bar = tqdm(refs, desc="eval", unit="img", disable=not progress, dynamic_ncols=True)
-    scene, frame, initialised = None, 0, set()
-    for ref in bar:
-        if ref.scene_id != scene:  # a new sequence
-            scene, frame, initialised = ref.scene_id, 0, set()
-            reset_estimator(est)
-        obs, _ = _observation(ref, objects, targets, width, height, needs_gt, gt_masks, frame,
-                              initialised if gt_init else None)
-        frame += 1
-        dt, failed = _estimate_image(est, obs, ref, known, limit, results, scales, failures, fail_fast)
-        times.append(dt)
-        failed_images += failed
-        if progress:
-            bar.set_postfix(fail=len(failures), s_per_img=f"{np.mean(times):.3f}")
+    backend = backend if backend is not None else Backend()
+    stats = stats if stats is not None else RunStats()
+    run = _run_shards(est, estimator, estimator_options, _scene_shards(refs), backend, stats, progress,
+                      _WorkerSetup(str(root.resolve()), targets, width, height, needs_gt, gt_masks, limit, fail_fast,
+                                   gt_init),
+                      objects)
+    results, scales, failures, times, failed_images = run
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
                                                        scales=scales, progress=False, _refs=refs)
     overall["num_images"] = len(refs)
@@ -290,7 +289,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "gt_masks": labelled, "gt_init": gt_init, "targets": targets,
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
-                "labels": None if labels is None else str(labels)}
+                "labels": None if labels is None else str(labels), "backend": backend.name,
+                "workers": backend.workers}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
@@ -344,6 +344,161 @@ def _stop(est: Any, failure: dict[str, Any], trace: str) -> None:
         where += f" object {failure['obj_id']}"
     raise EstimatorError(f"{type(est).__name__} failed on {where} ({failure['kind']}): {failure['message']}"
                          + (f"\n{trace.rstrip()}" if trace else ""))
+
+# ---------------------------------------------------------------------------------------------------------
+# Image shards: the units of work of a run
+@dataclass(frozen=True)
+class _WorkerSetup:
+    """What a worker needs besides the estimator and the objects: the dataset root, how targets are given,
+    the image size (pixels), the time limit (s), ``fail_fast`` and whether the estimator is a tracker given
+    each target's first ground-truth pose (``needs_gt_init``)."""
+
+    root: str
+    targets: str
+    width: int
+    height: int
+    needs_gt: bool
+    gt_masks: bool
+    timeout: float | None
+    fail_fast: bool
+    gt_init: bool = False
+
+
+@dataclass(frozen=True)
+class _Shard:
+    """One unit of work: the selected images of one scene, in frame order; ``index`` is its place in the run."""
+
+    index: int
+    refs: tuple[ImageRef, ...]
+
+
+@dataclass
+class _ShardResult:
+    """What one shard gives back: its valid estimates, their non-unit scales by position in ``results``, its
+    failure rows, the estimator's wall time per image (s) and the count of images that failed as a whole."""
+
+    index: int
+    results: list[ResultRow] = field(default_factory=list)
+    scales: dict[int, float] = field(default_factory=dict)
+    failures: list[dict[str, Any]] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    failed_images: int = 0
+
+
+#: The estimator, objects and settings of the run this process is working for (set by :func:`_init_worker`,
+#: or by the driver when the shards run in its own process).
+_WORKER: dict[str, Any] = {}
+
+
+def _scene_shards(refs: Sequence[ImageRef]) -> list[_Shard]:
+    """One shard per scene, its images in frame order. A whole scene in one unit keeps an estimator that carries
+    state from frame to frame (a tracker) correct whichever worker runs it, and amortises the worker's
+    estimator loading over the scene's images."""
+    groups: list[list[ImageRef]] = []
+    for ref in refs:
+        if groups and groups[-1][-1].scene_dir == ref.scene_dir:
+            groups[-1].append(ref)
+        else:
+            groups.append([ref])
+    return [_Shard(i, tuple(g)) for i, g in enumerate(groups)]
+
+
+def _init_worker(estimator: Any, options: dict[str, Any] | None, setup: _WorkerSetup) -> None:
+    """Load the estimator and the dataset's objects once per worker process."""
+    objects = load_dataset_objects(Path(setup.root))
+    _WORKER.clear()
+    _WORKER.update(est=load_estimator(estimator, **(options or {})), objects=objects, known=set(objects.ids),
+                   setup=setup)
+
+
+def _run_shard(shard: _Shard) -> _ShardResult:
+    """Run the worker's estimator on the images of one shard (see :func:`_estimate_image`)."""
+    est, objects, known, s = _WORKER["est"], _WORKER["objects"], _WORKER["known"], _WORKER["setup"]
+    out = _ShardResult(shard.index)
+    reset_estimator(est)  # a shard is one scene: a new sequence
+    initialised: set[int] = set()
+    for frame, ref in enumerate(shard.refs):
+        obs, _ = _observation(ref, objects, s.targets, s.width, s.height, s.needs_gt, s.gt_masks, frame,
+                              initialised if s.gt_init else None)
+        first, scales = len(out.results), {}
+        dt, failed = _estimate_image(est, obs, ref, known, s.timeout, out.results, scales, out.failures,
+                                     s.fail_fast)
+        out.scales.update({i: scales[id(r)] for i, r in enumerate(out.results[first:], first) if id(r) in scales})
+        out.times.append(dt)
+        out.failed_images += failed
+    return out
+
+
+def _absolute(ref: ImageRef) -> ImageRef:
+    """``ref`` with absolute folders."""
+    return replace(ref, scene_dir=ref.scene_dir.resolve(),
+                   label_dir=None if ref.label_dir is None else ref.label_dir.resolve())
+
+
+def _portable(spec: Any) -> Any:
+    """The estimator spec as a worker process can load it: a ``file.py:attr`` path made absolute (a Ray worker
+    runs in another folder); an instance or callable must pickle.
+
+    Raises:
+        ConfigError: An instance that cannot be sent to worker processes.
+    """
+    if isinstance(spec, str):
+        module, sep, attr = spec.rpartition(":")
+        if sep and module and _is_file_target(module):
+            return f"{Path(module).expanduser().resolve()}:{attr}"
+        return spec
+    try:
+        pickle.dumps(spec)
+    except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing
+        raise ConfigError(f"estimator {spec!r} cannot be sent to worker processes ({type(exc).__name__}: {exc}); "
+                          "give it by name, 'module:attr' or 'path/to/file.py:attr', or use one worker") from exc
+    return spec
+
+
+def _run_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards: list[_Shard], backend: Backend,
+                stats: RunStats, progress: bool, setup: _WorkerSetup, objects: Any
+                ) -> tuple[list[ResultRow], dict[int, float], list[dict[str, Any]], list[float], int]:
+    """Run every shard on ``backend`` (in this process with the loaded ``est`` when the back end says so) and
+    join their outputs in shard order, which is the image order of a sequential run.
+
+    Returns:
+        ``(results, scales by id(row), failures, times per image in s, images failed as a whole)``.
+    """
+    from tqdm import tqdm
+
+    in_process = backend.in_process(len(shards))
+    init_args = () if in_process else (_portable(spec), options, setup)
+    if not in_process:  # a Ray worker may run in another folder
+        shards = [_Shard(s.index, tuple(_absolute(r) for r in s.refs)) for s in shards]
+    done: dict[int, _ShardResult] = {}
+    bar = tqdm(total=sum(len(s.refs) for s in shards), desc="eval", unit="img", disable=not progress,
+               dynamic_ncols=True)
+    if in_process:
+        _WORKER.clear()
+        _WORKER.update(est=est, objects=objects, known=set(objects.ids), setup=setup)
+    try:
+        for res in run_units(_run_shard, shards, backend, init=_init_worker, init_args=init_args, stats=stats):
+            done[res.index] = res
+            bar.update(len(res.times))
+            if progress:
+                times = [t for r in done.values() for t in r.times]
+                bar.set_postfix(fail=sum(len(r.failures) for r in done.values()),
+                                s_per_img=f"{np.mean(times):.3f}")
+    finally:
+        bar.close()
+        if in_process:
+            _WORKER.clear()
+    results: list[ResultRow] = []
+    scales: dict[int, float] = {}
+    failures: list[dict[str, Any]] = []
+    times: list[float] = []
+    for r in (done[i] for i in range(len(shards))):
+        scales.update({id(row): r.scales[i] for i, row in enumerate(r.results) if i in r.scales})
+        results += r.results
+        failures += r.failures
+        times += r.times
+    return results, scales, failures, times, sum(r.failed_images for r in done.values())
+
 
 def _per_category(objects, rows: list[dict[str, Any]], per_object: dict[int, dict[str, Any]]
                   ) -> dict[str, dict[str, Any]]:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from simtest.cli.common import LazyChoices, add_no_progress_alias, common_parser
+from simtest.cli.common import (LazyChoices, add_backend_options, add_no_progress_alias, backend_from_args,
+                                common_parser)
 from simtest.errors import ConfigError, DatasetError
 
 
@@ -37,6 +39,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="depth-sensor noise preset")
     p.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output dataset folder")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="with --in: worker processes (or Ray CPUs), each corrupting whole scenes (default 1: "
+                        "this process); the output is the same for any N")
+    add_backend_options(p)
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 
@@ -53,6 +59,7 @@ def _write_png(path: Path, rgb) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simtest.backend import RunStats
     from simtest.corrupt import (CORRUPTIONS, DEPTH_PRESETS, OCCLUSION_BANDS, CorruptionSpec, corrupt_dataset,
                                  preview_grid)
 
@@ -91,8 +98,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("nothing to corrupt: give at least one of --weather, --occlusion, --depth-noise")
     if not Path(args.in_dir).is_dir():
         raise DatasetError(f"dataset folder {args.in_dir} does not exist")
+    backend, stats = backend_from_args(args), RunStats()
     record = corrupt_dataset(args.in_dir, args.out, spec, seed=args.seed, overwrite=args.overwrite,
-                             progress=not args.quiet)
+                             progress=not args.quiet, backend=backend, stats=stats)
+    if not args.quiet:
+        print(f"simtest corrupt: {stats.summary()}", file=sys.stderr)
     line = f"wrote {args.out}: {record['images']} images, {spec.label()}, seed {args.seed}"
     occ = record.get("occlusion", {})
     if "mean_fg_fraction" in occ:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import add_fault_options, add_no_progress_alias, common_parser
+from simtest.cli.common import (add_backend_options, add_fault_options, add_no_progress_alias, backend_from_args,
+                                common_parser)
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -44,11 +45,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "dataset generated with --rig sequence")
     add_fault_options(p, "image", "an image over it is recorded in failures.csv as 'timeout' and the run goes on",
                       "failures go to failures.csv; exit code 1 if every image failed")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="worker processes (or Ray CPUs); each loads the estimator once and runs whole scenes "
+                        "(default 1: this process); the files are the same for any N but for the measured times")
+    add_backend_options(p)
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from simtest.backend import RunStats
     from simtest.estimators.base import parse_options
     from simtest.eval import evaluate, format_table, overall_table, score_results
 
@@ -64,15 +70,20 @@ def run(args: argparse.Namespace) -> int:
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")
+        if args.workers != 1 or args.backend != "local" or args.ray_address:
+            raise ConfigError("--workers, --backend and --ray-address apply to --estimator, not to --results")
         report = score_results(args.results, args.data, **common)
     else:
+        backend, stats = backend_from_args(args), RunStats()
         try:
             report = evaluate(args.data, args.estimator, targets=args.targets,
                               estimator_options=parse_options(args.opt), timeout=args.timeout,
-                              fail_fast=args.fail_fast, **common)
+                              fail_fast=args.fail_fast, backend=backend, stats=stats, **common)
         except EstimatorError as exc:
             print(f"simtest eval: estimator failed (--fail-fast): {exc}", file=sys.stderr)
             return 1
+        if not args.quiet:
+            print(f"simtest eval: {stats.summary()}", file=sys.stderr)
     print(format_table(report))
     print(overall_table(report))
     if report.tracking is not None:

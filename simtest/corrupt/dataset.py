@@ -16,7 +16,11 @@ Everything that is ground truth is copied byte-identically: ``camera.json``, ``m
 ``corruption.json`` at the top of the copy records the spec, the seed, the implied parameters and the
 achieved occlusion fractions per image. Each image draws from its own generator,
 ``SeedSequence(seed, spawn_key=(scene_id, im_id))`` (:func:`simtest.rng.child_rng`), so results do not depend
-on the processing order. Every file is written atomically (temporary file + ``os.replace``).
+on the processing order, the number of workers or the back end (:mod:`simtest.backend`): a unit of work is one
+scene, whose worker writes its files straight into the copy. Every file is written atomically (temporary file +
+``os.replace``) and ``corruption.json`` last, so a copy with a ``corruption.json`` is complete; an interrupted
+run leaves none and is redone from the start with ``overwrite`` (there is no resume). ``corruption.json``
+records the back end and worker count under ``execution``; no other byte depends on them.
 """
 
 from __future__ import annotations
@@ -24,11 +28,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from simtest.backend import Backend, RunStats, run_units
 from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
@@ -68,7 +74,8 @@ def find_scenes(dataset: Path) -> list[Path]:
 
 
 def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec: CorruptionSpec, seed: int,
-                    overwrite: bool = False, progress: bool = True) -> dict[str, Any]:
+                    overwrite: bool = False, progress: bool = True, backend: Backend | None = None,
+                    stats: RunStats | None = None) -> dict[str, Any]:
     """Write a corrupted copy of the BOP dataset ``in_dir`` to ``out_dir`` (see the module docstring).
 
     Args:
@@ -78,6 +85,10 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
         seed: Non-negative integer seed; image ``(scene_id, im_id)`` uses ``child_rng(seed, scene_id, im_id)``.
         overwrite: Replace the contents of a non-empty ``out_dir``.
         progress: Show a tqdm progress bar.
+        backend: Where the scenes run (default: this process); a unit of work is one scene, whose images,
+            masks and ``scene_gt_info.json`` its worker writes. The output is the same for every back end and
+            worker count but for ``execution`` in ``corruption.json``, which records them.
+        stats: Filled with the units finished, retried and failed (:class:`simtest.backend.RunStats`).
 
     Returns:
         The record written to ``out_dir/corruption.json``.
@@ -87,8 +98,6 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
             :func:`simtest.io.bop.read_scene_files`), or a non-empty output without ``overwrite``.
         ConfigError: Bad seed or spec.
     """
-    from tqdm import tqdm
-
     if not isinstance(spec, CorruptionSpec):
         raise ConfigError(f"spec must be a CorruptionSpec, got {type(spec).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -108,40 +117,21 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     prepare_out_dir(dst, overwrite=overwrite, clear=True, protect=[src], what="output dataset")
     dst.mkdir(parents=True, exist_ok=True)
 
-    work = []
-    for scene in scenes:
-        rgb_dir = scene / "rgb"
-        if rgb_dir.is_dir():
-            work.extend((scene, p) for p in sorted(rgb_dir.iterdir()) if p.is_file() and p.stem.isdigit())
+    units = _scene_units(scenes, cache)
     change_rgb = spec.weather is not None or spec.occlusion is not None
     bank = None
     if spec.occlusion is not None and spec.occlusion_kind == "objects":
         from simtest.corrupt.cutouts import object_cutouts
 
         bank = object_cutouts(scenes)
-
+    backend = backend if backend is not None else Backend()
+    done = _run_scenes(units, _Setup(src, dst, spec, int(seed), change_rgb, bank), backend,
+                       stats if stats is not None else RunStats(), progress)
     produced: set[Path] = set()  # source files whose output was written by the corruption
     occlusion_records: list[dict[str, Any]] = []
-    gt_info_dirty: set[Path] = set()
-    bar = tqdm(total=len(work), desc=f"corrupt {spec.label()}", unit="img", disable=not progress)
-    try:
-        for scene, rgb_path in work:
-            meta = cache[scene]
-            scene_id, im_id = int(scene.name), int(rgb_path.stem)
-            rec = _corrupt_image(src, dst, scene, rgb_path, scene_id, im_id, meta, spec, seed, change_rgb, produced,
-                                 bank)
-            if rec is not None:
-                occlusion_records.append(rec)
-                gt_info_dirty.add(scene)
-            bar.update(1)
-    finally:
-        bar.close()
-
-    for scene in gt_info_dirty:
-        info_path = scene / "scene_gt_info.json"
-        if cache[scene]["gt_info"] is not None:
-            _atomic_write(dst / info_path.relative_to(src), dump_json_keyed(cache[scene]["gt_info"]).encode("utf-8"))
-            produced.add(info_path)
+    for res in done:  # scene order: the records' order does not depend on the back end
+        produced |= res.produced
+        occlusion_records += res.records
 
     # everything else byte-identical
     for root, _dirs, files in os.walk(src):
@@ -150,9 +140,105 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
             if path not in produced:
                 _atomic_copy(path, dst / path.relative_to(src))
 
-    record = _record(src, spec, seed, len(work), change_rgb, occlusion_records)
+    record = _record(src, spec, seed, sum(len(u.images) for u in units), change_rgb, occlusion_records)
+    record["execution"] = {"backend": backend.name, "workers": backend.workers}
     _atomic_write(dst / "corruption.json", json.dumps(record, indent=2).encode("utf-8"))
     return record
+
+
+# --- scenes: the units of work ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Setup:
+    """What every worker needs: the (absolute) source and output folders, the spec, the seed, whether RGB
+    changes, and the occluder cutouts of the ``objects`` occlusion kind."""
+
+    src: Path
+    dst: Path
+    spec: CorruptionSpec
+    seed: int
+    change_rgb: bool
+    bank: list[np.ndarray] | None
+
+
+@dataclass(frozen=True)
+class _SceneUnit:
+    """One unit of work: a scene folder, its RGB files in name order and its validated JSON (``camera``,
+    ``gt``, ``gt_info``); ``index`` is its place in the run."""
+
+    index: int
+    scene: Path
+    images: tuple[Path, ...]
+    meta: dict[str, Any]
+
+
+@dataclass
+class _SceneResult:
+    """The source files a scene's outputs replace and its occlusion records, in image order."""
+
+    index: int
+    produced: set[Path] = field(default_factory=set)
+    records: list[dict[str, Any]] = field(default_factory=list)
+
+
+#: The setup of the run this process works for (set by :func:`_init_worker` or by the driver).
+_SETUP: dict[str, _Setup] = {}
+
+
+def _scene_units(scenes: list[Path], cache: dict[Path, dict[str, Any]]) -> list[_SceneUnit]:
+    """One unit per scene with RGB images, in scene order."""
+    units: list[_SceneUnit] = []
+    for scene in scenes:
+        rgb_dir = scene / "rgb"
+        images = tuple(p for p in sorted(rgb_dir.iterdir()) if p.is_file() and p.stem.isdigit()) \
+            if rgb_dir.is_dir() else ()
+        if images:
+            units.append(_SceneUnit(len(units), scene, images, cache[scene]))
+    return units
+
+
+def _init_worker(setup: _Setup) -> None:
+    _SETUP["run"] = setup
+
+
+def _corrupt_scene(unit: _SceneUnit) -> _SceneResult:
+    """Corrupt every image of one scene and write its outputs (images, masks, an occluded copy's
+    ``scene_gt_info.json``) atomically; each image draws from ``child_rng(seed, scene_id, im_id)``."""
+    s = _SETUP["run"]
+    out = _SceneResult(unit.index)
+    scene = unit.scene
+    for rgb_path in unit.images:
+        rec = _corrupt_image(s.src, s.dst, scene, rgb_path, int(scene.name), int(rgb_path.stem), unit.meta, s.spec,
+                             s.seed, s.change_rgb, out.produced, s.bank)
+        if rec is not None:
+            out.records.append(rec)
+    info_path = scene / "scene_gt_info.json"
+    if out.records and unit.meta["gt_info"] is not None:
+        _atomic_write(s.dst / info_path.relative_to(s.src), dump_json_keyed(unit.meta["gt_info"]).encode("utf-8"))
+        out.produced.add(info_path)
+    return out
+
+
+def _run_scenes(units: list[_SceneUnit], setup: _Setup, backend: Backend, stats: RunStats,
+                progress: bool) -> list[_SceneResult]:
+    """Run the scene units on ``backend`` with one progress bar over images; the results in scene order."""
+    from tqdm import tqdm
+
+    in_process = backend.in_process(len(units))
+    done: dict[int, _SceneResult] = {}
+    bar = tqdm(total=sum(len(u.images) for u in units), desc=f"corrupt {setup.spec.label()}", unit="img",
+               disable=not progress)
+    if in_process:
+        _init_worker(setup)
+    try:
+        for res in run_units(_corrupt_scene, units, backend, init=_init_worker,
+                             init_args=() if in_process else (setup,), stats=stats):
+            done[res.index] = res
+            bar.update(len(units[res.index].images))
+    finally:
+        bar.close()
+        if in_process:
+            _SETUP.clear()
+    return [done[i] for i in range(len(units))]
 
 
 def _record(src: Path, spec: CorruptionSpec, seed: int, images: int, change_rgb: bool,

@@ -210,3 +210,14 @@ def test_scoring_a_results_file_gives_the_same_tracking_scores(tracked, sequence
     for key in ("iou50", "5deg2cm", "10deg5cm", "tracked_fraction", "num_targets"):
         assert again.tracking.overall[key] == pytest.approx(report.tracking.overall[key]), key
     assert (tmp_path / "scored" / "tracking.csv").exists()
+
+
+def test_tracking_with_two_workers_gives_the_same_tracks(tracked, sequence_dataset, tmp_path):
+    """A sequence is one unit of work: two worker processes track each scene from its first frame as one does."""
+    from simtest.backend import Backend
+    from simtest.eval import evaluate
+
+    _, out = tracked
+    evaluate(sequence_dataset, "track-icp", progress=False, vsd=False, out_dir=tmp_path / "two",
+             backend=Backend("local", workers=2))
+    assert (tmp_path / "two" / "tracking.csv").read_text() == (out / "tracking.csv").read_text()
