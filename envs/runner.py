@@ -2,15 +2,20 @@
 
 Episode ``i`` of a run with master seed ``s`` resets its env with the seed drawn from ``SeedSequence`` child
 ``i`` of ``s`` (:func:`episode_seed`), so every episode's scene, corruption and oracle noise are the same
-whichever worker runs it and however many workers there are. Workers (``multiprocessing`` spawn pool)
-own whole episodes, each with its own env, renderer and estimator.
+whichever worker runs it, however many workers there are and whichever back end runs them (``local``
+processes or ``ray`` tasks, :mod:`simtest.backend`). Workers own whole episodes, each with its own env,
+renderer and estimator.
+
+An episode whose Ray worker (or node) is lost more often than the retries allow is left out: the run writes
+the episodes that finished, lists the lost ones in ``summary.json`` (``run.lost_episodes``) and then raises
+:class:`~simtest.backend.BackendError`, since its success rate covers fewer episodes than asked for.
 """
 
 from __future__ import annotations
 
 import csv
+import functools
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -20,6 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, thread_share
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
@@ -73,7 +79,11 @@ class GraspRunConfig:
         weather, severity: Image corruption of the observation (None = clean).
         depth_noise: Depth-noise preset (None = clean).
         width, height: Wrist camera size, pixels.
-        workers: Worker processes.
+        workers: Worker processes (local), or the CPUs of a Ray instance started here.
+        backend: Where the episodes run: ``"local"`` or ``"ray"`` (:mod:`simtest.backend`); not part of the
+            results.
+        ray_address: With ``backend="ray"``: ``"auto"`` or ``HOST:PORT`` of a running cluster; ``None`` starts a
+            local Ray instance.
         video: Write a GIF per episode (third-person | wrist) for the first ``video_episodes`` episodes.
         video_episodes: How many episodes get a video.
         timeout: Time limit of the estimator call per episode, seconds (``None`` or 0: none); over it the
@@ -101,6 +111,8 @@ class GraspRunConfig:
     width: int = 320
     height: int = 240
     workers: int = 1
+    backend: str = "local"
+    ray_address: str | None = None
     video: bool = False
     video_episodes: int = 5
     timeout: float | None = DEFAULT_TIMEOUT_S
@@ -127,6 +139,7 @@ class GraspRunReport:
     rows: list[dict]
     summary: dict
     out_dir: Path | None = None
+    run: RunStats = field(default_factory=RunStats)  # what the back end did (episodes retried, lost)
 
     def table(self) -> str:
         return summary_markdown(self.summary)
@@ -162,7 +175,8 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
     # Mesa's llvmpipe renders with one thread per core; with several workers each gets its share of cores
     # (read when the worker creates its GL context).
-    os.environ.setdefault("LP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(1, cfg.workers))))
+    # On a cluster (ray_address set) every node runs one episode per CPU: one thread each.
+    os.environ.setdefault("LP_NUM_THREADS", str(thread_share(cfg.workers) if cfg.ray_address is None else 1))
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 
@@ -256,6 +270,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         raise ConfigError(f"workers must be >= 1, got {cfg.workers!r}")
     if cfg.seed < 0:
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
+    check_backend(cfg.backend, cfg.ray_address, cfg.workers)
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
     from simtest.envs.grasp_env import EpisodeConfig
@@ -271,26 +286,14 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.episodes, unit="episode", desc="grasp", dynamic_ncols=True, file=sys.stderr)
+    stats = RunStats()
+    lost: BackendError | None = None
     try:
-        if cfg.workers <= 1 or cfg.episodes <= 1:
-            ctx = _make_context(cfg, None if out is None else str(out))
-            try:
-                for i in range(cfg.episodes):
-                    rows.append(_run_one(i, ctx))
-                    _tick(bar, rows)
-                    _check_fail_fast(cfg, rows[-1])
-            finally:
-                ctx["env"].close()
-        else:
-            mpctx = mp.get_context("spawn")  # GL contexts do not survive fork
-            resolved = cfg.to_dict()
-            resolved["targets"] = _resolve_targets(cfg)  # once here, not in every worker
-            with mpctx.Pool(min(cfg.workers, cfg.episodes), initializer=_worker_init,
-                            initargs=(resolved, None if out is None else str(out))) as pool:
-                for row in pool.imap_unordered(_run_one, range(cfg.episodes)):
-                    rows.append(row)
-                    _tick(bar, rows)
-                    _check_fail_fast(cfg, row)
+        _run_episodes(cfg, out, rows, bar, stats)
+    except BackendError as exc:
+        if not stats.failures or not rows:
+            raise
+        lost = exc  # the finished episodes are written first
     finally:
         if bar is not None:
             bar.close()
@@ -301,10 +304,47 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     summary["planner_obstacles"] = cfg.planner_obstacles
     summary["wall_s_total"] = time.perf_counter() - t0
     summary["command_line"] = list(command_line) if command_line is not None else None
-    report = GraspRunReport(rows, summary, out)
+    summary["run"] = {"backend": cfg.backend, "ray_address": cfg.ray_address, "workers": cfg.workers,
+                      "retried": stats.retried, "lost_episodes": sorted(f.unit for f in stats.failures),
+                      "startup_s": round(stats.startup_s, 3), "cluster_cpus": stats.cluster_cpus}
+    report = GraspRunReport(rows, summary, out, stats)
     if out is not None:
         _write_outputs(report, out)
+    if lost is not None:
+        ids = summary["run"]["lost_episodes"]
+        raise BackendError(f"{len(ids)} of {cfg.episodes} episodes were lost with their workers more than "
+                           f"{Backend(cfg.backend, cfg.workers, cfg.ray_address).retries} time(s) (episodes "
+                           f"{', '.join(map(str, ids[:20]))}); the outputs"
+                           f"{'' if out is None else ' in ' + repr(str(out))} cover the other {len(rows)} "
+                           f"(summary.json: run.lost_episodes): run again for the full count") from lost
     return report
+
+
+def _run_episodes(cfg: GraspRunConfig, out: Path | None, rows: list[dict], bar, stats: RunStats) -> None:
+    """Run every episode where ``cfg.backend`` says, appending its row to ``rows`` as it finishes.
+
+    Raises:
+        EstimatorError: With ``cfg.fail_fast``, at the first estimator fault.
+        BackendError: Episodes lost beyond the retries (after every other one finished).
+    """
+    backend = Backend(cfg.backend, cfg.workers, cfg.ray_address)
+    out_str = None if out is None else str(out.resolve())  # absolute: a worker's working folder may differ
+    ctx = _make_context(cfg, out_str) if backend.in_process(cfg.episodes) else None
+    init_args: tuple = ()
+    if ctx is None:
+        resolved = cfg.to_dict()
+        resolved["targets"] = _resolve_targets(cfg)  # once here, not in every worker
+        init_args = (resolved, out_str)
+    try:
+        fn = _run_one if ctx is None else functools.partial(_run_one, ctx=ctx)
+        for row in run_units(fn, list(range(cfg.episodes)), backend, init=_worker_init, init_args=init_args,
+                             stats=stats):
+            rows.append(row)
+            _tick(bar, rows)
+            _check_fail_fast(cfg, row)
+    finally:
+        if ctx is not None:
+            ctx["env"].close()
 
 
 def check_planner_obstacles(value: Any) -> str:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from simtest.backend import check_backend
 from simtest.errors import ConfigError
 from simtest.schema import bounds as _bounds
 from simtest.schema import build, pair as _rng_pair, read_config_file, to_plain, to_toml
@@ -148,6 +149,9 @@ class GenerateConfig:
     split: str = "train_pbr"
     seed: int = field(default=0, metadata=_bounds(0, 2**63 - 1))
     workers: int = field(default=1, metadata=_bounds(1, 256))
+    # where the scenes run (simtest.backend): local processes or Ray tasks; not part of what is made
+    backend: Literal["local", "ray"] = field(default="local", metadata=_bounds(choices=("local", "ray")))
+    ray_address: str | None = None  # with backend "ray": "auto" or HOST:PORT of a running cluster; None starts one
     camera: CameraConfig = field(default_factory=CameraConfig)
     shell: ShellRig = field(default_factory=ShellRig)
     sequence: SequenceRig = field(default_factory=SequenceRig)
@@ -164,7 +168,12 @@ class GenerateConfig:
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":
         """Validate ``data`` (nested dicts) into a config; errors name ``source`` and the dotted field."""
-        return build(GenerateConfig, data, prefix="", source=source)
+        cfg = build(GenerateConfig, data, prefix="", source=source)
+        try:
+            check_backend(cfg.backend, cfg.ray_address, cfg.workers)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+        return cfg
 
     def to_dict(self) -> dict[str, Any]:
         return to_plain(dataclasses.asdict(self))

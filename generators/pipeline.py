@@ -1,14 +1,14 @@
 """``generate()``: config + seed -> BOP dataset. Workers own whole scenes; scenes are written atomically.
 
 Determinism: scene ``i`` draws everything from ``child_rng(seed, i, attempt)``, so its files do not depend on
-which worker ran it, on how many workers there were, or on whether the run was resumed.
+which worker ran it, on how many workers there were, on the back end (``local`` or ``ray``,
+:mod:`simtest.backend`) or on whether the run was resumed.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import multiprocessing as mp
 import os
 import platform
 import shutil
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import simtest
+from simtest.backend import Backend, BackendError, RunStats, run_units, thread_share
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
@@ -27,10 +28,13 @@ from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
 from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
 from simtest.rng import child_rng
+from simtest.schema import config_changes
 
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
 MANIFEST = "manifest.json"
+#: Config fields that say where and how fast a run goes, not what it makes: a resume may change them.
+RUN_ONLY_FIELDS = ("workers", "backend", "ray_address")
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +65,7 @@ class GenerateReport:
     frames_written: int
     seconds: float
     scenes: list[SceneReport] = field(default_factory=list)
+    run: RunStats = field(default_factory=RunStats)  # what the back end did (units retried, lost)
 
     @property
     def frames_per_second(self) -> float:
@@ -98,7 +103,8 @@ def _worker_init(cfg_dict: dict) -> None:
     cfg = GenerateConfig.from_dict(cfg_dict)
     # Mesa's llvmpipe renders with one thread per core by default; with several workers that oversubscribes
     # the cores, so each worker gets its share (read when the worker creates its GL context).
-    os.environ.setdefault("LP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(1, cfg.workers))))
+    # On a cluster (ray_address set) every node runs one scene per CPU: one thread each.
+    os.environ.setdefault("LP_NUM_THREADS", str(thread_share(cfg.workers) if cfg.ray_address is None else 1))
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
 
@@ -257,12 +263,9 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
         return
     import json
 
-    old = json.loads(manifest.read_text())["config"]
-    new = cfg.to_dict()
-    old.pop("workers", None)
-    new.pop("workers", None)
-    if old != new:
-        diffs = _diff(old, new)
+    diffs = config_changes(json.loads(manifest.read_text())["config"], cfg.to_dict(), GenerateConfig().to_dict(),
+                           ignore=RUN_ONLY_FIELDS)
+    if diffs:
         raise DatasetError(f"cannot resume into {str(out)!r}: its config differs from this run's at "
                            f"{', '.join(diffs[:8])}; use the same config (or --overwrite)")
 
@@ -282,15 +285,6 @@ def _count_scenes(split_dir: Path) -> str:
     done = len(scene_dirs(split_dir)) if split_dir.is_dir() else 0
     partial = len(list(split_dir.glob(".*.partial"))) if split_dir.is_dir() else 0
     return f"{done} complete and {partial} partial scene folders"
-
-
-def _diff(a, b, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for k in sorted(set(a) | set(b)):
-            out += _diff(a.get(k), b.get(k), f"{prefix}{k}.")
-        return out
-    return [] if a == b else [f"{prefix.rstrip('.')} ({a!r} -> {b!r})"]
 
 
 def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, overwrite: bool = False,
@@ -347,22 +341,60 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         bar = tqdm(total=len(todo) * cfg.frames_per_scene, unit="frame", desc="generate", dynamic_ncols=True,
                    smoothing=0.1, file=sys.stderr)
     try:
-        if cfg.workers <= 1 or len(todo) <= 1:
-            for i in todo:
-                rep = render_scene(cfg, objects, i, split_dir)
-                _account(report, rep, bar)
-        else:
-            ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-            with ctx.Pool(min(cfg.workers, len(todo)), initializer=_worker_init, initargs=(cfg.to_dict(),)) as pool:
-                for rep in pool.imap_unordered(_worker_scene, [(i, str(split_dir)) for i in todo]):
-                    _account(report, rep, bar)
+        _run_scenes(cfg, objects, todo, split_dir, report, bar)
         _write_models(objects, out / "models", split_dir, scenes_done=True)
     finally:
         if bar is not None:
             bar.close()
-    report.seconds = time.perf_counter() - t0
+        report.seconds = time.perf_counter() - t0
+        _record_run(out / MANIFEST, cfg, report)
     report.scenes.sort(key=lambda s: s.scene_id)
     return report
+
+
+def _run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, report: GenerateReport,
+                bar) -> None:
+    """Make the scenes ``todo`` where ``cfg.backend`` says, accounting each in ``report`` as it finishes.
+
+    Raises:
+        BackendError: Scenes lost with their workers more often than the retries allow; it names them and says
+            that ``--resume`` makes them (every other scene is written).
+    """
+    backend = Backend(cfg.backend, cfg.workers, cfg.ray_address)
+    if backend.in_process(len(todo)):
+        def fn(unit: tuple[int, str]) -> SceneReport:  # this process: its objects are loaded already
+            return render_scene(cfg, objects, unit[0], Path(unit[1]))
+    else:
+        fn = _worker_scene
+    units = [(i, str(split_dir.resolve())) for i in todo]  # absolute: a worker's working folder may differ
+    try:
+        for rep in run_units(fn, units, backend, init=_worker_init, init_args=(cfg.to_dict(),), stats=report.run):
+            _account(report, rep, bar)
+    except BackendError as exc:
+        if not report.run.failures:
+            raise
+        lost = sorted(f.unit[0] for f in report.run.failures)
+        raise BackendError(f"{len(lost)} scene(s) of {str(split_dir.parent)!r} were not made, their workers were "
+                           f"lost more than {backend.retries} time(s): scene ids {', '.join(map(str, lost[:20]))}"
+                           f"{' ...' if len(lost) > 20 else ''}; the other scenes are written: run the same command "
+                           f"with --resume to make the missing ones ({report.run.failures[0].message})") from exc
+
+
+def _record_run(manifest: Path, cfg: GenerateConfig, report: GenerateReport) -> None:
+    """Append what this run did (back end, scenes made, units retried and lost, seconds) to the manifest's
+    ``runs`` list (a resumed dataset lists every run that made part of it)."""
+    import json
+
+    if not manifest.is_file():
+        return
+    data = json.loads(manifest.read_text())
+    stats = report.run
+    data.setdefault("runs", []).append({
+        "backend": cfg.backend, "ray_address": cfg.ray_address, "workers": cfg.workers,
+        "scenes_made": report.scenes_done, "scenes_skipped": report.scenes_skipped, "retried": stats.retried,
+        "lost": sorted(f.unit[0] for f in stats.failures), "startup_s": round(stats.startup_s, 3),
+        "cluster_cpus": stats.cluster_cpus, "seconds": round(report.seconds, 3)})
+    atomic_write_json(manifest, data)
 
 
 def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool = False) -> None:

@@ -33,13 +33,14 @@ import pickle
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 from simtest.errors import ConfigError, SimtestError
 
 __all__ = ["BACKENDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
-           "thread_share"]
+           "thread_share", "session"]
 
 #: Back ends :func:`run_units` knows.
 BACKENDS = ("local", "ray")
@@ -179,6 +180,22 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], backend: Backend, 
                            f"{backend.retries} time(s): {lost}; first error: {stats.failures[0].message}")
 
 
+@contextmanager
+def session(backend: Backend, stats: RunStats | None = None) -> Iterator[None]:
+    """Keep one Ray instance up across several :func:`run_units` calls (a job in phases: generate, then
+    corrupt, then evaluate), so it starts once; ``stats.startup_s`` gets its start-up time. A no-op for
+    ``local`` and when Ray is already initialised in this process."""
+    if not backend.is_ray:
+        yield
+        return
+    ray, started = _start_ray(backend, stats if stats is not None else RunStats(backend=backend.name))
+    try:
+        yield
+    finally:
+        if started:
+            ray.shutdown()
+
+
 # --- Ray -------------------------------------------------------------------------------------------------
 #: Initialisers already run in this (worker) process, by key.
 _INITIALISED: set[str] = set()
@@ -221,8 +238,8 @@ def _start_ray(backend: Backend, stats: RunStats):
         if backend.address is not None:
             _check_reachable(backend.address)
         try:
-            if backend.address is None:
-                ray.init(num_cpus=backend.workers, **kwargs)
+            if backend.address is None:  # "local": a new instance, never one found in RAY_ADDRESS or /tmp/ray
+                ray.init(address="local", num_cpus=backend.workers, **kwargs)
             else:
                 ray.init(address=backend.address, **kwargs)
         except Exception as exc:  # ConnectionError, RuntimeError, ValueError: all mean "cannot reach it"

@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 from simtest.errors import ConfigError
 
-__all__ = ["bounds", "pair", "build", "to_plain", "to_toml", "read_config_file"]
+__all__ = ["bounds", "pair", "build", "to_plain", "to_toml", "read_config_file", "config_changes"]
 
 
 def pair(lo_min: float, hi_max: float):
@@ -196,3 +196,36 @@ def _read_utf8(path: Path) -> str:
         line = raw[:exc.start].count(b"\n") + 1
         raise ConfigError(f"config file {str(path)!r} is not UTF-8 text: byte 0x{raw[exc.start]:02x} at line "
                           f"{line}; save it as UTF-8") from None
+
+
+def config_changes(old: dict, new: dict, defaults: dict, ignore: tuple[str, ...] = ()) -> list[str]:
+    """Where a recorded config ``old`` (plain dicts, as written to a manifest) differs from ``new``, as
+    ``"dotted.field (old -> new)"`` strings; empty when a resume may go on.
+
+    A field ``old`` lacks counts as its value in ``defaults`` (output made before the field existed was made as
+    its default says), so a new field left at its default is no change. Top-level fields in ``ignore`` say
+    where or how fast a run goes, not what it makes (``workers``, ``backend``), and are not compared.
+    """
+    old = _with_defaults(old, defaults)
+    old = {k: v for k, v in old.items() if k not in ignore}
+    new = {k: v for k, v in new.items() if k not in ignore}
+    return _diff(old, new)
+
+
+def _with_defaults(old: dict, defaults: dict) -> dict:
+    out = dict(old)
+    for key, value in defaults.items():
+        if key not in out:
+            out[key] = value
+        elif isinstance(value, dict) and isinstance(out[key], dict):
+            out[key] = _with_defaults(out[key], value)
+    return out
+
+
+def _diff(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b)):
+            out += _diff(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [f"{prefix.rstrip('.')} ({a!r} -> {b!r})"]

@@ -8,12 +8,19 @@ or ``grasp`` (closed-loop episodes with the same condition applied to the wrist 
 physical there). Each finished cell writes ``cells/<estimator>/<condition>/<kind>/cell.json`` last; a
 resumed sweep skips every cell that has it.
 
+Where it runs (:mod:`simtest.backend`): the sweep goes in three phases, each a set of units on the chosen back
+end: the clean dataset (``generate``, one unit per scene), the corrupted copies it needs (one unit per
+condition), then the cells (one unit per cell; a cell runs its own evaluation or episodes in its process, with
+one worker). ``workers`` is the number of units run at once (local processes, or the CPUs of a Ray instance
+started here). A cell's numbers do not depend on where it ran: episodes and images are seeded by their index.
+
 This is an orchestration module: it drives :mod:`simtest.generators`, :mod:`simtest.eval` and
 :mod:`simtest.envs` (imported lazily).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -22,12 +29,13 @@ from typing import Any
 
 
 from simtest import cells
+from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, session
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import GT_MASKS_LABEL
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
 from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
 from simtest.metrics.registry import metric_keys
-from simtest.schema import bounds, build, read_config_file, to_plain
+from simtest.schema import bounds, build, config_changes, read_config_file, to_plain
 
 __all__ = ["SweepConfig", "EstimatorEntry", "Condition", "SweepReport", "load_sweep_config", "run_sweep",
            "conditions_of"]
@@ -90,6 +98,8 @@ class SweepConfig:
     seed: int = field(default=0, metadata=bounds(0, 2**63 - 1))
     workers: int = field(default=1, metadata=bounds(1, 64))
     timeout: float = field(default=DEFAULT_TIMEOUT_S, metadata=bounds(0, 86_400))
+    backend: str = field(default="local", metadata=bounds(choices=("local", "ray")))  # where units run
+    ray_address: str | None = None  # with backend "ray": "auto" or HOST:PORT of a running cluster
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "sweep config") -> "SweepConfig":
@@ -137,10 +147,12 @@ class SweepConfig:
         for m in self.metrics:
             if m not in allowed:
                 raise bad("metrics", m, " | ".join(allowed))
+        try:
+            check_backend(self.backend, self.ray_address, self.workers)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
 
     def to_dict(self) -> dict[str, Any]:
-        import dataclasses
-
         return to_plain(dataclasses.asdict(self))
 
 
@@ -215,18 +227,28 @@ class SweepReport:
     cells_skipped: list[str] = field(default_factory=list)
     seconds: float = 0.0
     paths: dict[str, Path] = field(default_factory=dict)
+    run: RunStats = field(default_factory=RunStats)  # what the back end did (units retried, lost)
+
+
+#: Sweep-config fields that say where a sweep runs, not what it computes: a resume may change them.
+RUN_ONLY_FIELDS = ("workers", "backend", "ray_address")
+
+
+def _backend(cfg: SweepConfig) -> Backend:
+    return Backend(cfg.backend, cfg.workers, cfg.ray_address)
 
 
 def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     if cfg.dataset.path is not None:
-        path = Path(cfg.dataset.path)
+        path = Path(cfg.dataset.path).resolve()
         if not (path / cfg.dataset.split).is_dir():
             raise DatasetError(f"sweep dataset {str(path)!r} has no split folder {cfg.dataset.split!r}")
         return path
     from simtest.generators.config import GenerateConfig
     from simtest.generators.pipeline import generate
 
-    gen = GenerateConfig.from_dict({"seed": cfg.seed, **cfg.dataset.generate}, source="[dataset.generate]")
+    run = {"workers": cfg.workers, "backend": cfg.backend, "ray_address": cfg.ray_address}
+    gen = GenerateConfig.from_dict({"seed": cfg.seed, **run, **cfg.dataset.generate}, source="[dataset.generate]")
     path = out / "data" / "clean"
     done = path / "manifest.json"
     if done.exists():
@@ -236,17 +258,38 @@ def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     return path
 
 
-def _condition_dataset(cfg: SweepConfig, clean: Path, cond: Condition, out: Path, progress: bool) -> Path:
-    if cond.factor == "clean":
-        return clean
+def _corrupt_unit(unit: tuple[str, str, Condition, str, int]) -> str:
+    """One corrupted copy of the clean dataset (a unit of work): ``(clean, out, condition, definition, seed)``."""
     from simtest.corrupt import corrupt_dataset
 
-    path = out / "data" / cond.name
-    if (path / "corruption.json").exists():
-        return path
-    corrupt_dataset(clean, path, cond.corruption_spec(cfg.factors.occlusion_definition), seed=cfg.seed,
-                    overwrite=True, progress=progress)
+    clean, path, cond, definition, seed = unit
+    corrupt_dataset(clean, path, cond.corruption_spec(definition), seed=seed, overwrite=True, progress=False)
     return path
+
+
+def _condition_datasets(cfg: SweepConfig, conds: list[Condition], out: Path, stats: RunStats) -> dict[str, Path]:
+    """The dataset of every condition in ``conds`` (``{name: folder}``): the clean one, generated unless given,
+    and the corrupted copies not made yet (one unit each on the sweep's back end)."""
+    clean = _prepare_dataset(cfg, out, progress=False)
+    found = {c.name: clean if c.factor == "clean" else out / "data" / c.name for c in conds}
+    todo = [(str(clean), str(found[c.name]), c, cfg.factors.occlusion_definition, cfg.seed) for c in conds
+            if c.factor != "clean" and not (found[c.name] / "corruption.json").exists()]
+    for _ in run_units(_corrupt_unit, todo, _backend(cfg), stats=stats):
+        pass
+    return found
+
+
+def _cell_unit(unit: tuple[dict, int, Condition, str, str, str | None]) -> str:
+    """One cell (a unit of work): ``(sweep config, estimator index, condition, kind, cell folder, dataset)``;
+    returns its key. The cell runs its episodes or images in this process."""
+    cfg_dict, e, cond, kind, cdir, data = unit
+    cfg = SweepConfig.from_dict(cfg_dict)
+    est = cfg.estimators[e]
+    if kind == "pose":
+        _run_pose_cell(cfg, est, Path(data), Path(cdir))
+    else:
+        _run_grasp_cell(cfg, est, cond, Path(cdir))
+    return f"{est.name}/{cond.name}/{kind}"
 
 
 def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, overwrite: bool = False,
@@ -262,55 +305,69 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
 
     Raises:
         DatasetError: Non-empty ``out_dir`` without ``resume``/``overwrite``, or a resume with another config.
+        BackendError: Cells lost with their workers beyond the retries (``--resume`` computes them).
     """
     from tqdm import tqdm
 
-    out = Path(out_dir)
-    protect = [] if cfg.dataset.path is None else [cfg.dataset.path]
-    if prepare_out_dir(out, overwrite=overwrite, resume=resume, can_resume=True, clear=True, protect=protect,
-                       what="sweep folder"):
-        old = out / "sweep_config.json"
-        if not old.is_file():
-            raise DatasetError(f"cannot resume {str(out)!r}: it has no sweep_config.json (not a sweep folder); "
-                               f"choose another --out or pass --overwrite")
-        if json.loads(old.read_text()) != cfg.to_dict():
-            raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config "
-                               f"(see {old}); use the same config or --overwrite")
+    out = Path(out_dir).resolve()  # absolute: a worker's working folder may differ
+    _check_sweep_folder(cfg, out, resume, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "sweep_config.json", cfg.to_dict())
     t0 = time.perf_counter()
     report = SweepReport(out)
     conds = conditions_of(cfg)
     kinds = ["pose"] + (["grasp"] if cfg.grasp.episodes > 0 else [])
-    grid = [(e, c, k) for c in conds for e in cfg.estimators for k in kinds]
-    bar = tqdm(total=len(grid), unit="cell", desc="sweep", disable=not progress, dynamic_ncols=True)
-    clean = None
+    grid = [(e, c, k) for c in conds for e in range(len(cfg.estimators)) for k in kinds]
+    todo = []
+    for e, cond, kind in grid:
+        cdir = cells.cell_dir(out, cfg.estimators[e].name, cond.name, kind)
+        if cells.is_finished(cdir):
+            report.cells_skipped.append(f"{cfg.estimators[e].name}/{cond.name}/{kind}")
+        else:
+            todo.append((e, cond, kind, cdir))
+    bar = tqdm(total=len(grid), initial=len(report.cells_skipped), unit="cell", desc="sweep",
+               disable=not progress, dynamic_ncols=True)
+    started = RunStats()
     try:
-        for est, cond, kind in grid:
-            key = f"{est.name}/{cond.name}/{kind}"
-            cdir = cells.cell_dir(out, est.name, cond.name, kind)
-            if cells.is_finished(cdir):
-                report.cells_skipped.append(key)
+        with session(_backend(cfg), started):
+            pose_conds = list({c.name: c for _, c, k, _ in todo if k == "pose"}.values())
+            data = _condition_datasets(cfg, pose_conds, out, report.run) if pose_conds else {}
+            units = [(cfg.to_dict(), e, c, k, str(d), str(data[c.name]) if k == "pose" else None)
+                     for e, c, k, d in todo]
+            for key in run_units(_cell_unit, units, _backend(cfg), stats=report.run):
+                report.cells_run.append(key)
                 bar.update(1)
-                continue
-            bar.set_postfix_str(key)
-            if kind == "pose":
-                if clean is None:
-                    clean = _prepare_dataset(cfg, out, progress=False)
-                data = _condition_dataset(cfg, clean, cond, out, progress=False)
-                _run_pose_cell(cfg, est, data, cdir)
-            else:
-                _run_grasp_cell(cfg, est, cond, cdir, conds.index(cond))
-            report.cells_run.append(key)
-            bar.update(1)
+    except BackendError as exc:
+        if not report.run.failures:
+            raise
+        raise BackendError(f"{exc}; the finished cells are kept: run the same command with --resume to compute "
+                           f"the rest") from exc
     finally:
         bar.close()
+        report.run.startup_s = max(report.run.startup_s, started.startup_s)
     from simtest.report import write_report
 
     report.paths = cells.write_tables(out, [e.name for e in cfg.estimators], conds)
     report.paths.update(write_report(cfg, out, conds))
     report.seconds = time.perf_counter() - t0
     return report
+
+
+def _check_sweep_folder(cfg: SweepConfig, out: Path, resume: bool, overwrite: bool) -> None:
+    """The output-folder rule, and on resume: the recorded config must match (where it runs aside)."""
+    protect = [] if cfg.dataset.path is None else [cfg.dataset.path]
+    if not prepare_out_dir(out, overwrite=overwrite, resume=resume, can_resume=True, clear=True, protect=protect,
+                           what="sweep folder"):
+        return
+    old = out / "sweep_config.json"
+    if not old.is_file():
+        raise DatasetError(f"cannot resume {str(out)!r}: it has no sweep_config.json (not a sweep folder); "
+                           f"choose another --out or pass --overwrite")
+    defaults = to_plain(dataclasses.asdict(SweepConfig(estimators=())))
+    diffs = config_changes(json.loads(old.read_text()), cfg.to_dict(), defaults, ignore=RUN_ONLY_FIELDS)
+    if diffs:
+        raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config at "
+                           f"{', '.join(diffs[:8])} (see {old}); use the same config or --overwrite")
 
 
 def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path) -> None:
@@ -327,15 +384,16 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
                              "failures": len(rep.failures)})
 
 
-def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir: Path, cond_index: int) -> None:
+def _run_grasp_cell(cfg: SweepConfig, est: EstimatorEntry, cond: Condition, cdir: Path) -> None:
     from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
 
     t0 = time.perf_counter()
     g = cfg.grasp
+    # one worker: the cell is the unit of work, and the sweep's workers run cells side by side
     run = GraspRunConfig(estimator=est.estimator, estimator_options=dict(est.options), episodes=g.episodes,
                          seed=cfg.seed, objects=g.objects, units=g.units, scale=g.scale,
                          targets=tuple(g.targets), n_distractors=g.n_distractors,
-                         width=g.width, height=g.height, workers=cfg.workers, timeout=cfg.timeout,
+                         width=g.width, height=g.height, workers=1, timeout=cfg.timeout,
                          **cond.grasp_settings())
     rep = run_grasp_episodes(run, cdir, progress=False, overwrite=True)
     cells.finish_cell(cdir, {"kind": "grasp", "estimator": est.name, "summary": jsonable(rep.summary),

@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp|metrics|corruptions|panda|objects``: speed figures measured in the same run (ratios
+"""``simtest bench generate|grasp|metrics|corruptions|panda|objects|backend``: speed figures measured in the same run (ratios
 against raw MuJoCo)."""
 
 from __future__ import annotations
@@ -51,7 +51,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     ob.add_argument("--height", type=int, default=240)
     ob.add_argument("--objects-per-scene", type=int, default=5)
     ob.set_defaults(func=_objects)
+    bk = bsub.add_parser("backend", parents=[common_parser()],
+                         help="generate wall time: local 1 and 2 workers vs Ray 1 and 2 CPUs, Ray start-up")
+    bk.add_argument("--width", type=int, default=640)
+    bk.add_argument("--height", type=int, default=480)
+    bk.add_argument("--scenes", type=int, default=8)
+    bk.add_argument("--frames-per-scene", type=int, default=5)
+    bk.add_argument("--objects", default="builtin")
+    bk.set_defaults(func=_backend)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _backend(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.backend import bench_backend
+
+    res = bench_backend(args.width, args.height, args.scenes, args.frames_per_scene, args.objects)
+    print(res.table())
+    print(res.estimate())
+    return 0
 
 
 def _generate(args: argparse.Namespace) -> int:

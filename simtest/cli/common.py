@@ -8,7 +8,8 @@ import importlib
 import logging
 from collections.abc import Iterator
 
-__all__ = ["common_parser", "add_no_progress_alias", "add_fault_options", "configure_logging", "LazyChoices"]
+__all__ = ["common_parser", "add_no_progress_alias", "add_fault_options", "add_backend_options", "configure_logging",
+           "LazyChoices"]
 
 
 def common_parser() -> argparse.ArgumentParser:
@@ -38,6 +39,21 @@ def add_fault_options(parser: argparse.ArgumentParser, unit: str, over_limit: st
     parser.add_argument("--fail-fast", action="store_true",
                         help=f"stop at the estimator's first failure and print its traceback (exit code 1); "
                              f"without it the run goes on ({goes_on})")
+
+
+def add_backend_options(parser: argparse.ArgumentParser, unit: str) -> None:
+    """``--backend local|ray`` and ``--ray-address ADDR``: where the command's units of work run
+    (:mod:`simtest.backend`). Both default to ``None`` so a config file's values stay in force.
+
+    Args:
+        unit: What one unit of work is (``"scene"``, ``"episode"``, ``"cell"``), for the help text.
+    """
+    parser.add_argument("--backend", choices=["local", "ray"], default=None,
+                        help=f"where the {unit}s run: local (default; --workers processes on this machine) or ray "
+                             f"(Ray tasks, one {unit} each; needs simtest[ray]; see docs/distributed.md)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDR",
+                        help="with --backend ray: join the running cluster at ADDR ('auto' on a cluster node, or "
+                             "HOST:PORT); default: start a local Ray with --workers CPUs")
 
 
 def configure_logging(verbose: int) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import common_parser
+from simtest.cli.common import add_backend_options, common_parser
 from simtest.errors import ConfigError
 
 
@@ -43,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="unlabelled split: only rgb, depth and camera files in the split; the labels go to "
                         "OUT/withheld/SPLIT/ (for evaluation: simtest eval reads them from there)")
     p.add_argument("--workers", type=int, help="worker processes (each owns whole scenes)")
+    add_backend_options(p, "scene")
     p.add_argument("--seed", type=int, help="master seed (default 0)")
     p.add_argument("--out", help="dataset folder (required unless --print-config)")
     p.add_argument("--print-config", action="store_true",
@@ -62,7 +63,8 @@ def config_from_args(args: argparse.Namespace):
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
         "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
         "render.rgb_format": args.rgb_format, "captions": args.captions, "unlabelled": args.unlabelled,
-        "workers": args.workers, "seed": args.seed, "occlusion.level": args.occlusion,
+        "workers": args.workers, "backend": args.backend, "ray_address": args.ray_address, "seed": args.seed,
+        "occlusion.level": args.occlusion,
         "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
     }
@@ -86,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--out DIR is required (the dataset folder)")
     report = generate(cfg, args.out, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet,
                       command_line=sys.argv)
+    if not args.quiet:
+        print(report.run.summary(), file=sys.stderr)
     print(summary_text(report))
     return 0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import LazyChoices, add_fault_options, common_parser
+from simtest.cli.common import LazyChoices, add_backend_options, add_fault_options, common_parser
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -48,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--height", type=int, default=None, help="wrist camera height (default 3/4 of the width)")
     p.add_argument("--seed", type=int, default=0, help="master seed; episode i uses SeedSequence child i")
     p.add_argument("--workers", type=int, default=1, help="worker processes (each owns whole episodes)")
+    add_backend_options(p, "episode")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty --out, replacing its results")
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
@@ -84,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
-        workers=args.workers, video=args.video, video_episodes=args.video_episodes, timeout=args.timeout,
+        workers=args.workers, backend=args.backend or "local", ray_address=args.ray_address, video=args.video,
+        video_episodes=args.video_episodes, timeout=args.timeout,
         fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles)
     try:
         report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
@@ -92,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     except EstimatorError as exc:
         print(f"simtest grasp: estimator failed (--fail-fast): {exc}", file=sys.stderr)
         return 1
+    if not args.quiet:
+        print(report.run.summary(), file=sys.stderr)
     print(report.table())
     print(f"wrote {args.out}/episodes.csv, summary.json, summary.md")
     if report.all_estimator_faults():

@@ -4,8 +4,10 @@ metrics and grasp success, resumable, with tables and a self-contained HTML repo
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import sys
 
-from simtest.cli.common import common_parser
+from simtest.cli.common import add_backend_options, common_parser
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,6 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "sweep without recomputing them.")
     p.add_argument("config", help="sweep config file (.toml or .json)")
     p.add_argument("--out", required=True, help="output folder")
+    add_backend_options(p, "cell")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the sweep in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
@@ -26,7 +29,13 @@ def run(args: argparse.Namespace) -> int:
     from simtest.sweep import load_sweep_config, run_sweep
 
     cfg = load_sweep_config(args.config)
+    where = {k: v for k, v in (("backend", args.backend), ("ray_address", args.ray_address)) if v is not None}
+    if where:
+        cfg = dataclasses.replace(cfg, **where)
+        cfg.validate("command line")
     rep = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)
+    if not args.quiet:
+        print(rep.run.summary(), file=sys.stderr)
     print((rep.out_dir / "tables.md").read_text())
     print(f"cells: {len(rep.cells_run)} computed, {len(rep.cells_skipped)} reused, {rep.seconds:.0f} s")
     for name, path in rep.paths.items():
