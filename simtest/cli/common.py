@@ -56,6 +56,20 @@ def add_backend_options(parser: argparse.ArgumentParser, unit: str) -> None:
                              "HOST:PORT); default: start a local Ray with --workers CPUs")
 
 
+def backend_from_args(args: argparse.Namespace):
+    """The :class:`simtest.backend.Backend` that ``--backend``, ``--ray-address`` and ``--workers`` (1 when the
+    command has none or it is unset) ask for.
+
+    Raises:
+        ConfigError: A bad combination, e.g. ``--ray-address`` without ``--backend ray`` or ``--workers 0``.
+    """
+    from simtest.backend import Backend
+
+    workers = getattr(args, "workers", None)
+    return Backend(getattr(args, "backend", None) or "local", 1 if workers is None else workers,
+                   getattr(args, "ray_address", None))
+
+
 def configure_logging(verbose: int) -> None:
     """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each."""
     logging.basicConfig(format="simtest %(levelname)s %(name)s: %(message)s")
@@ -81,29 +95,3 @@ class LazyChoices:
 
     def __len__(self) -> int:
         return len(self.names())
-
-
-# --- where units of work run (simtest.backend) ---------------------------------------------------------------
-def add_backend_options(parser: argparse.ArgumentParser) -> None:
-    """``--backend {local,ray}`` (default local) and ``--ray-address ADDR``: where the command's units of work
-    run (:mod:`simtest.backend`); the worker count comes from the command's own ``--workers``."""
-    parser.add_argument("--backend", choices=("local", "ray"), default="local",
-                        help="where units of work run: local worker processes (default) or Ray tasks (the ray "
-                             "extra); the output is the same either way")
-    parser.add_argument("--ray-address", metavar="ADDR",
-                        help="with --backend ray: join the cluster at ADDR ('auto', HOST:PORT or "
-                             "ray://HOST:PORT) instead of starting a local Ray instance with --workers CPUs")
-
-
-def backend_from_args(args: argparse.Namespace):
-    """The :class:`simtest.backend.Backend` that ``--backend``, ``--ray-address`` and ``--workers`` (1 when the
-    command has none or it is unset) ask for.
-
-    Raises:
-        ConfigError: A bad combination, e.g. ``--ray-address`` without ``--backend ray`` or ``--workers 0``.
-    """
-    from simtest.backend import Backend
-
-    workers = getattr(args, "workers", None)
-    return Backend(getattr(args, "backend", "local"), 1 if workers is None else workers,
-                   getattr(args, "ray_address", None))

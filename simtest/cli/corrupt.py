@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="with --in: worker processes (or Ray CPUs), each corrupting whole scenes (default 1: "
                         "this process); the output is the same for any N")
-    add_backend_options(p)
+    add_backend_options(p, "scene")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 

@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="worker processes (or Ray CPUs); each loads the estimator once and runs whole scenes "
                         "(default 1: this process); the files are the same for any N but for the measured times")
-    add_backend_options(p)
+    add_backend_options(p, "scene")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
 
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")
-        if args.workers != 1 or args.backend != "local" or args.ray_address:
+        if args.workers != 1 or args.backend not in (None, "local") or args.ray_address:
             raise ConfigError("--workers, --backend and --ray-address apply to --estimator, not to --results")
         report = score_results(args.results, args.data, **common)
     else:
