@@ -46,10 +46,12 @@ For RL clients:
 * :meth:`step` rejects an action that is not 7 finite numbers with a :class:`~simtest.errors.ConfigError`
   (a ``ValueError``) naming the bad entries, before anything changes: the next valid step continues as if the
   bad call had not been made.
-* :meth:`reset` reuses the compiled model and the renderer while the scene structure stays the same (the same
-  object per instance, distractor count, occluder presence; :mod:`simtest.envs.model_cache`); otherwise it
-  frees the old renderer and model before building the new one. The same seed gives the same observations
-  either way.
+* :meth:`reset` reuses one compiled model and its renderer while the object set and image size stay the same:
+  a pool model holding every object of the set twice and the occluder, the objects not in the episode parked
+  asleep out of view and out of collision (:mod:`simtest.envs.model_cache`). Episodes the pool cannot hold
+  (an object three times or more) use a model of their own structure, kept while the structure repeats.
+  Before another model is compiled, the old renderer and model are freed. The same seed gives the same
+  observations either way.
 * GL is made lazily, by the first :meth:`reset`, in the process that renders (never in ``__init__``). GL
   contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
   :class:`~simtest.errors.RenderError` instead of hanging. For ``gymnasium.make_vec(...,
@@ -174,7 +176,7 @@ class PandaGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build and settle a new scene and return the first observation (see the module docstring).
 
-        The compiled model and the renderer are reused while the scene structure stays the same
+        The compiled model and the renderer are reused while the object set and image size stay the same
         (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations either way.
         """
         super().reset(seed=seed)
@@ -231,12 +233,14 @@ class PandaGraspEnv(gym.Env):
     def _model_cache(self, objects_name: str):
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
         from simtest.envs.model_cache import GraspModelCache
+        from simtest.envs.scene import POOL_DISTRACTORS
 
         builder = self._builder(objects_name)
         if self._models is None or self._models.builder is not builder:
             if self._models is not None:
                 self._models.clear()
-            self._models = GraspModelCache(builder, on_release=self._release_model)
+            self._models = GraspModelCache(builder, on_release=self._release_model,
+                                           pool_distractors=POOL_DISTRACTORS)
         return self._models
 
     def _bind_model(self, sim) -> None:
