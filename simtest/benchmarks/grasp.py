@@ -1,12 +1,16 @@
 """``simtest bench grasp``: grasp-env speed as a ratio against raw ``mj_step`` of the same model, same run.
 
 * **Step overhead**: wall time per physics step of :meth:`PandaGraspEnv.step` without image observations
-  (``observe_every_step=False``: differential IK, servo commands, 25 physics steps, kinematics, state
+  (``observe_every_step=False``, so a model of the episode's own objects, not the pool: differential IK, servo commands, 25 physics steps, kinematics, state
   observation and ground-truth ``info``) against ``mujoco.mj_step`` of the same model from the same state with
   the same controls. Target: at most 20 % overhead.
   The wall-clock ratio includes whatever else the machine runs; the env's own work (IK, observation,
   ``info``), timed outside ``mj_step`` in the same loop, is reported too.
 * **Steps with images**: env steps/s when every step renders the wrist RGB-D observation (for reference).
+* **Pool vs per-structure model**: env steps/s, without and with images, of the same episode on the object
+  set's pool model (every object of the set in the model, the unused ones parked asleep) and on a model of the
+  episode's objects only, timed in interleaved rounds (the fastest of each kept); their ratio is what the pool
+  costs in stepping (target: >= 0.95).
 * **Episode wall time**: :func:`simtest.envs.episode.run_episode` with the zero-noise oracle (reset, scene
   build and settling included). Target: at most 10 s per episode.
 * **Resets**: wall time of :meth:`PandaGraspEnv.reset` (scene sampling, model reuse or compilation, settling,
@@ -30,7 +34,7 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
-__all__ = ["GraspBench", "ResetBench", "bench_grasp", "bench_resets", "RSS_CHECKPOINTS"]
+__all__ = ["GraspBench", "ResetBench", "bench_grasp", "bench_resets", "bench_pool_steps", "RSS_CHECKPOINTS"]
 
 #: Resets after which the resident size is recorded (those up to the number of resets run).
 RSS_CHECKPOINTS = (5, 50, 100, 500, 1000, 2000)
@@ -117,6 +121,43 @@ def bench_resets(n_resets: int = 500, n_fixed: int = 50, width: int = 320, heigh
     return out
 
 
+def bench_pool_steps(width: int = 320, height: int = 240, n_steps: int = 40, seed: int = 0,
+                     rounds: int = 7) -> dict[str, tuple[float, float]]:
+    """Env steps/s of one episode on the pool model and on a model of its own objects (see the module
+    docstring): ``{"without images": (pool, own), "with images": (pool, own)}``, control steps/s."""
+    from simtest.envs.grasp_env import PandaGraspEnv
+
+    opts = {"target": "can_0", "n_distractors": 2}
+    envs = []
+    for pool in (True, False):
+        env = PandaGraspEnv(width=width, height=height, model_pool=pool)
+        env.reset(seed=seed, options=opts)
+        envs.append((env, copy.copy(env.data)))
+    actions = np.random.default_rng(seed).uniform(envs[0][0].action_space.low, envs[0][0].action_space.high,
+                                                  (n_steps, 7)).astype(np.float32)
+    actions[:, 3:6] *= 0.3
+
+    def run(env, start, images: bool) -> float:
+        env.observe_every_step = images
+        mujoco.mj_copyData(env.data, env.model, start)
+        env.sync_command()
+        t0 = time.perf_counter()
+        for a in actions:
+            env.step(a)
+        return time.perf_counter() - t0
+
+    out = {}
+    for images in (False, True):
+        best = [float("inf"), float("inf")]
+        for k in range(int(rounds)):
+            for i in ((0, 1) if k % 2 else (1, 0)):
+                best[i] = min(best[i], run(*envs[i], images))
+        out["with images" if images else "without images"] = (n_steps / best[0], n_steps / best[1])
+    for env, _ in envs:
+        env.close()
+    return out
+
+
 @dataclass
 class GraspBench:
     """Results of :func:`bench_grasp` (times in seconds)."""
@@ -131,6 +172,7 @@ class GraspBench:
     episode_success: list[bool] = field(default_factory=list)
     episode_targets: list[str] = field(default_factory=list)
     resets: ResetBench | None = None
+    pool_vs_structure: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def step_overhead(self) -> float:
@@ -155,6 +197,9 @@ class GraspBench:
                 f"{'episode wall s, max':50s} {w.max():12.2f}",
                 f"{'episode successes':50s} {sum(self.episode_success):9d}/{len(w):2d}",
             ]
+        for what, (pool, own) in self.pool_vs_structure.items():
+            lines += [f"{'env.step ' + what + ', pool / own model, steps/s':50s} {pool:5.0f} / {own:5.0f}",
+                      f"{'  ratio pool / own model (target >= 0.95)':50s} {pool / own:12.3f}"]
         if self.resets is not None:
             lines += [f"{name:50s} {value:>12s}" for name, value in self.resets.rows()]
         return "\n".join(lines)
@@ -251,7 +296,8 @@ def bench_grasp(episodes: int = 3, width: int = 320, height: int = 240, n_steps:
     img_rate = k / (time.perf_counter() - t0)
     env.close()
 
-    out = GraspBench(width, height, env_rate, raw_rate, img_rate, outside, resets=reset_bench)
+    out = GraspBench(width, height, env_rate, raw_rate, img_rate, outside, resets=reset_bench,
+                     pool_vs_structure=bench_pool_steps(width, height, seed=seed))
     targets = ["can_0", "box_0", "mug_0", "banana_0", "bottle_1", "drill_0", "cup_0", "bowl_0", "marker_0"]
     ep_env = PandaGraspEnv(width=width, height=height)
     oracle = OracleEstimator()

@@ -112,6 +112,24 @@ def test_resets_reuse_the_model_and_stay_deterministic():
     assert renderer._con is None and tp._con is None  # close() frees the renderers
 
 
+def test_physics_only_envs_keep_one_model_per_structure():
+    """Without images every step the env compiles per structure (parked objects would slow its physics),
+    unless the pool is asked for; a bad ``model_pool`` names the allowed values."""
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False)
+    env.reset(seed=0)
+    env.reset(seed=1, options={"target": "can_0"})
+    models = env.unwrapped._models
+    assert not models.use_pool and models.compiles == 2 and models.reuses == 0
+    env.close()
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False, model_pool=True)
+    env.reset(seed=0)
+    env.reset(seed=1, options={"target": "can_0"})
+    assert env.unwrapped._models.compiles == 1 and env.unwrapped._models.reuses == 1
+    env.close()
+    with pytest.raises(ConfigError, match="model_pool must be True, False or None"):
+        _make(model_pool="yes")
+
+
 def test_memory_stays_bounded_over_resets():
     """Resident memory stays flat over resets (reused and rebuilt models), once every object of the set has
     been loaded: 30 more resets after a 20-reset warm-up add little."""
