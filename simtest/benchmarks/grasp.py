@@ -1,9 +1,10 @@
 """``simtest bench grasp``: grasp-env speed as a ratio against raw ``mj_step`` of the same model, same run.
 
 * **Step overhead**: wall time per physics step of :meth:`PandaGraspEnv.step` without image observations
-  (``observe_every_step=False``, so a model of the episode's own objects, not the pool: differential IK, servo commands, 25 physics steps, kinematics, state
-  observation and ground-truth ``info``) against ``mujoco.mj_step`` of the same model from the same state with
-  the same controls. Target: at most 20 % overhead.
+  (``observe_every_step=False``, so on a model of the episode's own objects, not the pool: differential IK,
+  servo commands, 25 physics steps, kinematics, state observation and ground-truth ``info``) against
+  ``mujoco.mj_step`` of the same model from the same state with the same controls. Target: at most 20 %
+  overhead.
   The wall-clock ratio includes whatever else the machine runs; the env's own work (IK, observation,
   ``info``), timed outside ``mj_step`` in the same loop, is reported too.
 * **Steps with images**: env steps/s when every step renders the wrist RGB-D observation (for reference).
