@@ -1,5 +1,6 @@
 """The grasp scenes' model pool: parked objects are asleep, out of collision and not drawn; scenes on a reused
-pool, on a new pool and on a per-structure model (episodes the pool cannot hold) agree."""
+pool, on a new pool and on a per-structure model (episodes the pool cannot hold) agree; the reset benchmark's
+flag check."""
 
 from __future__ import annotations
 
@@ -91,3 +92,11 @@ def test_reused_pool_new_pool_and_structure_model_agree(builder):
     # The pool is kept: the next episode it holds reuses it.
     _scene(builder, cache, 12, ids[2], n_distractors=1)
     assert cache.compiles == 2 and cache.reuses == 4
+
+
+def test_bench_grasp_rejects_a_negative_reset_count(capsys):
+    from simtest.cli import main
+
+    assert main(["bench", "grasp", "--resets", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "--resets must be >= 0" in err and "-1" in err
