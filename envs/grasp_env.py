@@ -46,10 +46,13 @@ For RL clients:
 * :meth:`step` rejects an action that is not 7 finite numbers with a :class:`~simtest.errors.ConfigError`
   (a ``ValueError``) naming the bad entries, before anything changes: the next valid step continues as if the
   bad call had not been made.
-* :meth:`reset` reuses the compiled model and the renderer while the scene structure stays the same (the same
-  object per instance, distractor count, occluder presence; :mod:`simtest.envs.model_cache`); otherwise it
-  frees the old renderer and model before building the new one. The same seed gives the same observations
-  either way.
+* :meth:`reset` reuses one compiled model and its renderer while the object set and image size stay the same:
+  a pool model holding every object of the set twice and the occluder, the objects not in the episode parked
+  asleep out of view and out of collision (:mod:`simtest.envs.model_cache`). Episodes the pool cannot hold
+  (an object three times or more) use a model of their own structure, kept while the structure repeats.
+  Before another model is compiled, the old renderer and model are freed. The same seed gives the same
+  observations either way. Parked objects cost physics time in every step, so physics-only envs
+  (``observe_every_step=False``) keep one model per structure unless ``model_pool=True``.
 * GL is made lazily, by the first :meth:`reset`, in the process that renders (never in ``__init__``). GL
   contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
   :class:`~simtest.errors.RenderError` instead of hanging. For ``gymnasium.make_vec(...,
@@ -105,6 +108,12 @@ class PandaGraspEnv(gym.Env):
             or ``"panda"`` (:func:`simtest.robot.ik_step`, three iterations; slower).
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
+        model_pool: Reset on one model holding the whole object set (objects not in the episode parked asleep;
+            :mod:`simtest.envs.model_cache`): resets need no compilation and memory stays flat, but the parked
+            objects cost physics time in every ``mj_step`` (about 10-15 % with the 27-object ``builtin`` set;
+            about 1-2 % of a step that renders). ``None`` (default): the pool when ``observe_every_step``, else
+            one model per scene structure (physics-only stepping at full speed; a reset with other objects
+            compiles a new model).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
@@ -114,7 +123,7 @@ class PandaGraspEnv(gym.Env):
                  occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
                  placement: str = "upright", start: str = "home", observe_every_step: bool = True,
                  render_width: int | None = None, render_height: int | None = None, ik: str = "fast",
-                 object_units: str = "auto", object_scale: float = 1.0) -> None:
+                 object_units: str = "auto", object_scale: float = 1.0, model_pool: bool | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         for name, v in (("width", width), ("height", height)):
@@ -130,6 +139,10 @@ class PandaGraspEnv(gym.Env):
         self.render_width = int(render_width or width)
         self.render_height = int(render_height or height)
         self.observe_every_step = bool(observe_every_step)
+        if model_pool is not None and not isinstance(model_pool, bool):
+            raise ConfigError(f"model_pool must be True, False or None (the pool when observe_every_step), "
+                              f"got {model_pool!r}")
+        self.model_pool = self.observe_every_step if model_pool is None else model_pool
         self._defaults = EpisodeConfig.build(EpisodeConfig(), {
             "objects": objects, "target": target, "n_distractors": n_distractors, "occlusion": occlusion,
             "corruption": corruption, "depth_noise": depth_noise, "placement": placement, "start": start})
@@ -174,7 +187,7 @@ class PandaGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build and settle a new scene and return the first observation (see the module docstring).
 
-        The compiled model and the renderer are reused while the scene structure stays the same
+        The compiled model and the renderer are reused while the object set and image size stay the same
         (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations either way.
         """
         super().reset(seed=seed)
@@ -231,12 +244,14 @@ class PandaGraspEnv(gym.Env):
     def _model_cache(self, objects_name: str):
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
         from simtest.envs.model_cache import GraspModelCache
+        from simtest.envs.scene import POOL_DISTRACTORS
 
         builder = self._builder(objects_name)
         if self._models is None or self._models.builder is not builder:
             if self._models is not None:
                 self._models.clear()
-            self._models = GraspModelCache(builder, on_release=self._release_model)
+            self._models = GraspModelCache(builder, on_release=self._release_model,
+                                           pool_distractors=POOL_DISTRACTORS, pool=self.model_pool)
         return self._models
 
     def _bind_model(self, sim) -> None:

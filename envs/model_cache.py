@@ -1,4 +1,4 @@
-"""Reuse of compiled grasp-scene models across episodes of the same structure.
+"""Reuse of compiled grasp-scene models across episodes.
 
 Compiling a scene (``MjSpec.compile``) and making its GL resources dominate a reset, and every new model
 leaves allocator-held memory behind. Episodes whose scenes have the same *structure* (the same objects per
@@ -21,6 +21,20 @@ When the structure changes, the old template is released first (the ``on_release
 renderers that use it), then freed heap is returned to the operating system (:func:`trim_heap`, once the
 resident size has grown by :data:`TRIM_SLACK_MB`) before the new model is compiled.
 Only the last structure is kept.
+
+**One model for the whole object set.** With random targets and distractors drawn from a set, nearly every
+episode has another structure. So the cache first tries a **pool** (:class:`ModelPool`): one model holding every
+object of the set :data:`POOL_COPIES` times, plus the scene's distractor primitives (the grasp scene's occluder
+box). An episode takes, for each of its instances, the next copy of that object; the rest are **parked**: far
+above the room, out of collision (``contype``/``conaffinity`` 0, per geom and per body), out of the drawn groups
+(group :data:`PARKED_GROUP`) and asleep (MuJoCo's sleeping islands, ``mjENBL_SLEEP``: their trees get the
+``mjSLEEP_INIT`` policy, so :func:`mujoco.mj_resetData` puts them to sleep where they are, and a sleeping tree
+costs no kinematics, dynamics or collision work in ``mj_step``). The episode's instances and the occluder get
+``mjSLEEP_NEVER`` and the actuated arm never sleeps, so nothing in play is ever frozen. The pool depends only on
+the object set, the image size and the room, so the same seed gives the same scene on a reused pool and on a
+newly compiled one. Episodes the pool cannot hold (an object more than :data:`POOL_COPIES` times, other
+distractors) and object sets too large for a pool (more than :data:`POOL_MAX_INSTANCES` pool instances) use the
+per-structure model above.
 """
 
 from __future__ import annotations
@@ -38,10 +52,10 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.generators.builder import SceneBuilder, SimScene
-from simtest.generators.scene_spec import LightSpec, SceneSpec, SurfaceSpec
+from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
 
-__all__ = ["GraspModelCache", "structure_key", "apply_spec", "snapshot_model", "restore_model", "trim_heap",
-           "resident_mb", "TRIM_SLACK_MB"]
+__all__ = ["GraspModelCache", "ModelPool", "structure_key", "apply_spec", "snapshot_model", "restore_model",
+           "trim_heap", "resident_mb", "TRIM_SLACK_MB", "POOL_COPIES", "POOL_MAX_INSTANCES", "PARKED_GROUP"]
 
 _WHITE = (1.0, 1.0, 1.0)
 _GREY = (0.5, 0.5, 0.5, 1.0)
@@ -117,18 +131,28 @@ def apply_spec(template: SimScene, pristine: dict[str, np.ndarray], spec: SceneS
     """The scene of ``spec`` on the template's model and data (same structure): model arrays restored from
     ``pristine`` (:func:`snapshot_model`), data reset, then the episode's poses, colours and lights written; the
     arm at home."""
+    restore_model(template.model, pristine)
+    scene = dataclasses.replace(template, spec=spec, active=[True] * len(spec.objects))
+    _write_episode(scene, spec, [f"obj_{i}_mat" for i in range(len(spec.objects))])
+    return scene
+
+
+def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str]) -> None:
+    """Write the episode's values into the scene's model (instance colours: instance i has material
+    ``materials[i]``; distractor colours, lights, ambient light, table colour), reset its data, then put the
+    instances and distractors at their poses and the arm at home (``mj_forward`` run).
+
+    The model is written before the reset: with sleeping enabled (pool models), the poses of static bodies'
+    lights are computed by :func:`mujoco.mj_resetData`, not by ``mj_forward``.
+    """
     from simtest.robot import reset_arm
 
-    m, d = template.model, template.data
-    restore_model(m, pristine)
-    mujoco.mj_resetData(m, d)
+    m, d = scene.model, scene.data
     for i, p in enumerate(spec.objects):
-        _set_free_pose(m, d, template.instance_bodies[i], p.position, p.quat_wxyz)
-        mat = _id(m, mujoco.mjtObj.mjOBJ_MATERIAL, f"obj_{i}_mat")
+        mat = _id(m, mujoco.mjtObj.mjOBJ_MATERIAL, materials[i])
         m.mat_rgba[mat] = p.rgba
         m.mat_specular[mat], m.mat_shininess[mat], m.mat_reflectance[mat] = p.specular, p.shininess, p.reflectance
     for j, dis in enumerate(spec.distractors):
-        _set_free_pose(m, d, _id(m, mujoco.mjtObj.mjOBJ_BODY, f"distractor_{j}"), dis.position, dis.quat_wxyz)
         m.geom_rgba[_id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")] = dis.rgba
     for k, light in enumerate(spec.lights):
         lid = _id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"light_{k}")
@@ -137,58 +161,231 @@ def apply_spec(template: SimScene, pristine: dict[str, np.ndarray], spec: SceneS
     m.vis.headlight.ambient[:] = [spec.ambient] * 3
     if _flat(spec.table):
         m.mat_rgba[_id(m, mujoco.mjtObj.mjOBJ_MATERIAL, "table_mat")] = (*spec.table.rgb1, 1.0)
-    if template.panda is not None:
-        reset_arm(m, d, template.panda)  # also runs mj_forward
+    mujoco.mj_resetData(m, d)
+    for i, p in enumerate(spec.objects):
+        _set_free_pose(m, d, scene.instance_bodies[i], p.position, p.quat_wxyz)
+    for j, dis in enumerate(spec.distractors):
+        _set_free_pose(m, d, _id(m, mujoco.mjtObj.mjOBJ_BODY, f"distractor_{j}"), dis.position, dis.quat_wxyz)
+    if scene.panda is not None:
+        reset_arm(m, d, scene.panda)  # also runs mj_forward
     else:
         mujoco.mj_forward(m, d)
-    return dataclasses.replace(template, spec=spec, active=[True] * len(spec.objects))
+
+
+#: Copies of every object in a pool model: episodes with an object more often fall back to a model of their own.
+#: Two copies hold every episode with up to two distractors (and nearly all with more).
+POOL_COPIES = 2
+#: Largest pool (object instances: set size times :data:`POOL_COPIES`); larger sets use per-structure models.
+POOL_MAX_INSTANCES = 128
+#: Geom group of parked pool geoms: not among the drawn groups (:data:`simtest.generators.builder.DRAWN_GROUPS`).
+PARKED_GROUP = 5
+#: Where pool instances are parked: a grid of spots (m) at this height, far beyond every camera's far plane.
+_PARK_HEIGHT, _PARK_SPACING = 40.0, 3.0
+
+
+def _park_spot(k: int) -> tuple[float, float, float]:
+    """The k-th parking spot of a pool model (metres, world): a 10-wide grid in the sky, 3 m apart."""
+    return (_PARK_SPACING * (k % 10 - 5), _PARK_SPACING * (k // 10 - 5), _PARK_HEIGHT)
+
+
+def _body_geoms(model: mujoco.MjModel, body: int) -> slice:
+    adr = int(model.body_geomadr[body])
+    return slice(adr, adr + int(model.body_geomnum[body]))
+
+
+@dataclasses.dataclass
+class ModelPool:
+    """A compiled model with every object of a set :data:`POOL_COPIES` times (see the module docstring).
+
+    Attributes:
+        template: The pool scene (all instances parked; its ``spec`` lists them in pool order).
+        pristine: :func:`snapshot_model` of the model with everything parked.
+        slots: obj_id -> the pool instance indices of its copies.
+        distractors: (shape, size) of the pool's distractor primitives, in body order.
+        distractor_bodies: Their body ids.
+        key: :func:`structure_key` parts that are not objects or distractors (lights, room).
+        live: Model values of the geoms and bodies of an instance in play (contact types, draw groups).
+    """
+
+    template: SimScene
+    pristine: dict[str, np.ndarray]
+    slots: dict[int, list[int]]
+    distractors: tuple
+    distractor_bodies: list[int]
+    key: tuple
+    live: dict[str, np.ndarray]
+
+    @classmethod
+    def compile(cls, builder: SceneBuilder, spec: SceneSpec, distractors: tuple) -> "ModelPool":
+        """The pool of ``builder``'s object set for scenes like ``spec`` (its lights and room), with the
+        distractor primitives ``distractors`` ((shape, size) pairs)."""
+        ids = [int(i) for i in builder.objects.ids]
+        objects = tuple(ObjectPlacement(obj_id=oid, position=_park_spot(c * len(ids) + k), quat_wxyz=(1.0, 0, 0, 0),
+                                        rgba=_GREY, specular=0.5, shininess=0.5, reflectance=0.0)
+                        for c in range(POOL_COPIES) for k, oid in enumerate(ids))
+        n = len(objects)
+        dis = tuple(DistractorSpec(shape, tuple(size), _park_spot(n + j), (1.0, 0, 0, 0), _GREY)
+                    for j, (shape, size) in enumerate(distractors))
+        template = builder.build(dataclasses.replace(_canonical_spec(spec), objects=objects, distractors=dis))
+        m = template.model
+        m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)  # before MjData: it initialises sleep
+        template = dataclasses.replace(template, data=mujoco.MjData(m))
+        live = {n_: getattr(m, n_).copy() for n_ in ("geom_contype", "geom_conaffinity", "geom_group",
+                                                   "body_contype", "body_conaffinity", "body_gravcomp")}
+        dbodies = [_id(m, mujoco.mjtObj.mjOBJ_BODY, f"distractor_{j}") for j in range(len(dis))]
+        for b in list(template.instance_bodies) + dbodies:
+            _park(m, b)
+        slots: dict[int, list[int]] = {}
+        for i, oid in enumerate(template.instance_obj_ids):
+            slots.setdefault(int(oid), []).append(i)
+        return cls(template, snapshot_model(m), slots, tuple(distractors), dbodies, _room_key(spec), live)
+
+    def fits(self, spec: SceneSpec) -> bool:
+        """Whether the pool holds ``spec``: its room and lights, no object more often than the pool has it,
+        and either no distractors or exactly the pool's."""
+        if _room_key(spec) != self.key:
+            return False
+        if spec.distractors and _distractor_key(spec) != self.distractors:
+            return False
+        counts: dict[int, int] = {}
+        for p in spec.objects:
+            counts[int(p.obj_id)] = counts.get(int(p.obj_id), 0) + 1
+        return all(c <= len(self.slots.get(oid, ())) for oid, c in counts.items())
+
+    def scene(self, spec: SceneSpec) -> SimScene:
+        """The scene of ``spec`` (which :meth:`fits`) on the pool's model and data."""
+        m, t = self.template.model, self.template
+        taken: dict[int, int] = {}
+        pool_index = []
+        for p in spec.objects:
+            oid = int(p.obj_id)
+            pool_index.append(self.slots[oid][taken.get(oid, 0)])
+            taken[oid] = taken.get(oid, 0) + 1
+        bodies = [t.instance_bodies[k] for k in pool_index]
+        restore_model(m, self.pristine)
+        for b in bodies + (self.distractor_bodies if spec.distractors else []):
+            _unpark(m, b, self.live)
+        geom_instance = np.full(m.ngeom, -1, dtype=np.int32)
+        for i, b in enumerate(bodies):
+            geom_instance[_body_geoms(m, b)] = i
+        scene = dataclasses.replace(
+            t, spec=spec, instance_obj_ids=[int(p.obj_id) for p in spec.objects], instance_bodies=bodies,
+            instance_qpos=[t.instance_qpos[k] for k in pool_index],
+            instance_dofs=[t.instance_dofs[k] for k in pool_index],
+            geom_instance=geom_instance, active=[True] * len(spec.objects))
+        _write_episode(scene, spec, [f"obj_{k}_mat" for k in pool_index])
+        return scene
+
+
+def _room_key(spec: SceneSpec) -> tuple:
+    """The parts of :func:`structure_key` other than objects and distractors (lights and room)."""
+    return structure_key(spec)[2:]
+
+
+def _distractor_key(spec: SceneSpec) -> tuple:
+    return structure_key(spec)[1]
+
+
+def _park(model: mujoco.MjModel, body: int) -> None:
+    """Take a free body out of play: no contacts, not drawn, floating, asleep from :func:`mujoco.mj_resetData`
+    on (its tree's policy ``mjSLEEP_INIT``)."""
+    g = _body_geoms(model, body)
+    model.geom_contype[g] = model.geom_conaffinity[g] = 0
+    model.geom_group[g] = PARKED_GROUP
+    model.body_contype[body] = model.body_conaffinity[body] = 0
+    model.body_gravcomp[body] = 1.0
+    model.tree_sleep_policy[model.body_treeid[body]] = int(mujoco.mjtSleepPolicy.mjSLEEP_INIT)
+
+
+def _unpark(model: mujoco.MjModel, body: int, live: dict[str, np.ndarray]) -> None:
+    """Put a parked body back in play with its compiled contact types, groups and gravity; never asleep."""
+    g = _body_geoms(model, body)
+    for name in ("geom_contype", "geom_conaffinity", "geom_group"):
+        getattr(model, name)[g] = live[name][g]
+    for name in ("body_contype", "body_conaffinity", "body_gravcomp"):
+        getattr(model, name)[body] = live[name][body]
+    model.tree_sleep_policy[model.body_treeid[body]] = int(mujoco.mjtSleepPolicy.mjSLEEP_NEVER)
 
 
 class GraspModelCache:
-    """The compiled model of the last grasp-scene structure, reused while the structure stays the same.
+    """Compiled grasp-scene models kept across episodes: the object set's pool (:class:`ModelPool`), and the
+    model of the last structure for episodes the pool cannot hold (see the module docstring).
 
     Args:
         builder: The scene builder (object set and config) the models are compiled with.
         on_release: Called before a cached model is dropped (to close renderers and drop references to it).
+        pool_distractors: (shape, size) of the distractor primitives the pool holds (each episode has all of
+            them or none); episodes with other distractors use per-structure models.
+        pool: Use a pool model when the object set is small enough (at most :data:`POOL_MAX_INSTANCES` pool
+            instances); False keeps only per-structure models.
 
     Attributes:
-        compiles: Models compiled so far; ``reuses``: scenes built on a cached model.
+        compiles: Models compiled so far; ``reuses``: scenes built on a kept model; ``pool_misses``: scenes the
+            pool could not hold.
     """
 
-    def __init__(self, builder: SceneBuilder, on_release: Callable[[], None] | None = None) -> None:
+    def __init__(self, builder: SceneBuilder, on_release: Callable[[], None] | None = None,
+                 pool_distractors: tuple = (), pool: bool = True) -> None:
         self.builder = builder
         self.on_release = on_release
+        self.pool_distractors = tuple((str(shape), tuple(float(v) for v in size)) for shape, size in pool_distractors)
+        self.use_pool = bool(pool) and len(builder.objects) * POOL_COPIES <= POOL_MAX_INSTANCES
         self.compiles = 0
         self.reuses = 0
+        self.pool_misses = 0
+        self._pool: ModelPool | None = None
         self._key: tuple | None = None
         self._template: SimScene | None = None
         self._pristine: dict[str, np.ndarray] | None = None
 
     def matches(self, spec: SceneSpec) -> bool:
-        """Whether ``spec`` has the cached structure (its scene reuses the compiled model)."""
+        """Whether the scene of ``spec`` reuses a compiled model (the pool's or the last structure's)."""
+        if self._pool is not None and self._pool.fits(spec):
+            return True
         return self._template is not None and structure_key(spec) == self._key
 
     def build(self, spec: SceneSpec) -> SimScene:
-        """The scene of ``spec``: on the cached model when the structure matches, else on a new one."""
+        """The scene of ``spec``: on the pool when it holds ``spec``, else on the model of its structure (the
+        cached one when the structure matches, else a new one)."""
+        if self.use_pool:
+            if self._pool is not None and self._pool.fits(spec):
+                self.reuses += 1
+                return self._pool.scene(spec)
+            if self._pool is None or self._pool.key != _room_key(spec):
+                self.clear()
+                self._pool = ModelPool.compile(self.builder, spec, self.pool_distractors)
+                self.compiles += 1
+                if self._pool.fits(spec):
+                    return self._pool.scene(spec)
+            self.pool_misses += 1
         if self.matches(spec):
             self.reuses += 1
         else:
-            self.clear()
+            self._drop_structure()
             template = self.builder.build(_canonical_spec(spec))
             self._pristine = snapshot_model(template.model)
             self._template, self._key = template, structure_key(spec)
             self.compiles += 1
         return apply_spec(self._template, self._pristine, spec)
 
-    def clear(self) -> None:
-        """Drop the cached model (after ``on_release``) and return freed heap to the operating system (once the
-        resident size has grown by :data:`TRIM_SLACK_MB`, see :func:`trim_heap`)."""
+    def _drop_structure(self) -> None:
+        """Drop the per-structure model (after ``on_release``), trimming the heap (see :meth:`clear`)."""
         if self._template is None:
             return
         if self.on_release is not None:
             self.on_release()
         self._template = self._pristine = self._key = None
         trim_heap(TRIM_SLACK_MB)
+
+    def clear(self) -> None:
+        """Drop the cached models (after ``on_release``) and return freed heap to the operating system (once the
+        resident size has grown by :data:`TRIM_SLACK_MB`, see :func:`trim_heap`)."""
+        if self._pool is not None:
+            if self.on_release is not None:
+                self.on_release()
+            self._pool = None
+            trim_heap(TRIM_SLACK_MB)
+        self._drop_structure()
 
 
 #: :meth:`GraspModelCache.clear` returns freed heap to the OS once the resident size exceeds its size before the

@@ -52,6 +52,8 @@ __all__ = [
     "observation_directions",
     "tune_occluder",
     "scene_config",
+    "OCCLUDER_HALF_SIZE",
+    "POOL_DISTRACTORS",
 ]
 
 #: Where the target is placed: (x_min, x_max), (y_min, y_max) in the world, metres (0.38-0.62 m in front of
@@ -66,6 +68,12 @@ OBSERVATION_AZIMUTH = np.deg2rad(60.0)
 #: Occluder box thickness along the line of sight (m) and its gap to the target's footprint (m).
 OCCLUDER_THICKNESS = 0.03
 OCCLUDER_GAP = 0.025
+#: Half extents (m) of the occluder box as sampled, before :func:`tune_occluder` resizes it (this size sets
+#: its mass).
+OCCLUDER_HALF_SIZE = (OCCLUDER_THICKNESS / 2, 0.04, 0.025)
+#: The distractor primitives of grasp scenes, as (shape, half sizes): the occluder box (the model pool of
+#: :class:`simtest.envs.model_cache.GraspModelCache` holds it).
+POOL_DISTRACTORS = (("box", OCCLUDER_HALF_SIZE),)
 #: Placement of the occluder before it is tuned: a corner of the table, out of the way (x, y in metres).
 _OCCLUDER_PARK_XY = (0.33, 0.24)
 
@@ -247,8 +255,9 @@ def build_grasp_scene(
         placement: ``"upright"`` (model z up if stable, see :func:`rest_rotation`; random yaw) or ``"random"``
             (random orientation, dropped).
         scene_index: Recorded in the spec (model name).
-        models: A :class:`GraspModelCache` of ``builder`` to reuse the compiled model of the previous scene when
-            the structure is the same; None compiles a new model.
+        models: A :class:`GraspModelCache` of ``builder`` to reuse a compiled model (the object set's pool, or
+            the previous scene's model when the structure is the same); None compiles a new model. Pass it
+            ``pool_distractors=POOL_DISTRACTORS`` so episodes with an occluder use the pool too.
 
     Raises:
         ConfigError: On a bad ``placement`` or ``n_distractors``, or when the target falls off the table.
@@ -344,9 +353,8 @@ def sample_grasp_spec(
     distractors = []
     if occlusion > 0:
         colour = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.3, 0.7), rng.uniform(0.4, 0.8))
-        h = 0.05
         distractors.append(DistractorSpec(
-            "box", (OCCLUDER_THICKNESS / 2, 0.04, h / 2), (*_OCCLUDER_PARK_XY, table_z + h / 2 + 0.001),
+            "box", OCCLUDER_HALF_SIZE, (*_OCCLUDER_PARK_XY, table_z + OCCLUDER_HALF_SIZE[2] + 0.001),
             (1.0, 0.0, 0.0, 0.0), (*(float(c) for c in colour), 1.0)))
 
     lights = (

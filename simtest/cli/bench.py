@@ -25,8 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--pbr-spp", type=int, default=16, help="samples per pixel of the pbr profile (--profiles)")
     g.set_defaults(func=_generate)
     gr = bsub.add_parser("grasp", parents=[common_parser()],
-                         help="grasp env steps/s vs raw mj_step; wall time per oracle episode")
+                         help="grasp env steps/s vs raw mj_step; oracle episode wall time; reset ms and RSS")
     gr.add_argument("--episodes", type=int, default=3)
+    gr.add_argument("--resets", type=int, default=500,
+                    help="random-target resets timed, RSS recorded after 5/50/100/500 (default 500; 0 skips)")
+    gr.add_argument("--width", type=int, default=320)
+    gr.add_argument("--height", type=int, default=240)
     gr.set_defaults(func=_grasp)
     m = bsub.add_parser("metrics", parents=[common_parser()],
                         help="milliseconds per call of each pose metric on a fixed synthetic model")
@@ -104,8 +108,11 @@ def _profiles(args: argparse.Namespace) -> int:
 
 def _grasp(args: argparse.Namespace) -> int:
     from simtest.benchmarks.grasp import bench_grasp
+    from simtest.errors import ConfigError
 
-    print(bench_grasp(episodes=args.episodes).table())
+    if args.resets < 0:
+        raise ConfigError(f"--resets must be >= 0 (0 skips the reset benchmark), got {args.resets}")
+    print(bench_grasp(episodes=args.episodes, width=args.width, height=args.height, resets=args.resets).table())
     return 0
 
 

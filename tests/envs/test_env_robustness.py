@@ -69,34 +69,65 @@ def test_bad_action_is_rejected_and_changes_nothing():
 
 
 def test_resets_reuse_the_model_and_stay_deterministic():
-    """The same seed gives identical observations on a fresh env and on one whose model is reused."""
-    env = _make(render_mode="rgb_array", render_width=80, render_height=60)
+    """One model (the object set's pool) serves every episode of an object set: other targets, distractors,
+    with and without the occluder. The same seed gives identical observations and steps on a fresh env."""
+    env = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
+                target=None, n_distractors=2)
     u = env.unwrapped
     env.reset(seed=1, options={"occlusion": "L1"})
     env.step(np.zeros(7, np.float32))
     env.render()
     model, renderer, tp = u.model, u._renderer, u._tp_renderer
-    reused, info_reused = env.reset(seed=2, options={"occlusion": "L1"})  # same structure: reused
+    reused, info_reused = env.reset(seed=2, options={"occlusion": "L1"})
     assert u.model is model and u._renderer is renderer and renderer._con is not None
     env.render()
     assert u._tp_renderer is tp
-    env.reset(seed=3)  # no occluder: another structure, a new model; the old renderers are freed
-    assert u.model is not model and renderer._con is None and tp._con is None
-    again, _ = env.reset(seed=4)
-    assert u._models.compiles == 2 and u._models.reuses == 2
+    targets = {info_reused["target_name"]}
+    for seed in range(3, 9):  # random targets and distractors, no occluder: still the same model
+        _, info = env.reset(seed=seed)
+        targets.add(info["target_name"])
+    assert len(targets) > 1 and u.model is model and renderer._con is not None
+    again, info_again = env.reset(seed=9)
+    assert u._models.compiles == 1 and u._models.reuses == 8 and u._models.pool_misses == 0
 
-    fresh = _make(render_mode="rgb_array", render_width=80, render_height=60)
+    fresh = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
+                  target=None, n_distractors=2)
     obs, info = fresh.reset(seed=2, options={"occlusion": "L1"})
     _assert_same(obs, reused)
     assert info["occlusion"] == info_reused["occlusion"]
     np.testing.assert_array_equal(info["T_world_obj"], info_reused["T_world_obj"])
-    obs, _ = fresh.reset(seed=4)  # a rebuilt model (the structure changed) gives the same scene too
+    obs, info = fresh.reset(seed=9)
     _assert_same(obs, again)
-    for _ in range(2):
-        _assert_same(env.step(np.full(7, 0.01, np.float32))[0], fresh.step(np.full(7, 0.01, np.float32))[0])
+    assert info["obj_ids"] == info_again["obj_ids"]
+    np.testing.assert_array_equal(fresh.render(), env.render())
+    for _ in range(3):
+        oa, ra, ta, _, ia = env.step(np.full(7, 0.01, np.float32))
+        ob, rb, tb, _, ib = fresh.step(np.full(7, 0.01, np.float32))
+        _assert_same(oa, ob)
+        assert (ra, ta, ia["is_grasped"]) == (rb, tb, ib["is_grasped"])
+        np.testing.assert_array_equal(ia["T_world_obj"], ib["T_world_obj"])
     np.testing.assert_array_equal(u.data.qpos, fresh.unwrapped.data.qpos)
     env.close()
     fresh.close()
+    assert renderer._con is None and tp._con is None  # close() frees the renderers
+
+
+def test_physics_only_envs_keep_one_model_per_structure():
+    """Without images every step the env compiles per structure (parked objects would slow its physics),
+    unless the pool is asked for; a bad ``model_pool`` names the allowed values."""
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False)
+    env.reset(seed=0)
+    env.reset(seed=1, options={"target": "can_0"})
+    models = env.unwrapped._models
+    assert not models.use_pool and models.compiles == 2 and models.reuses == 0
+    env.close()
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False, model_pool=True)
+    env.reset(seed=0)
+    env.reset(seed=1, options={"target": "can_0"})
+    assert env.unwrapped._models.compiles == 1 and env.unwrapped._models.reuses == 1
+    env.close()
+    with pytest.raises(ConfigError, match="model_pool must be True, False or None"):
+        _make(model_pool="yes")
 
 
 def test_memory_stays_bounded_over_resets():
