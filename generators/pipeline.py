@@ -94,10 +94,10 @@ _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
+    from simtest.gl import apply_thread_budget
+
     cfg = GenerateConfig.from_dict(cfg_dict)
-    # Mesa's llvmpipe renders with one thread per core by default; with several workers that oversubscribes
-    # the cores, so each worker gets its share (read when the worker creates its GL context).
-    os.environ.setdefault("LP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // max(1, cfg.workers))))
+    apply_thread_budget(cfg.workers)  # each worker its share of the cores (llvmpipe, OpenCV), before any render
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
 
@@ -153,6 +153,7 @@ def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndar
 def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -> SceneReport:
     """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole)."""
     from simtest.generators.annotate import annotate
+    from simtest.gl import thread_budget
     from simtest.render import Renderer
 
     t0 = time.perf_counter()
@@ -160,7 +161,8 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
-                         coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids)
+                         coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
+                         threads=thread_budget(cfg.workers).writers)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
     pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)

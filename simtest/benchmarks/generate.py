@@ -3,13 +3,16 @@
 ``bench_generate``: frames/s of the whole ``generate`` pipeline (sampling, building, settling, rendering,
 annotation, image and JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
 segmentation: three ``render()`` calls per frame, MuJoCo's own API for them) for the same settled scenes and
-camera poses; and 1 vs 2 workers. With 2 workers, throughput is frames over the busy time of the slower worker
-(worker start-up, about 1.5 s of imports and object loading per process, is reported separately).
+camera poses; the CPU time per annotated frame (the process and its worker processes, all threads); and 1 vs 2
+workers. With 2 workers, throughput is given both as frames over the busy time of the slower worker and as frames
+over the wall time including worker start-up (about 1.5 s of imports and object loading per process), each also as
+a fraction of the ideal ``cores / (CPU seconds per frame of one worker)``.
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import tempfile
 import time
 from dataclasses import dataclass
@@ -21,6 +24,8 @@ __all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench"]
 
 @dataclass
 class GenerateBench:
+    """One run of :func:`bench_generate` (frames/s, CPU milliseconds per frame)."""
+
     width: int
     height: int
     objects_per_scene: int
@@ -30,6 +35,9 @@ class GenerateBench:
     raw_fps: float
     pipeline_fps_2workers: float | None
     pipeline_fps_2workers_wall: float | None = None
+    cpu_ms_per_frame: float = 0.0
+    cpu_ms_per_frame_2workers: float | None = None
+    cores: int = 1
 
     @property
     def ratio(self) -> float:
@@ -39,22 +47,46 @@ class GenerateBench:
     def speedup_2workers(self) -> float | None:
         return None if self.pipeline_fps_2workers is None else self.pipeline_fps_2workers / self.pipeline_fps
 
+    @property
+    def ideal_fps(self) -> float:
+        """``cores / (CPU seconds per frame of one worker)``: frames/s if every core did pipeline work."""
+        return self.cores / (self.cpu_ms_per_frame / 1000.0) if self.cpu_ms_per_frame > 0 else 0.0
+
+    def efficiency_2workers(self, wall: bool = False) -> float | None:
+        """2-worker frames/s (busy time, or wall time with ``wall``) over :attr:`ideal_fps`."""
+        fps = self.pipeline_fps_2workers_wall if wall else self.pipeline_fps_2workers
+        return None if fps is None or not self.ideal_fps else fps / self.ideal_fps
+
     def table(self) -> str:
         rows = [
             "| measurement | value |", "|---|---|",
             f"| image size | {self.width}x{self.height} |",
             f"| objects per scene | {self.objects_per_scene} (+ distractors 0-2) |",
-            f"| scenes x frames | {self.scenes} x {self.frames_per_scene} |",
+            f"| scenes x views per scene | {self.scenes} x {self.frames_per_scene} |",
             f"| raw MuJoCo render (rgb + depth + seg), frames/s | {self.raw_fps:.2f} |",
             f"| full pipeline, 1 worker, annotated frames/s | {self.pipeline_fps:.2f} |",
             f"| pipeline / raw | {self.ratio:.2f} |",
+            f"| CPU ms per annotated frame, 1 worker (all threads) | {self.cpu_ms_per_frame:.1f} |",
+            f"| cores; ideal frames/s = cores / CPU s per frame | {self.cores}; {self.ideal_fps:.2f} |",
         ]
         if self.pipeline_fps_2workers is not None:
-            rows.append(f"| full pipeline, 2 workers, frames/s (busy time of the slower worker) | "
-                        f"{self.pipeline_fps_2workers:.2f} |")
-            rows.append(f"| 2 workers / 1 worker | {self.speedup_2workers:.2f} |")
-            rows.append(f"| 2 workers, frames/s including worker start-up | {self.pipeline_fps_2workers_wall:.2f} |")
+            rows += [
+                f"| full pipeline, 2 workers, frames/s (busy time of the slower worker) | "
+                f"{self.pipeline_fps_2workers:.2f} |",
+                f"| 2 workers / 1 worker | {self.speedup_2workers:.2f} |",
+                f"| 2 workers (busy) / ideal | {self.efficiency_2workers():.2f} |",
+                f"| 2 workers, frames/s including worker start-up | {self.pipeline_fps_2workers_wall:.2f} |",
+                f"| 2 workers (with start-up) / ideal | {self.efficiency_2workers(wall=True):.2f} |",
+                f"| CPU ms per frame, 2 workers (parent and workers, start-up included) | "
+                f"{self.cpu_ms_per_frame_2workers:.1f} |",
+            ]
         return "\n".join(rows)
+
+
+def _cpu_seconds(children: bool = False) -> float:
+    """CPU seconds (user + system, all threads) of this process, plus its waited-for child processes."""
+    who = [resource.RUSAGE_SELF] + ([resource.RUSAGE_CHILDREN] if children else [])
+    return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))
 
 
 def _raw_fps(cfg: GenerateConfig) -> float:
@@ -97,7 +129,11 @@ def _raw_fps(cfg: GenerateConfig) -> float:
 def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 8,
                    frames_per_scene: int = 10, objects: str = "builtin", two_workers: bool = True,
                    seed: int = 0) -> GenerateBench:
-    """Measure the pipeline and raw MuJoCo on the same scenes (fast profile)."""
+    """Measure the pipeline (1 and 2 workers), its CPU time and raw MuJoCo on the same scenes (fast profile).
+
+    Object loading and one warm-up frame (GL context start-up) are outside the 1-worker figures.
+    """
+    from simtest.gl import available_cores
     from simtest.generators.pipeline import _load_objects, generate
 
     cfg = GenerateConfig().replace(**{
@@ -106,18 +142,24 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
         "render.profile": "fast", "seed": seed})
     _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
+        generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
+        cpu0 = _cpu_seconds(children=True)
         rep = generate(cfg, os.path.join(tmp, "w1"), progress=False)
+        cpu1 = (_cpu_seconds(children=True) - cpu0) * 1000.0 / max(1, rep.frames_written)
         fps1 = rep.frames_per_second
-        fps2 = fps2_wall = None
+        fps2 = fps2_wall = cpu2 = None
         if two_workers:
+            cpu0 = _cpu_seconds(children=True)
             rep2 = generate(cfg.replace(workers=2), os.path.join(tmp, "w2"), progress=False)
+            cpu2 = (_cpu_seconds(children=True) - cpu0) * 1000.0 / max(1, rep2.frames_written)
             busy: dict[int, float] = {}
             for s in rep2.scenes:
                 busy[s.worker] = busy.get(s.worker, 0.0) + s.seconds
             fps2 = rep2.frames_written / max(busy.values())
             fps2_wall = rep2.frames_per_second
     raw = _raw_fps(cfg)
-    return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2, fps2_wall)
+    return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2, fps2_wall,
+                         cpu1, cpu2, available_cores())
 
 
 @dataclass
@@ -137,13 +179,6 @@ class ProfileBench:
             name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
             lines.append(f"| {name} | {w}x{h} | {wall:.2f} | {cpu:.2f} |")
         return "\n".join(lines)
-
-
-def _cpu_seconds() -> float:
-    import resource
-
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,

@@ -172,7 +172,7 @@ class SceneWriter:
 
     def __init__(self, split_dir: str | Path, scene_id: int, depth_scale: float = 0.1,
                  rgb_format: str = "jpg", jpg_quality: int = 95, coco: bool = False, coco_bbox: str = "amodal",
-                 coco_categories: list[int] | None = None) -> None:
+                 coco_categories: list[int] | None = None, threads: int = 2) -> None:
         """Start the scene in its hidden partial folder.
 
         Args:
@@ -185,6 +185,7 @@ class SceneWriter:
             coco_bbox: Box of each COCO annotation: ``"amodal"`` (whole object in the image) or ``"modal"``.
             coco_categories: Object ids listed as COCO categories (the whole object set, as the BOP toolkit
                 does) besides those that appear in the scene.
+            threads: Threads that encode and write the images while the caller renders the next one (>= 1).
         """
         if rgb_format not in RGB_FORMATS:
             raise ConfigError(f"rgb_format = {rgb_format!r} is invalid; allowed: {', '.join(RGB_FORMATS)}")
@@ -213,7 +214,7 @@ class SceneWriter:
         # Image encoding (cv2 releases the GIL) and file writes run beside the next frame's rendering.
         from concurrent.futures import ThreadPoolExecutor
 
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="bop-writer")
+        self._pool = ThreadPoolExecutor(max_workers=max(1, int(threads)), thread_name_prefix="bop-writer")
         self._pending: list = []
 
     def _submit(self, fn, *args) -> None:
