@@ -47,6 +47,7 @@ class SceneReport:
     at_rest: bool
     seconds: float
     worker: int = 0  # process id of the worker that made it
+    cpu_seconds: float = 0.0  # CPU time of the making process, all threads (its only work while it made the scene)
 
 
 @dataclass
@@ -156,7 +157,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
     from simtest.gl import thread_budget
     from simtest.render import Renderer
 
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
@@ -209,6 +210,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
         "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
         "spec": scene.spec.to_dict()})
     writer.close()
+    report.cpu_seconds = time.process_time() - cpu0
     return report
 
 

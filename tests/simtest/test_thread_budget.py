@@ -92,4 +92,7 @@ def test_bench_generate_reports_ratios_cpu_time_and_worker_efficiency(capsys):
     assert float(ideal) == pytest.approx(int(cores) / (cpu / 1000), rel=0.01, abs=0.01)
     busy = float(rows["full pipeline, 2 workers, frames/s (busy time of the slower worker)"])
     assert float(rows["2 workers (busy) / ideal"]) == pytest.approx(busy / float(ideal), rel=0.02, abs=0.01)
-    assert float(rows["CPU ms per frame, 2 workers (parent and workers, start-up included)"]) > 0
+    scene_work, with_start_up = rows["CPU ms per frame, 2 workers: scene work / with start-up and parent"].split(" / ")
+    assert 0 < float(scene_work) <= float(with_start_up)
+    assert float(rows["2 workers (busy) / (cores / their scene-work CPU s per frame)"]) == pytest.approx(
+        busy * float(scene_work) / 1000 / int(cores), rel=0.02, abs=0.01)
