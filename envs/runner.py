@@ -16,7 +16,6 @@ from __future__ import annotations
 import csv
 import functools
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -25,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, thread_share
+from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
@@ -176,7 +175,9 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     # Mesa's llvmpipe renders with one thread per core; with several workers each gets its share of cores
     # (read when the worker creates its GL context).
     # On a cluster (ray_address set) every node runs one episode per CPU: one thread each.
-    os.environ.setdefault("LP_NUM_THREADS", str(thread_share(cfg.workers) if cfg.ray_address is None else 1))
+    from simtest.gl import apply_thread_budget, available_cores
+
+    apply_thread_budget(cfg.workers if cfg.ray_address is None else available_cores())
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 

@@ -161,9 +161,9 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
     """
     H, W = camera.height, camera.width
     T_cam_world = camera.T_cam_world
-    inst = scene.geom_instance
-    seg = frame.seg
-    seg_inst = np.where(seg >= 0, inst[np.clip(seg, 0, None)], -1)
+    # Instance index per pixel in one lookup: entry 0 is the background (seg -1), entry g + 1 is geom g.
+    lut = np.concatenate([np.full(1, -1, dtype=np.int32), scene.geom_instance.astype(np.int32, copy=False)])
+    seg_inst = lut[frame.seg + 1]
     out = []
     for i, oid in enumerate(scene.instance_obj_ids):
         if not scene.active[i]:
@@ -184,12 +184,15 @@ def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: Object
             visib[ys0:ys1, xs0:xs1] = seg_inst[ys0:ys1, xs0:xs1] == i
         # The amodal mask contains the visible one by definition; GL's sub-pixel vertex snapping can leave a
         # rare pixel centre that sits within 1/256 px of a vertex covered in the render but not in the fill.
-        extra = visib & ~mask
+        # Visible pixels lie inside the work box, so the union is taken there.
         bbox_obj = mask_bbox(sil, x0, y0)
-        if extra.any():
-            mask |= extra
-            px_all += int(extra.sum())
-            bbox_obj = _box_union(bbox_obj, mask_bbox(extra))
+        if ys1 > ys0 and xs1 > xs0:
+            box = (slice(ys0, ys1), slice(xs0, xs1))
+            extra = visib[box] & ~mask[box]
+            if extra.any():
+                mask[box] |= extra
+                px_all += int(extra.sum())
+                bbox_obj = _box_union(bbox_obj, mask_bbox(extra, xs0, ys0))
         px_visib = int(visib[ys0:ys1, xs0:xs1].sum()) if ys1 > ys0 and xs1 > xs0 else 0
         px_valid = int(np.count_nonzero(mask[ys0:ys1, xs0:xs1] & (frame.depth[ys0:ys1, xs0:xs1] > 0))) \
             if ys1 > ys0 and xs1 > xs0 else 0

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import simtest
-from simtest.backend import Backend, BackendError, RunStats, run_units, thread_share
+from simtest.backend import Backend, BackendError, RunStats, run_units
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
@@ -52,6 +52,7 @@ class SceneReport:
     at_rest: bool
     seconds: float
     worker: int = 0  # process id of the worker that made it
+    cpu_seconds: float = 0.0  # CPU time of the making process, all threads (its only work while it made the scene)
 
 
 @dataclass
@@ -100,11 +101,12 @@ _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
+    from simtest.gl import apply_thread_budget, available_cores
+
     cfg = GenerateConfig.from_dict(cfg_dict)
-    # Mesa's llvmpipe renders with one thread per core by default; with several workers that oversubscribes
-    # the cores, so each worker gets its share (read when the worker creates its GL context).
-    # On a cluster (ray_address set) every node runs one scene per CPU: one thread each.
-    os.environ.setdefault("LP_NUM_THREADS", str(thread_share(cfg.workers) if cfg.ray_address is None else 1))
+    # each worker its share of the cores (llvmpipe, OpenCV), before any render; on a cluster (ray_address set)
+    # every node runs one scene per CPU
+    apply_thread_budget(cfg.workers if cfg.ray_address is None else available_cores())
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
 
@@ -160,14 +162,16 @@ def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndar
 def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -> SceneReport:
     """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole)."""
     from simtest.generators.annotate import annotate
+    from simtest.gl import thread_budget
     from simtest.render import Renderer
 
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
-                         coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids)
+                         coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
+                         threads=thread_budget(cfg.workers).writers)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
     pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
@@ -218,6 +222,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -
 
         write_scene_captions(writer.dir, scene, objects, cameras[0][0], cfg.scene.table_height)
     writer.close(labels_dir=withheld_dir(split_dir, scene_id) if cfg.unlabelled else None)
+    report.cpu_seconds = time.process_time() - cpu0
     return report
 
 

@@ -40,7 +40,7 @@ from typing import Any
 from simtest.errors import ConfigError, SimtestError
 
 __all__ = ["BACKENDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
-           "thread_share", "session"]
+           "session"]
 
 #: Back ends :func:`run_units` knows.
 BACKENDS = ("local", "ray")
@@ -104,13 +104,6 @@ def check_backend(name: Any, address: Any = None, workers: Any = 1) -> str:
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be an integer >= 1; got {workers!r}")
     return name
-
-
-def thread_share(workers: int, cores: int | None = None) -> int:
-    """Threads one worker may use for rendering (llvmpipe) so ``workers`` workers fill ``cores`` cores without
-    oversubscribing them: ``max(1, cores // workers)``."""
-    cores = cores if cores is not None else (os.cpu_count() or 1)
-    return max(1, cores // max(1, workers))
 
 
 @dataclass

@@ -3,16 +3,21 @@
 ``bench_generate``: frames/s of the whole ``generate`` pipeline (sampling, building, settling, rendering,
 annotation, image and JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
 segmentation: three ``render()`` calls per frame, MuJoCo's own API for them) for the same settled scenes and
-camera poses; and 1 vs 2 workers. With 2 workers, throughput is frames over the busy time of the slower worker
-(worker start-up, about 1.5 s of imports and object loading per process, is reported separately).
+camera poses, alternating scene by scene so both see the same machine load; the CPU time per annotated frame
+(the process and its worker processes, all threads); and 1 vs 2 workers. With 2 workers, throughput is given
+both as frames over the busy time of the slower worker and as frames over the wall time including worker
+start-up (about 1.5 s of imports and object loading per process), each also as a fraction of the ideal
+``cores / (CPU seconds per frame of one worker)``.
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from simtest.generators.config import GenerateConfig
 
@@ -21,6 +26,8 @@ __all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench"]
 
 @dataclass
 class GenerateBench:
+    """One run of :func:`bench_generate` (frames/s, CPU milliseconds per frame)."""
+
     width: int
     height: int
     objects_per_scene: int
@@ -30,6 +37,10 @@ class GenerateBench:
     raw_fps: float
     pipeline_fps_2workers: float | None
     pipeline_fps_2workers_wall: float | None = None
+    cpu_ms_per_frame: float = 0.0
+    cpu_ms_per_frame_2workers: float | None = None
+    cores: int = 1
+    cpu_ms_per_frame_2workers_scenes: float | None = None
 
     @property
     def ratio(self) -> float:
@@ -39,85 +50,141 @@ class GenerateBench:
     def speedup_2workers(self) -> float | None:
         return None if self.pipeline_fps_2workers is None else self.pipeline_fps_2workers / self.pipeline_fps
 
+    @property
+    def ideal_fps(self) -> float:
+        """``cores / (CPU seconds per frame of one worker)``: frames/s if every core did pipeline work."""
+        return self.cores / (self.cpu_ms_per_frame / 1000.0) if self.cpu_ms_per_frame > 0 else 0.0
+
+    def efficiency_2workers(self, wall: bool = False) -> float | None:
+        """2-worker frames/s (busy time, or wall time with ``wall``) over :attr:`ideal_fps`."""
+        fps = self.pipeline_fps_2workers_wall if wall else self.pipeline_fps_2workers
+        return None if fps is None or not self.ideal_fps else fps / self.ideal_fps
+
     def table(self) -> str:
         rows = [
             "| measurement | value |", "|---|---|",
             f"| image size | {self.width}x{self.height} |",
             f"| objects per scene | {self.objects_per_scene} (+ distractors 0-2) |",
-            f"| scenes x frames | {self.scenes} x {self.frames_per_scene} |",
+            f"| scenes x views per scene | {self.scenes} x {self.frames_per_scene} |",
             f"| raw MuJoCo render (rgb + depth + seg), frames/s | {self.raw_fps:.2f} |",
             f"| full pipeline, 1 worker, annotated frames/s | {self.pipeline_fps:.2f} |",
             f"| pipeline / raw | {self.ratio:.2f} |",
+            f"| CPU ms per annotated frame, 1 worker (all threads) | {self.cpu_ms_per_frame:.1f} |",
+            f"| cores; ideal frames/s = cores / CPU s per frame | {self.cores}; {self.ideal_fps:.2f} |",
         ]
         if self.pipeline_fps_2workers is not None:
-            rows.append(f"| full pipeline, 2 workers, frames/s (busy time of the slower worker) | "
-                        f"{self.pipeline_fps_2workers:.2f} |")
-            rows.append(f"| 2 workers / 1 worker | {self.speedup_2workers:.2f} |")
-            rows.append(f"| 2 workers, frames/s including worker start-up | {self.pipeline_fps_2workers_wall:.2f} |")
+            rows += [
+                f"| full pipeline, 2 workers, frames/s (busy time of the slower worker) | "
+                f"{self.pipeline_fps_2workers:.2f} |",
+                f"| 2 workers / 1 worker | {self.speedup_2workers:.2f} |",
+                f"| 2 workers (busy) / ideal | {self.efficiency_2workers():.2f} |",
+                f"| 2 workers, frames/s including worker start-up | {self.pipeline_fps_2workers_wall:.2f} |",
+                f"| 2 workers (with start-up) / ideal | {self.efficiency_2workers(wall=True):.2f} |",
+                f"| CPU ms per frame, 2 workers: scene work / with start-up and parent | "
+                f"{self.cpu_ms_per_frame_2workers_scenes:.1f} / {self.cpu_ms_per_frame_2workers:.1f} |",
+                f"| 2 workers (busy) / (cores / their scene-work CPU s per frame) | "
+                f"{self.pipeline_fps_2workers * self.cpu_ms_per_frame_2workers_scenes / 1000.0 / self.cores:.2f} |",
+            ]
         return "\n".join(rows)
 
 
-def _raw_fps(cfg: GenerateConfig) -> float:
-    """Raw ``mujoco.Renderer`` frames/s for the scenes and cameras ``cfg`` produces (settling excluded)."""
+def _cpu_seconds(children: bool = False) -> float:
+    """CPU seconds (user + system, all threads) of this process, plus its waited-for child processes."""
+    who = [resource.RUSAGE_SELF] + ([resource.RUSAGE_CHILDREN] if children else [])
+    return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))
+
+
+def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, int]:
+    """Seconds of raw ``mujoco.Renderer`` rendering (rgb, depth, seg) of every view of scene ``scene_id``
+    (sampling, building and settling excluded), and the number of views."""
     import mujoco
 
     from simtest.generators.builder import DRAWN_GROUPS
-    from simtest.generators.pipeline import _load_objects, prepare_scene, scene_cameras
+    from simtest.generators.pipeline import prepare_scene, scene_cameras
 
-    objects = _load_objects(cfg)
-    total, frames = 0.0, 0
+    scene, _, _, _ = prepare_scene(cfg, objects, scene_id)
+    cams = scene_cameras(cfg, scene)
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = 0
+    for g in DRAWN_GROUPS:
+        opt.geomgroup[g] = 1
+    r = mujoco.Renderer(scene.model, cfg.camera.height, cfg.camera.width)
+    r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+    r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+    r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
+    total = 0.0
+    for cam, _ in cams:
+        scene.set_camera(cam)
+        t0 = time.perf_counter()
+        r.update_scene(scene.data, camera=scene.camera_id, scene_option=opt)
+        r.render()
+        r.enable_depth_rendering()
+        r.render()
+        r.disable_depth_rendering()
+        r.enable_segmentation_rendering()
+        r.render()
+        r.disable_segmentation_rendering()
+        total += time.perf_counter() - t0
+    r.close()
+    return total, len(cams)
+
+
+def _one_worker(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, float, float, int]:
+    """Pipeline and raw rendering of each scene in turn, so that both see the same machine load.
+
+    Returns:
+        ``(pipeline seconds, raw seconds, pipeline CPU seconds, frames)``; the pipeline's are the
+        :func:`~simtest.generators.pipeline.render_scene` calls (sampling, building, settling, rendering,
+        annotation, writing) with the CPU time of every thread of the process.
+    """
+    from simtest.generators.pipeline import render_scene
+
+    split_dir.mkdir(parents=True, exist_ok=True)
+    pipe = raw = cpu = 0.0
+    frames = 0
     for scene_id in range(cfg.scenes):
-        scene, _, _, _ = prepare_scene(cfg, objects, scene_id)
-        cams = scene_cameras(cfg, scene)
-        opt = mujoco.MjvOption()
-        opt.geomgroup[:] = 0
-        for g in DRAWN_GROUPS:
-            opt.geomgroup[g] = 1
-        r = mujoco.Renderer(scene.model, cfg.camera.height, cfg.camera.width)
-        r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-        r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        r.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
-        for cam, _ in cams:
-            scene.set_camera(cam)
-            t0 = time.perf_counter()
-            r.update_scene(scene.data, camera=scene.camera_id, scene_option=opt)
-            r.render()
-            r.enable_depth_rendering()
-            r.render()
-            r.disable_depth_rendering()
-            r.enable_segmentation_rendering()
-            r.render()
-            r.disable_segmentation_rendering()
-            total += time.perf_counter() - t0
-            frames += 1
-        r.close()
-    return frames / total
+        cpu0, t0 = _cpu_seconds(children=True), time.perf_counter()
+        rep = render_scene(cfg, objects, scene_id, split_dir)  # its own seconds stop before the writes finish
+        pipe += time.perf_counter() - t0
+        cpu += _cpu_seconds(children=True) - cpu0
+        frames += rep.frames
+        raw += _raw_seconds(cfg, objects, scene_id)[0]
+    return pipe, raw, cpu, frames
 
 
 def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 8,
                    frames_per_scene: int = 10, objects: str = "builtin", two_workers: bool = True,
                    seed: int = 0) -> GenerateBench:
-    """Measure the pipeline and raw MuJoCo on the same scenes (fast profile)."""
+    """Measure the pipeline (1 and 2 workers), its CPU time and raw MuJoCo on the same scenes (fast profile).
+
+    One worker and raw MuJoCo alternate scene by scene (their ratio sees the same load); object loading and one
+    warm-up frame (GL context start-up) are outside the 1-worker figures.
+    """
+    from simtest.gl import available_cores
     from simtest.generators.pipeline import _load_objects, generate
 
     cfg = GenerateConfig().replace(**{
         "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": width,
         "camera.height": height, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
         "render.profile": "fast", "seed": seed})
-    _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
+    objs = _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
-        rep = generate(cfg, os.path.join(tmp, "w1"), progress=False)
-        fps1 = rep.frames_per_second
-        fps2 = fps2_wall = None
+        generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
+        pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp) / "w1" / cfg.split)
+        fps2 = fps2_wall = cpu2 = cpu2_scenes = None
         if two_workers:
+            cpu0 = _cpu_seconds(children=True)
             rep2 = generate(cfg.replace(workers=2), os.path.join(tmp, "w2"), progress=False)
+            cpu2 = (_cpu_seconds(children=True) - cpu0) * 1000.0 / max(1, rep2.frames_written)
             busy: dict[int, float] = {}
             for s in rep2.scenes:
                 busy[s.worker] = busy.get(s.worker, 0.0) + s.seconds
             fps2 = rep2.frames_written / max(busy.values())
             fps2_wall = rep2.frames_per_second
-    raw = _raw_fps(cfg)
-    return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, fps1, raw, fps2, fps2_wall)
+            cpu2_scenes = sum(s.cpu_seconds for s in rep2.scenes) * 1000.0 / max(1, rep2.frames_written)
+    return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, frames / pipe_s,
+                         frames / raw_s, fps2, fps2_wall, cpu_s * 1000.0 / frames, cpu2, available_cores(),
+                         cpu2_scenes)
 
 
 @dataclass
@@ -137,13 +204,6 @@ class ProfileBench:
             name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
             lines.append(f"| {name} | {w}x{h} | {wall:.2f} | {cpu:.2f} |")
         return "\n".join(lines)
-
-
-def _cpu_seconds() -> float:
-    import resource
-
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,

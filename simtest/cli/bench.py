@@ -12,12 +12,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="speed benchmarks (ratios against raw MuJoCo in the same run)")
     bsub = p.add_subparsers(dest="bench_command", metavar="BENCH")
     g = bsub.add_parser("generate", parents=[common_parser()],
-                        help="dataset generation frames/s vs raw MuJoCo rendering; 1 vs 2 workers")
+                        help="dataset generation frames/s vs raw MuJoCo rendering, CPU ms per frame; "
+                             "1 vs 2 workers")
     g.add_argument("--width", type=int, default=640)
     g.add_argument("--height", type=int, default=480)
     g.add_argument("--objects-per-scene", type=int, default=10)
     g.add_argument("--scenes", type=int, default=8)
-    g.add_argument("--frames-per-scene", type=int, default=10)
+    g.add_argument("--frames-per-scene", "--views", dest="frames_per_scene", type=int, default=10,
+                   help="views (frames) per settled scene (default 10; BOP's PBR recipe uses 25)")
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
     g.add_argument("--profiles", help="instead: seconds per frame of these render profiles, e.g. fast,quality,pbr")

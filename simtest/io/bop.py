@@ -124,6 +124,24 @@ def encode_image(img: np.ndarray, suffix: str = ".png", mask: bool = False, jpg_
     return _png(img, mask)
 
 
+def _write_rgb_file(path: Path, rgb: np.ndarray, jpg_quality: int) -> None:
+    """Encode an RGB-order image as ``path``'s format (:func:`encode_image`) and write it atomically."""
+    bgr = np.ascontiguousarray(rgb[..., ::-1])
+    atomic_write_bytes(path, encode_image(bgr, path.suffix, jpg_quality=jpg_quality))
+
+
+def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> None:
+    """Write planar depth (metres) as a BOP uint16 depth PNG (:func:`encode_depth`), atomically."""
+    atomic_write_bytes(path, _png(encode_depth(depth_m, depth_scale)))
+
+
+def _write_mask_file(path: Path, mask: np.ndarray) -> None:
+    """Write a mask (non-zero = inside) as a 0/255 8-bit PNG, atomically."""
+    m = np.asarray(mask)
+    img = m.view(np.uint8) * np.uint8(255) if m.dtype == np.bool_ else (m != 0).view(np.uint8) * np.uint8(255)
+    atomic_write_bytes(path, _png(img, True))
+
+
 def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float) -> None:
     K = camera.K
     atomic_write_json(path, {"cx": float(K[0, 2]), "cy": float(K[1, 2]), "depth_scale": float(depth_scale),
@@ -155,7 +173,7 @@ class SceneWriter:
 
     def __init__(self, split_dir: str | Path, scene_id: int, depth_scale: float = 0.1,
                  rgb_format: str = "jpg", jpg_quality: int = 95, coco: bool = False, coco_bbox: str = "amodal",
-                 coco_categories: list[int] | None = None) -> None:
+                 coco_categories: list[int] | None = None, threads: int = 2) -> None:
         """Start the scene in its hidden partial folder.
 
         Args:
@@ -168,6 +186,7 @@ class SceneWriter:
             coco_bbox: Box of each COCO annotation: ``"amodal"`` (whole object in the image) or ``"modal"``.
             coco_categories: Object ids listed as COCO categories (the whole object set, as the BOP toolkit
                 does) besides those that appear in the scene.
+            threads: Threads that encode and write the images while the caller renders the next one (>= 1).
         """
         if rgb_format not in RGB_FORMATS:
             raise ConfigError(f"rgb_format = {rgb_format!r} is invalid; allowed: {', '.join(RGB_FORMATS)}")
@@ -196,19 +215,17 @@ class SceneWriter:
         # Image encoding (cv2 releases the GIL) and file writes run beside the next frame's rendering.
         from concurrent.futures import ThreadPoolExecutor
 
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="bop-writer")
+        self._pool = ThreadPoolExecutor(max_workers=max(1, int(threads)), thread_name_prefix="bop-writer")
         self._pending: list = []
 
-    def _write_png(self, path: Path, img: np.ndarray, mask: bool = False) -> None:
-        self._pending.append(self._pool.submit(lambda: atomic_write_bytes(path, _png(img, mask))))
+    def _submit(self, fn, *args) -> None:
+        """Queue ``fn(*args)`` on the writer threads; the arrays in ``args`` must not change afterwards."""
+        self._pending.append(self._pool.submit(fn, *args))
 
     def _write_rgb(self, im_id: int, rgb: np.ndarray) -> None:
         """Queue ``rgb/{im_id:06d}.jpg|png`` (``rgb`` in RGB order)."""
-        bgr = np.ascontiguousarray(rgb[..., ::-1])
         path = self.dir / "rgb" / f"{im_id:06d}.{self.rgb_format}"
-        q = self.jpg_quality
-        self._pending.append(self._pool.submit(
-            lambda: atomic_write_bytes(path, encode_image(bgr, path.suffix, jpg_quality=q))))
+        self._submit(_write_rgb_file, path, rgb, self.jpg_quality)
 
     def _drain(self, keep: int = 0) -> None:
         """Wait for queued writes (all, or all but the newest ``keep``), re-raising their errors."""
@@ -226,11 +243,14 @@ class SceneWriter:
             camera: Camera of this image (K and ``T_world_cam``).
             instances: Per-instance objects with the :class:`ImageGT` fields.
             masks, masks_visib: (H, W) bool amodal / visible masks, same order as ``instances``.
+
+        The images are encoded and written by writer threads while the caller goes on: ``rgb``, ``depth_m`` and
+        the masks must not be modified afterwards (:meth:`close` waits for every write).
         """
         key = str(im_id)
         self._drain(keep=64)  # bound the memory held by queued images
         self._write_rgb(im_id, rgb)
-        self._write_png(self.dir / "depth" / f"{im_id:06d}.png", encode_depth(depth_m, self.depth_scale))
+        self._submit(_write_depth_file, self.dir / "depth" / f"{im_id:06d}.png", depth_m, self.depth_scale)
         T_cam_world = camera.T_cam_world
         R9, t_mm = pose_to_bop(T_cam_world)
         self.scene_camera[key] = {"cam_K": [float(v) for v in camera.K.reshape(-1)], "depth_scale": self.depth_scale,
@@ -242,9 +262,8 @@ class SceneWriter:
             infos.append({"bbox_obj": list(inst.bbox_obj), "bbox_visib": list(inst.bbox_visib),
                           "px_count_all": int(inst.px_count_all), "px_count_valid": int(inst.px_count_valid),
                           "px_count_visib": int(inst.px_count_visib), "visib_fract": float(inst.visib_fract)})
-            self._write_png(self.dir / "mask" / f"{im_id:06d}_{gt_id:06d}.png", m.astype(np.uint8) * 255, True)
-            self._write_png(self.dir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png", mv.astype(np.uint8) * 255,
-                            True)
+            self._submit(_write_mask_file, self.dir / "mask" / f"{im_id:06d}_{gt_id:06d}.png", m)
+            self._submit(_write_mask_file, self.dir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png", mv)
             if self.coco and mv.any():
                 self._coco_annotation(im_id, inst, m, mv)
         self.scene_gt[key] = gts

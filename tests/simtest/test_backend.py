@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, thread_share
+from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units
 from simtest.errors import ConfigError
 
 _STATE: dict = {}
@@ -43,7 +43,6 @@ def test_backend_settings_are_checked():
     with pytest.raises(ConfigError, match="workers must be an integer >= 1; got 0"):
         Backend("local", workers=0)
     assert check_backend("ray", "auto", 2) == "ray"
-    assert thread_share(2, 2) == 1 and thread_share(1, 8) == 8 and thread_share(16, 2) == 1
 
 
 def test_missing_cluster_is_one_clear_error():
