@@ -29,7 +29,8 @@ from simtest.errors import ConfigError, DatasetError
 from simtest.geometry import Pose
 from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, short_repr, validate_camera_json, validate_scene_camera,
                                    validate_scene_gt, validate_scene_gt_info)
-from simtest.io.files import atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed
+from simtest.io.files import (atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed,
+                              private_partial_dir)
 
 __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
@@ -166,9 +167,9 @@ class ImageGT:
 class SceneWriter:
     """Writes one BOP scene folder; frames are added one by one, the JSON files at :meth:`close`.
 
-    The scene is assembled in a hidden sibling folder (``.{scene:06d}.partial``) and renamed into place when
-    complete, so a scene folder either exists whole or not at all (a killed run leaves only a partial folder,
-    which :meth:`close` of a later run replaces).
+    The scene is assembled in a hidden sibling folder of its own (``.{scene:06d}.<random>.partial``) and
+    renamed into place when complete, so a scene folder either exists whole or not at all (a killed run leaves
+    only partial folders, which a resumed run deletes), and two writers of one scene never mix their files.
     """
 
     def __init__(self, split_dir: str | Path, scene_id: int, depth_scale: float = 0.1,
@@ -195,11 +196,9 @@ class SceneWriter:
         if not 1 <= int(jpg_quality) <= 100:
             raise ConfigError(f"jpg_quality = {jpg_quality!r} is invalid; allowed: [1, 100]")
         self.final_dir = Path(split_dir) / f"{scene_id:06d}"
-        self.dir = Path(split_dir) / f".{scene_id:06d}.partial"
-        if self.dir.exists():
-            shutil.rmtree(self.dir)
+        self.dir = private_partial_dir(split_dir, f"{scene_id:06d}")
         for sub in ("rgb", "depth", "mask", "mask_visib"):
-            (self.dir / sub).mkdir(parents=True)
+            (self.dir / sub).mkdir()
         self.scene_id = scene_id
         self.depth_scale = float(depth_scale)
         self.rgb_format = rgb_format
@@ -314,9 +313,7 @@ class SceneWriter:
                 "categories": [{"id": c, "name": str(c), "supercategory": "object"} for c in cats]}, indent=None)
         if labels_dir is not None:
             withhold_labels(self.dir, Path(labels_dir))
-        if self.final_dir.exists():
-            shutil.rmtree(self.final_dir)
-        os.replace(self.dir, self.final_dir)
+        _move_into_place(self.dir, self.final_dir)
         return self.final_dir
 
 
@@ -327,17 +324,26 @@ UNLABELLED_KEEP: tuple[str, ...] = ("rgb", "depth", "scene_camera.json")
 def withhold_labels(scene_dir: Path, labels_dir: Path) -> None:
     """Move every entry of ``scene_dir`` except :data:`UNLABELLED_KEEP` to ``labels_dir`` (replacing it), with a
     copy of ``scene_camera.json``; ``labels_dir`` appears whole (assembled in a hidden sibling, then renamed)."""
-    partial = labels_dir.parent / f".{labels_dir.name}.partial"
-    if partial.exists():
-        shutil.rmtree(partial)
-    partial.mkdir(parents=True)
+    partial = private_partial_dir(labels_dir.parent, labels_dir.name)
     for entry in sorted(scene_dir.iterdir()):
         if entry.name not in UNLABELLED_KEEP:
             os.replace(entry, partial / entry.name)
     shutil.copyfile(scene_dir / "scene_camera.json", partial / "scene_camera.json")
-    if labels_dir.exists():
-        shutil.rmtree(labels_dir)
-    os.replace(partial, labels_dir)
+    _move_into_place(partial, labels_dir)
+
+
+def _move_into_place(partial: Path, final: Path) -> None:
+    """Rename the finished folder ``partial`` to ``final``, replacing an older ``final``. When another writer
+    put the same folder in place meanwhile (a straggling worker of a killed run making the same scene from the
+    same seed, hence the same bytes), that one is kept and ``partial`` removed."""
+    if final.exists():
+        shutil.rmtree(final, ignore_errors=True)
+    try:
+        os.replace(partial, final)
+    except OSError:
+        if not final.is_dir():
+            raise
+        shutil.rmtree(partial, ignore_errors=True)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -30,9 +30,28 @@ __all__ = ["prepare_out_dir", "clear_folder", "file_mode", "atomic_write_bytes",
 @functools.cache
 def file_mode() -> int:
     """Permission bits of a new file under the process umask (``0o644`` under umask ``022``); read once."""
+    return 0o666 & ~_umask()
+
+
+def private_partial_dir(parent: str | Path, name: str) -> Path:
+    """A new, empty hidden folder ``parent/.NAME.<random>.partial`` owned by this writer alone (a folder is
+    assembled there, then renamed into place). Unique per call, so two writers of the same thing (a resumed run
+    and a straggling worker of the killed one) never write into each other's folder; its mode follows the
+    umask like any new folder (``0o755`` under ``022``)."""
+    parent = Path(parent)
+    parent.mkdir(parents=True, exist_ok=True)
+    path = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".partial", dir=parent))
+    os.chmod(path, 0o777 & ~_umask())
+    return path
+
+
+@functools.cache
+def _umask() -> int:
+    """The process umask, read once (reading it means setting it for an instant, which must not race with
+    threads that create files)."""
     mask = os.umask(0o022)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

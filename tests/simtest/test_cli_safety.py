@@ -322,3 +322,24 @@ def test_closed_stdout_pipe_ends_quietly():
     proc.stderr.close()
     assert "Traceback" not in err and "BrokenPipe" not in err and err.strip() == ""
     assert proc.returncode == 1
+
+
+def test_two_writers_of_one_scene_never_share_a_partial_folder(tmp_path):
+    """A resumed run and a straggling worker of the killed one may make the same scene at once: each assembles
+    it in its own hidden folder, and whichever finishes second leaves the first one's complete folder."""
+    import numpy as np
+
+    from simtest.camera import CameraModel, default_intrinsics
+    from simtest.io.bop import SceneWriter, scene_dirs
+
+    split = tmp_path / "train_pbr"
+    a, b = SceneWriter(split, 3), SceneWriter(split, 3)
+    assert a.dir != b.dir and a.dir.name.startswith(".000003.") and a.dir.name.endswith(".partial")
+    w, h = 64, 48
+    cam = CameraModel(default_intrinsics(w, h), w, h)
+    for writer in (a, b):
+        writer.add(0, np.zeros((h, w, 3), np.uint8), np.ones((h, w), np.float32), cam, [], [], [])
+    assert a.close() == b.close() == split / "000003"
+    assert [d.name for d in scene_dirs(split)] == ["000003"]
+    assert sorted(p.name for p in split.iterdir()) == ["000003"]  # no partial folder left behind
+    assert (split / "000003" / "rgb" / "000000.jpg").exists()
