@@ -75,7 +75,7 @@ def _cpu_seconds() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def bench_backend(width: int = 640, height: int = 480, scenes: int = 8, frames_per_scene: int = 5,
+def bench_backend(width: int = 640, height: int = 480, scenes: int = 24, frames_per_scene: int = 25,
                   objects: str = "builtin", runs: tuple[tuple[str, int], ...] = (
                       ("local", 1), ("local", 2), ("ray", 1), ("ray", 2))) -> BackendBench:
     """Generate the same dataset with each ``(backend, workers)`` of ``runs`` and time it (seconds).

@@ -59,11 +59,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     ob.set_defaults(func=_objects)
     bk = bsub.add_parser("backend", parents=[common_parser()],
                          help="generate wall time: local 1 and 2 workers vs Ray 1 and 2 CPUs, Ray start-up")
-    bk.add_argument("--width", type=int, default=640)
-    bk.add_argument("--height", type=int, default=480)
-    bk.add_argument("--scenes", type=int, default=8)
-    bk.add_argument("--frames-per-scene", type=int, default=5)
-    bk.add_argument("--objects", default="builtin")
+    bk.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    bk.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    bk.add_argument("--scenes", type=int, default=24,
+                    help="scenes per measurement (default 24; short jobs measure mostly start-up)")
+    bk.add_argument("--frames-per-scene", type=int, default=25, help="views per scene (default 25)")
+    bk.add_argument("--objects", default="builtin", help="object set (default builtin)")
     bk.set_defaults(func=_backend)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
