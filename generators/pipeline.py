@@ -16,6 +16,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -159,14 +160,20 @@ def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndar
     return [(base.with_pose(view_to_camera_pose(v, poi)), None) for v in scene.spec.views]
 
 
-def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path) -> SceneReport:
-    """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole)."""
+def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
+                 prepared: tuple | None = None) -> SceneReport:
+    """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole).
+
+    Args:
+        prepared: The scene's :func:`prepare_scene` result when it was made ahead (see :class:`ScenesAhead`);
+            the same as making it here.
+    """
     from simtest.generators.annotate import annotate
     from simtest.gl import thread_budget
     from simtest.render import Renderer
 
     t0, cpu0 = time.perf_counter(), time.process_time()
-    scene, settled, attempts, reasons = prepare_scene(cfg, objects, scene_id)
+    scene, settled, attempts, reasons = prepared if prepared is not None else prepare_scene(cfg, objects, scene_id)
     cameras = scene_cameras(cfg, scene)
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
@@ -366,9 +373,10 @@ def _run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, 
             that ``--resume`` makes them (every other scene is written).
     """
     backend = Backend(cfg.backend, cfg.workers, cfg.ray_address)
-    if backend.in_process(len(todo)):
+    ahead = ScenesAhead(cfg, objects, todo) if backend.in_process(len(todo)) else None
+    if ahead is not None:
         def fn(unit: tuple[int, str]) -> SceneReport:  # this process: its objects are loaded already
-            return render_scene(cfg, objects, unit[0], Path(unit[1]))
+            return render_scene(cfg, objects, unit[0], Path(unit[1]), prepared=ahead.take(unit[0]))
     else:
         fn = _worker_scene
     units = [(i, str(split_dir.resolve())) for i in todo]  # absolute: a worker's working folder may differ
@@ -383,6 +391,45 @@ def _run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, 
                            f"lost more than {backend.retries} time(s): scene ids {', '.join(map(str, lost[:20]))}"
                            f"{' ...' if len(lost) > 20 else ''}; the other scenes are written: run the same command "
                            f"with --resume to make the missing ones ({report.run.failures[0].message})") from exc
+    finally:
+        if ahead is not None:
+            ahead.close()
+
+
+class ScenesAhead:
+    """Builds and settles the next scene on a helper thread while this process renders the current one.
+
+    One worker rendering in its own process leaves part of a second core idle between its serial steps; the
+    next scene's sampling, compilation and physics settling (:func:`prepare_scene`: no GL, its own seeded
+    stream, MuJoCo's physics releasing the GIL) fill it. Scenes are taken in ``order``; the result is the same
+    as preparing each one when it is rendered.
+    """
+
+    def __init__(self, cfg: GenerateConfig, objects, order: list[int]) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._cfg, self._objects, self._order = cfg, objects, list(order)
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="simtest-scene-ahead")
+        self._futures: dict[int, Any] = {}
+        self._submit(0)
+
+    def _submit(self, k: int) -> None:
+        if k < len(self._order) and self._order[k] not in self._futures:
+            scene_id = self._order[k]
+            self._futures[scene_id] = self._pool.submit(prepare_scene, self._cfg, self._objects, scene_id)
+
+    def take(self, scene_id: int) -> tuple:
+        """The :func:`prepare_scene` result of ``scene_id`` (made ahead, or now); starts the next one."""
+        k = self._order.index(scene_id)
+        self._submit(k)
+        future = self._futures.pop(scene_id)
+        self._submit(k + 1)
+        return future.result()
+
+    def close(self) -> None:
+        for future in self._futures.values():
+            future.cancel()
+        self._pool.shutdown(wait=True)
 
 
 def _record_run(manifest: Path, cfg: GenerateConfig, report: GenerateReport) -> None:
