@@ -13,9 +13,10 @@ PACKAGES = {"simtest": ROOT / "simtest", "simtest.objects": ROOT / "objects",
             "simtest.generators": ROOT / "generators", "simtest.envs": ROOT / "envs"}
 #: Low layers: pure data, geometry, files, metrics and rendering.
 LOW = ("simtest.metrics", "simtest.io", "simtest.camera", "simtest.geometry", "simtest.raster", "simtest.render",
-       "simtest.errors", "simtest.rng")
+       "simtest.errors", "simtest.rng", "simtest.backend")
 #: High layers: orchestration, the object library, generation and the env.
-HIGH = ("simtest.envs", "simtest.generators", "simtest.eval", "simtest.scoring", "simtest.sweep", "simtest.report",
+HIGH = ("simtest.envs", "simtest.generators", "simtest.eval", "simtest.eval_images", "simtest.eval_tracking",
+        "simtest.scoring", "simtest.sweep", "simtest.report",
         "simtest.cli", "simtest.objects", "simtest.benchmarks", "simtest.cells")
 
 
