@@ -106,6 +106,41 @@ def canonical_symmetry(R: np.ndarray, syms: np.ndarray) -> int:
 
 # ---------------------------------------------------------------------------------------------------------
 # Transforms: (sample dict of numpy arrays, rng) -> sample dict
+def check_feed_options(seed: Any, rgb_dtype: Any, crop: Any) -> tuple[int, tuple[int, int] | None]:
+    """``(seed, crop)`` of a training feed, checked: a non-negative integer seed, ``rgb_dtype`` ``"float32"`` or
+    ``"uint8"``, ``crop`` None or ``(height, width)`` of at least 8 pixels each.
+
+    Raises:
+        ConfigError: Naming the bad value.
+    """
+    if seed is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    if rgb_dtype not in ("float32", "uint8"):
+        raise ConfigError(f"rgb_dtype must be 'float32' or 'uint8', got {rgb_dtype!r}")
+    if crop is not None:
+        crop = (int(crop[0]), int(crop[1]))
+        if min(crop) < 8:
+            raise ConfigError(f"crop must be (height, width) of at least 8 pixels each, got {crop!r}")
+    return int(seed), crop
+
+
+def select_scene_dirs(split_dir: Path, scenes: Sequence[int] | None) -> list[Path]:
+    """The complete scene folders of ``split_dir``, only ``scenes`` when given.
+
+    Raises:
+        ConfigError: A requested scene id that is not in the split (the available ones are listed).
+    """
+    from simtest.io import bop
+
+    dirs = bop.scene_dirs(split_dir)
+    if scenes is not None:
+        want, known = {int(s) for s in scenes}, {int(d.name) for d in dirs}
+        if want - known:
+            raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
+        dirs = [d for d in dirs if int(d.name) in want]
+    return dirs
+
+
 def crop_window(a: np.ndarray, y0: int, x0: int, height: int, width: int) -> np.ndarray:
     """The ``height`` x ``width`` window of image ``a`` whose top-left pixel is ``(y0, x0)`` (may lie outside
     the image: pixels past the border are zero)."""
@@ -285,14 +320,7 @@ class PoseDataset:
 
         if keypoints not in KEYPOINT_TYPES:
             raise ConfigError(f"unknown keypoint type {keypoints!r}; valid: {', '.join(KEYPOINT_TYPES)}")
-        if seed is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-        if rgb_dtype not in ("float32", "uint8"):
-            raise ConfigError(f"rgb_dtype must be 'float32' or 'uint8', got {rgb_dtype!r}")
-        if crop is not None:
-            crop = (int(crop[0]), int(crop[1]))
-            if min(crop) < 8:
-                raise ConfigError(f"crop must be (height, width) of at least 8 pixels each, got {crop!r}")
+        seed, crop = check_feed_options(seed, rgb_dtype, crop)
         self.root = str(Path(root))
         self.split = split
         self.keypoints = keypoints
@@ -323,13 +351,7 @@ class PoseDataset:
             for i in self.class_ids}
 
         split_dir = bop.dataset_split_dir(self.root, split)
-        dirs = bop.scene_dirs(split_dir)
-        if scenes is not None:
-            want = {int(s) for s in scenes}
-            known = {int(d.name) for d in dirs}
-            if want - known:
-                raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
-            dirs = [d for d in dirs if int(d.name) in want]
+        dirs = select_scene_dirs(split_dir, scenes)
         if dirs and not (dirs[0] / "scene_gt.json").is_file():
             raise DatasetError(f"{dirs[0]} has no scene_gt.json: split {split!r} is unlabelled; read its images "
                                "with simtest.mixing.UnlabelledDataset (labels withheld by generate --unlabelled "

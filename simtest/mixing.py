@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from simtest.data import collate, crop_intrinsics, crop_window, sample_rng
+from simtest.data import (check_feed_options, collate, crop_intrinsics, crop_window, sample_rng,
+                          select_scene_dirs)
 from simtest.errors import ConfigError, DatasetError
 
 __all__ = ["UnlabelledDataset", "MixedDataset", "collate_mixed"]
@@ -48,12 +49,6 @@ class _Image:
     im_id: int
     K: tuple[float, ...]
     depth_scale: float
-
-
-def _check_seed(seed: Any) -> int:
-    if seed is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
 
 
 class UnlabelledDataset:
@@ -82,22 +77,11 @@ class UnlabelledDataset:
                  rgb_dtype: str = "float32", max_images: int | None = None) -> None:
         from simtest.io import bop
 
-        self.seed = _check_seed(seed)
-        if rgb_dtype not in ("float32", "uint8"):
-            raise ConfigError(f"rgb_dtype must be 'float32' or 'uint8', got {rgb_dtype!r}")
-        if crop is not None:
-            crop = (int(crop[0]), int(crop[1]))
-            if min(crop) < 8:
-                raise ConfigError(f"crop must be (height, width) of at least 8 pixels each, got {crop!r}")
+        self.seed, crop = check_feed_options(seed, rgb_dtype, crop)
         self.root, self.split, self.transform, self.crop, self.rgb_dtype = str(root), split, transform, crop, rgb_dtype
         self.epoch = 0
         split_dir = bop.dataset_split_dir(root, split)
-        dirs = bop.scene_dirs(split_dir)
-        if scenes is not None:
-            want, known = {int(s) for s in scenes}, {int(d.name) for d in dirs}
-            if want - known:
-                raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
-            dirs = [d for d in dirs if int(d.name) in want]
+        dirs = select_scene_dirs(split_dir, scenes)
         images: list[_Image] = []
         for d in dirs:
             cams = bop.read_scene_files(d, require_gt=False).camera
@@ -200,7 +184,7 @@ class MixedDataset:
         self.length = int(sizes.sum()) if length is None else int(length)
         if self.length < 1:
             raise ConfigError(f"length must be >= 1, got {length!r}")
-        self.seed = _check_seed(seed)
+        self.seed = check_feed_options(seed, "float32", None)[0]
         self.epoch = 0
         self._order: tuple[int, np.ndarray, np.ndarray] | None = None
 
