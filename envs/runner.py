@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units
+from simtest.backend import Backend, BackendError, RunStats, check_backend, preflight, run_units
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
@@ -261,6 +261,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         EstimatorError: With ``cfg.fail_fast``, the first episode the estimator failed (with its traceback).
         DatasetError: ``out_dir`` not empty without ``overwrite``, a file, or not writable.
     """
+    preflight(Backend(cfg.backend, cfg.workers, cfg.ray_address))  # before the output is touched
     if out_dir is not None:
         from simtest.io.files import prepare_out_dir
 

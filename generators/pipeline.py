@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 import simtest
-from simtest.backend import Backend, BackendError, RunStats, run_units
+from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
@@ -319,6 +319,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         from simtest.render_pbr import require_pbr
 
         require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
+    preflight(Backend(cfg.backend, cfg.workers, cfg.ray_address))  # before the output is touched
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = _load_objects(cfg)

@@ -40,7 +40,7 @@ from typing import Any
 from simtest.errors import ConfigError, SimtestError
 
 __all__ = ["BACKENDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
-           "session"]
+           "session", "preflight"]
 
 #: Back ends :func:`run_units` knows.
 BACKENDS = ("local", "ray")
@@ -171,6 +171,19 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], backend: Backend, 
         lost = ", ".join(repr(f.unit) for f in stats.failures[:10])
         raise BackendError(f"{len(stats.failures)} unit(s) were lost with their workers more than "
                            f"{backend.retries} time(s): {lost}; first error: {stats.failures[0].message}")
+
+
+def preflight(backend: Backend) -> None:
+    """Fail now, before a command touches its output, when ``backend`` cannot run: the ``ray`` extra missing, or
+    no head node answering at ``backend.address``. Nothing is checked for ``local``.
+
+    Raises:
+        BackendError: Naming what is missing and how to get it.
+    """
+    if backend.is_ray:
+        _ray_module()
+        if backend.address is not None:
+            _check_reachable(backend.address)
 
 
 @contextmanager

@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.backend import Backend, RunStats
+from simtest.backend import Backend, RunStats, preflight
 from simtest.errors import ConfigError
 from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, load_estimator,
                                      needs_gt_init)
@@ -216,6 +216,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     root = Path(dataset_dir)
+    preflight(backend or Backend())  # before the output is touched
     _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
     gt_masks, needs_gt = gt_access(est)

@@ -29,7 +29,7 @@ from typing import Any
 
 
 from simtest import cells
-from simtest.backend import Backend, BackendError, RunStats, check_backend, run_units, session
+from simtest.backend import Backend, BackendError, RunStats, check_backend, preflight, run_units, session
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import GT_MASKS_LABEL
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
@@ -310,6 +310,7 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     from tqdm import tqdm
 
     out = Path(out_dir).resolve()  # absolute: a worker's working folder may differ
+    preflight(_backend(cfg))  # before the output is touched
     _check_sweep_folder(cfg, out, resume, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "sweep_config.json", cfg.to_dict())

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.backend import Backend, RunStats, run_units
+from simtest.backend import Backend, RunStats, preflight, run_units
 from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
@@ -114,6 +114,7 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     for scene in scenes:
         files = read_scene_files(scene, require_gt=False)
         cache[scene] = {"camera": files.camera, "gt": files.gt or {}, "gt_info": files.gt_info}
+    preflight(backend or Backend())  # before the output is touched
     prepare_out_dir(dst, overwrite=overwrite, clear=True, protect=[src], what="output dataset")
     dst.mkdir(parents=True, exist_ok=True)
 

@@ -113,3 +113,28 @@ def _die_once_always(unit: tuple[int, str]) -> int:
 def test_ray_passes_the_units_exception_through(local_ray):
     with pytest.raises(ConfigError, match="bad unit"):
         list(run_units(_raise, [1, 2], Backend("ray", 2)))
+
+
+def test_an_unreachable_cluster_fails_before_any_output_is_written(tmp_path):
+    """generate, eval and corrupt check the back end before they create or touch their output folder."""
+    pytest.importorskip("ray")
+    from simtest.corrupt.dataset import corrupt_dataset
+    from simtest.corrupt.spec import CorruptionSpec
+    from simtest.eval import evaluate
+    from simtest.generators.config import GenerateConfig
+    from simtest.generators.pipeline import generate
+
+    far = Backend("ray", 1, address="127.0.0.1:1")
+    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 1,
+                                      "camera.width": 64, "camera.height": 48, "backend": "ray",
+                                      "ray_address": "127.0.0.1:1"})
+    with pytest.raises(BackendError, match="no Ray head node answers there"):
+        generate(cfg, tmp_path / "data", progress=False)
+    assert not (tmp_path / "data").exists()
+    generate(cfg.replace(backend="local", ray_address=None), tmp_path / "data", progress=False)
+    with pytest.raises(BackendError, match="127.0.0.1:1"):
+        evaluate(tmp_path / "data", "oracle", progress=False, out_dir=tmp_path / "eval", backend=far)
+    with pytest.raises(BackendError, match="127.0.0.1:1"):
+        corrupt_dataset(tmp_path / "data", tmp_path / "fog", CorruptionSpec(weather="fog", severity=1), 0,
+                        progress=False, backend=far)
+    assert not (tmp_path / "eval").exists() and not (tmp_path / "fog").exists()
