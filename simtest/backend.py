@@ -279,6 +279,7 @@ def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: R
     ray, started = _start_ray(backend, stats)
     from ray.exceptions import RayTaskError
 
+    running: dict[Any, int] = {}
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_unit)
         key = _init_key(init, init_args)
@@ -286,7 +287,6 @@ def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: R
         window = max(1, 2 * max(stats.cluster_cpus, 1))  # units in flight: enough to keep every CPU busy
         pending = list(range(len(units)))[::-1]
         attempts = [0] * len(units)
-        running: dict[Any, int] = {}
         while pending or running:
             while pending and len(running) < window:
                 i = pending.pop()
@@ -311,5 +311,10 @@ def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: R
             stats.finished += 1
             yield result
     finally:
+        for ref in running:  # the run stopped early (an error, --fail-fast, Ctrl-C): free the cluster's CPUs
+            try:
+                ray.cancel(ref, force=True)
+            except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel
+                pass
         if started:
             ray.shutdown()
