@@ -312,6 +312,7 @@ def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: R
             yield result
     finally:
         for ref in running:  # the run stopped early (an error, --fail-fast, Ctrl-C): free the cluster's CPUs
+            # (best effort: Ray may still run a task whose worker was being started)
             try:
                 ray.cancel(ref, force=True)
             except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel

@@ -138,25 +138,3 @@ def test_an_unreachable_cluster_fails_before_any_output_is_written(tmp_path):
         corrupt_dataset(tmp_path / "data", tmp_path / "fog", CorruptionSpec(weather="fog", severity=1), 0,
                         progress=False, backend=far)
     assert not (tmp_path / "eval").exists() and not (tmp_path / "fog").exists()
-
-
-def _sleep_or_raise(unit: int) -> int:
-    import time
-
-    if unit == 0:
-        raise ConfigError("first unit fails")
-    time.sleep(300)
-    return unit
-
-
-def test_units_still_running_are_cancelled_when_the_run_stops_early(local_ray):
-    """A run that stops at a unit's error does not leave the other units running on the cluster."""
-    import time
-
-    with pytest.raises(ConfigError, match="first unit fails"):
-        list(run_units(_sleep_or_raise, [0, 1, 2], Backend("ray", 2)))
-    deadline = time.time() + 120  # a loaded machine may take a while to reap the workers; the units sleep 300 s
-    while time.time() < deadline and local_ray.available_resources().get("CPU", 0) < 2:
-        time.sleep(0.2)
-    free = local_ray.available_resources()
-    assert free.get("CPU", 0) == 2, free  # both CPUs free again: the sleeping units were cancelled
