@@ -29,8 +29,8 @@ from simtest.errors import ConfigError, DatasetError
 from simtest.geometry import Pose
 from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, short_repr, validate_camera_json, validate_scene_camera,
                                    validate_scene_gt, validate_scene_gt_info)
-from simtest.io.files import (atomic_write_bytes, atomic_write_json, atomic_write_text, dump_json_keyed,
-                              private_partial_dir)
+from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed, private_partial_dir,
+                              write_new_file)
 
 __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
@@ -126,21 +126,22 @@ def encode_image(img: np.ndarray, suffix: str = ".png", mask: bool = False, jpg_
 
 
 def _write_rgb_file(path: Path, rgb: np.ndarray, jpg_quality: int) -> None:
-    """Encode an RGB-order image as ``path``'s format (:func:`encode_image`) and write it atomically."""
+    """Encode an RGB-order image as ``path``'s format (:func:`encode_image`) into the scene's private folder."""
     bgr = np.ascontiguousarray(rgb[..., ::-1])
-    atomic_write_bytes(path, encode_image(bgr, path.suffix, jpg_quality=jpg_quality))
+    write_new_file(path, encode_image(bgr, path.suffix, jpg_quality=jpg_quality))
 
 
 def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> None:
-    """Write planar depth (metres) as a BOP uint16 depth PNG (:func:`encode_depth`), atomically."""
-    atomic_write_bytes(path, _png(encode_depth(depth_m, depth_scale)))
+    """Write planar depth (metres) as a BOP uint16 depth PNG (:func:`encode_depth`) into the scene's private
+    folder."""
+    write_new_file(path, _png(encode_depth(depth_m, depth_scale)))
 
 
 def _write_mask_file(path: Path, mask: np.ndarray) -> None:
-    """Write a mask (non-zero = inside) as a 0/255 8-bit PNG, atomically."""
+    """Write a mask (non-zero = inside) as a 0/255 8-bit PNG into the scene's private folder."""
     m = np.asarray(mask)
     img = m.view(np.uint8) * np.uint8(255) if m.dtype == np.bool_ else (m != 0).view(np.uint8) * np.uint8(255)
-    atomic_write_bytes(path, _png(img, True))
+    write_new_file(path, _png(img, True))
 
 
 def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float) -> None:
