@@ -261,7 +261,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         EstimatorError: With ``cfg.fail_fast``, the first episode the estimator failed (with its traceback).
         DatasetError: ``out_dir`` not empty without ``overwrite``, a file, or not writable.
     """
-    preflight(Backend(cfg.backend, cfg.workers, cfg.ray_address))  # before the output is touched
+    preflight(Backend.of(cfg))  # before the output is touched
     if out_dir is not None:
         from simtest.io.files import prepare_out_dir
 
@@ -315,7 +315,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     if lost is not None:
         ids = summary["run"]["lost_episodes"]
         raise BackendError(f"{len(ids)} of {cfg.episodes} episodes were lost with their workers more than "
-                           f"{Backend(cfg.backend, cfg.workers, cfg.ray_address).retries} time(s) (episodes "
+                           f"{Backend.of(cfg).retries} time(s) (episodes "
                            f"{', '.join(map(str, ids[:20]))}); the outputs"
                            f"{'' if out is None else ' in ' + repr(str(out))} cover the other {len(rows)} "
                            f"(summary.json: run.lost_episodes): run again for the full count") from lost
@@ -329,7 +329,7 @@ def _run_episodes(cfg: GraspRunConfig, out: Path | None, rows: list[dict], bar, 
         EstimatorError: With ``cfg.fail_fast``, at the first estimator fault.
         BackendError: Episodes lost beyond the retries (after every other one finished).
     """
-    backend = Backend(cfg.backend, cfg.workers, cfg.ray_address)
+    backend = Backend.of(cfg)
     out_str = None if out is None else str(out.resolve())  # absolute: a worker's working folder may differ
     ctx = _make_context(cfg, out_str) if backend.in_process(cfg.episodes) else None
     init_args: tuple = ()

@@ -39,11 +39,14 @@ from typing import Any
 
 from simtest.errors import ConfigError, SimtestError
 
-__all__ = ["BACKENDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
+__all__ = ["BACKENDS", "RUN_FIELDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
            "session", "preflight"]
 
 #: Back ends :func:`run_units` knows.
 BACKENDS = ("local", "ray")
+
+#: Config fields that say where and how fast a run goes, not what it makes: a resume may change them.
+RUN_FIELDS = ("workers", "backend", "ray_address")
 
 #: Default number of times a unit whose Ray worker (or node) died is submitted again.
 DEFAULT_RETRIES = 3
@@ -73,6 +76,12 @@ class Backend:
 
     def __post_init__(self) -> None:
         check_backend(self.name, self.address, self.workers)
+
+    @classmethod
+    def of(cls, cfg: Any) -> "Backend":
+        """The back end a run config asks for (its :data:`RUN_FIELDS`: ``backend``, ``workers``,
+        ``ray_address``)."""
+        return cls(cfg.backend, cfg.workers, cfg.ray_address)
 
     @property
     def is_ray(self) -> bool:

@@ -29,7 +29,7 @@ from typing import Any
 
 
 from simtest import cells
-from simtest.backend import Backend, BackendError, RunStats, check_backend, preflight, run_units, session
+from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, check_backend, preflight, run_units, session
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import GT_MASKS_LABEL
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
@@ -230,14 +230,6 @@ class SweepReport:
     run: RunStats = field(default_factory=RunStats)  # what the back end did (units retried, lost)
 
 
-#: Sweep-config fields that say where a sweep runs, not what it computes: a resume may change them.
-RUN_ONLY_FIELDS = ("workers", "backend", "ray_address")
-
-
-def _backend(cfg: SweepConfig) -> Backend:
-    return Backend(cfg.backend, cfg.workers, cfg.ray_address)
-
-
 def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     if cfg.dataset.path is not None:
         path = Path(cfg.dataset.path).resolve()
@@ -274,7 +266,7 @@ def _condition_datasets(cfg: SweepConfig, conds: list[Condition], out: Path, sta
     found = {c.name: clean if c.factor == "clean" else out / "data" / c.name for c in conds}
     todo = [(str(clean), str(found[c.name]), c, cfg.factors.occlusion_definition, cfg.seed) for c in conds
             if c.factor != "clean" and not (found[c.name] / "corruption.json").exists()]
-    for _ in run_units(_corrupt_unit, todo, _backend(cfg), stats=stats):
+    for _ in run_units(_corrupt_unit, todo, Backend.of(cfg), stats=stats):
         pass
     return found
 
@@ -310,7 +302,7 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     from tqdm import tqdm
 
     out = Path(out_dir).resolve()  # absolute: a worker's working folder may differ
-    preflight(_backend(cfg))  # before the output is touched
+    preflight(Backend.of(cfg))  # before the output is touched
     _check_sweep_folder(cfg, out, resume, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "sweep_config.json", cfg.to_dict())
@@ -330,12 +322,12 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
                disable=not progress, dynamic_ncols=True)
     started = RunStats()
     try:
-        with session(_backend(cfg), started):
+        with session(Backend.of(cfg), started):
             pose_conds = list({c.name: c for _, c, k, _ in todo if k == "pose"}.values())
             data = _condition_datasets(cfg, pose_conds, out, report.run) if pose_conds else {}
             units = [(cfg.to_dict(), e, c, k, str(d), str(data[c.name]) if k == "pose" else None)
                      for e, c, k, d in todo]
-            for key in run_units(_cell_unit, units, _backend(cfg), stats=report.run):
+            for key in run_units(_cell_unit, units, Backend.of(cfg), stats=report.run):
                 report.cells_run.append(key)
                 bar.update(1)
     except BackendError as exc:
@@ -365,7 +357,7 @@ def _check_sweep_folder(cfg: SweepConfig, out: Path, resume: bool, overwrite: bo
         raise DatasetError(f"cannot resume {str(out)!r}: it has no sweep_config.json (not a sweep folder); "
                            f"choose another --out or pass --overwrite")
     defaults = to_plain(dataclasses.asdict(SweepConfig(estimators=())))
-    diffs = config_changes(json.loads(old.read_text()), cfg.to_dict(), defaults, ignore=RUN_ONLY_FIELDS)
+    diffs = config_changes(json.loads(old.read_text()), cfg.to_dict(), defaults, ignore=RUN_FIELDS)
     if diffs:
         raise DatasetError(f"cannot resume {str(out)!r}: it was run with another config at "
                            f"{', '.join(diffs[:8])} (see {old}); use the same config or --overwrite")
