@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 import simtest
-from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
+from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, preflight, run_units
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
@@ -34,8 +34,6 @@ from simtest.schema import config_changes
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
 MANIFEST = "manifest.json"
-#: Config fields that say where and how fast a run goes, not what it makes: a resume may change them.
-RUN_ONLY_FIELDS = ("workers", "backend", "ray_address")
 
 log = logging.getLogger(__name__)
 
@@ -102,14 +100,20 @@ _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
-    from simtest.gl import apply_thread_budget, available_cores
+    from simtest.gl import apply_thread_budget
 
     cfg = GenerateConfig.from_dict(cfg_dict)
-    # each worker its share of the cores (llvmpipe, OpenCV), before any render; on a cluster (ray_address set)
-    # every node runs one scene per CPU
-    apply_thread_budget(cfg.workers if cfg.ray_address is None else available_cores())
+    apply_thread_budget(_workers_per_machine(cfg))  # its share of the cores (llvmpipe, OpenCV), before any render
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
+
+
+def _workers_per_machine(cfg: GenerateConfig) -> int:
+    """Workers sharing one machine's cores: ``cfg.workers`` here; on a cluster (``ray_address`` set) every node
+    runs one scene per CPU."""
+    from simtest.gl import available_cores
+
+    return cfg.workers if cfg.ray_address is None else available_cores()
 
 
 def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
@@ -178,7 +182,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
                          coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
-                         threads=thread_budget(cfg.workers).writers)
+                         threads=thread_budget(_workers_per_machine(cfg)).writers)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
     pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
@@ -276,7 +280,7 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
     import json
 
     diffs = config_changes(json.loads(manifest.read_text())["config"], cfg.to_dict(), GenerateConfig().to_dict(),
-                           ignore=RUN_ONLY_FIELDS)
+                           ignore=RUN_FIELDS)
     if diffs:
         raise DatasetError(f"cannot resume into {str(out)!r}: its config differs from this run's at "
                            f"{', '.join(diffs[:8])}; use the same config (or --overwrite)")
@@ -319,7 +323,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         from simtest.render_pbr import require_pbr
 
         require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
-    preflight(Backend(cfg.backend, cfg.workers, cfg.ray_address))  # before the output is touched
+    preflight(Backend.of(cfg))  # before the output is touched
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = _load_objects(cfg)
@@ -355,7 +359,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
                    smoothing=0.1, file=sys.stderr)
     try:
         _run_scenes(cfg, objects, todo, split_dir, report, bar)
-        _write_models(objects, out / "models", split_dir, scenes_done=True)
+        _write_models(objects, out / "models", split_dir, scenes_done=True, unlabelled=cfg.unlabelled)
     finally:
         if bar is not None:
             bar.close()
@@ -373,7 +377,7 @@ def _run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, 
         BackendError: Scenes lost with their workers more often than the retries allow; it names them and says
             that ``--resume`` makes them (every other scene is written).
     """
-    backend = Backend(cfg.backend, cfg.workers, cfg.ray_address)
+    backend = Backend.of(cfg)
     ahead = ScenesAhead(cfg, objects, todo) if backend.in_process(len(todo)) else None
     if ahead is not None:
         def fn(unit: tuple[int, str]) -> SceneReport:  # this process: its objects are loaded already
@@ -410,6 +414,7 @@ class ScenesAhead:
         from concurrent.futures import ThreadPoolExecutor
 
         self._cfg, self._objects, self._order = cfg, objects, list(order)
+        self._position = {scene_id: k for k, scene_id in enumerate(self._order)}
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="simtest-scene-ahead")
         self._futures: dict[int, Any] = {}
         self._submit(0)
@@ -421,7 +426,7 @@ class ScenesAhead:
 
     def take(self, scene_id: int) -> tuple:
         """The :func:`prepare_scene` result of ``scene_id`` (made ahead, or now); starts the next one."""
-        k = self._order.index(scene_id)
+        k = self._position[scene_id]
         self._submit(k)
         future = self._futures.pop(scene_id)
         self._submit(k + 1)
@@ -450,10 +455,12 @@ def _record_run(manifest: Path, cfg: GenerateConfig, report: GenerateReport) -> 
     atomic_write_json(manifest, data)
 
 
-def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool = False) -> None:
+def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool = False,
+                  unlabelled: bool = False) -> None:
     """Write the BOP ``models/`` folder: every object of the set, before the scenes; for a lazily read set
     (a large mesh library, :class:`~simtest.objects.lazy.LazyObjectSet`) only the objects the written scenes
-    use, after them, so a set's size does not add to the cost of its scenes."""
+    use (read from their ``scene_gt.json``, withheld for an ``unlabelled`` split), after them, so a set's size
+    does not add to the cost of its scenes."""
     from simtest.io.bop import read_json
     from simtest.io.bop_models import INFO_FILE, write_bop_models
     from simtest.objects.lazy import LazyObjectSet
@@ -465,8 +472,8 @@ def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool 
         return
     if not scenes_done:
         return
-    used = {int(g["obj_id"]) for d in scene_dirs(split_dir) for gts in read_json(d / "scene_gt.json").values()
-            for g in gts}
+    labels = [withheld_dir(split_dir, int(d.name)) if unlabelled else d for d in scene_dirs(split_dir)]
+    used = {int(g["obj_id"]) for d in labels for gts in read_json(d / "scene_gt.json").values() for g in gts}
     have = {int(k) for k in read_json(info)} if info.exists() else set()
     if used - have:
         write_bop_models(objects.subset(sorted(used | have)), models_dir)

@@ -195,3 +195,20 @@ def test_per_category_viewpoint_accuracy_from_a_results_file(library_dataset, tm
     assert f"#### Per category ({len(cats)} categories)" in md and f"| {cats[0]} |" in md
     saved = json.loads((tmp_path / "out" / "metrics.json").read_text())["per_category"]
     assert saved[cats[1]]["acc_pi_18"] == 1.0 and saved[cats[0]]["num_objects"] >= 1
+
+
+def test_unlabelled_split_of_a_library_writes_the_models_its_scenes_use(library_dataset, tree, tmp_path):
+    """The labels of an unlabelled split are withheld; the models written are still those its scenes use (the
+    same as the labelled run with that seed)."""
+    from simtest.generators.config import GenerateConfig
+    from simtest.generators.pipeline import generate
+
+    ds, _ = library_dataset
+    cfg = GenerateConfig().replace(**{
+        "objects": str(tree), "scenes": 1, "frames_per_scene": 3, "camera.width": 160, "camera.height": 120,
+        "scene.objects_per_scene": [6, 6], "scene.allow_repeats": False, "scene.distractors": [0, 0],
+        "seed": 11, "unlabelled": True})
+    generate(cfg, tmp_path / "unl", progress=False)
+    assert not (tmp_path / "unl" / "train_pbr" / "000000" / "scene_gt.json").exists()
+    models = sorted(p.name for p in (tmp_path / "unl" / "models").glob("obj_*.ply"))
+    assert models == sorted(p.name for p in (ds / "models").glob("obj_*.ply")) and len(models) == len(_used_ids(ds))
