@@ -14,8 +14,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from simtest.backend import Backend, RunStats, run_units
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.base import Observation, _is_file_target, load_estimator, reset_estimator
@@ -63,10 +61,10 @@ def _failure(ref: ImageRef, obj_id: Any, kind: str, message: str, exception_type
 
 
 def estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], timeout: float | None,
-                    results: list[ResultRow], scales: dict[int, float],
+                    results: list[ResultRow], scales: list[float],
                     failures: list[dict[str, Any]], fail_fast: bool = False) -> tuple[float, bool]:
-    """Run the estimator on one image; append its valid estimates to ``results`` (and non-unit scales to
-    ``scales``) and every fault to ``failures`` (with ``fail_fast``: raise :class:`EstimatorError` at the
+    """Run the estimator on one image; append its valid estimates to ``results`` (and their scales to
+    ``scales``, which runs parallel to ``results``) and every fault to ``failures`` (with ``fail_fast``: raise :class:`EstimatorError` at the
     first). Returns the wall time of the call (s) and whether the image failed as a whole (a fault, or only
     invalid estimates)."""
     t0 = time.perf_counter()
@@ -93,8 +91,7 @@ def estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], t
         row = ResultRow(scene_id=ref.scene_id, im_id=ref.im_id, obj_id=e.obj_id, score=e.score, R=e.R, t=e.t,
                         time=dt)
         results.append(row)
-        if e.scale != 1.0:
-            scales[id(row)] = e.scale
+        scales.append(float(e.scale))
     return dt, bool(out) and valid == 0
 
 
@@ -135,12 +132,12 @@ class _Shard:
 
 @dataclass
 class _ShardResult:
-    """What one shard gives back: its valid estimates, their non-unit scales by position in ``results``, its
+    """What one shard gives back: its valid estimates, their scales (parallel to ``results``), its
     failure rows, the estimator's wall time per image (s) and the count of images that failed as a whole."""
 
     index: int
     results: list[ResultRow] = field(default_factory=list)
-    scales: dict[int, float] = field(default_factory=dict)
+    scales: list[float] = field(default_factory=list)
     failures: list[dict[str, Any]] = field(default_factory=list)
     times: list[float] = field(default_factory=list)
     failed_images: int = 0
@@ -181,10 +178,8 @@ def _run_shard(shard: _Shard) -> _ShardResult:
     for frame, ref in enumerate(shard.refs):
         obs, _ = observation(ref, objects, s.targets, s.width, s.height, s.needs_gt, s.gt_masks, frame,
                               initialised if s.gt_init else None)
-        first, scales = len(out.results), {}
-        dt, failed = estimate_image(est, obs, ref, known, s.timeout, out.results, scales, out.failures,
-                                     s.fail_fast)
-        out.scales.update({i: scales[id(r)] for i, r in enumerate(out.results[first:], first) if id(r) in scales})
+        dt, failed = estimate_image(est, obs, ref, known, s.timeout, out.results, out.scales, out.failures,
+                                    s.fail_fast)
         out.times.append(dt)
         out.failed_images += failed
     return out
@@ -223,7 +218,8 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
     join their outputs in shard order, which is the image order of a sequential run.
 
     Returns:
-        ``(results, scales by id(row), failures, times per image in s, images failed as a whole)``.
+        ``(results, non-unit scales by id(row) as scoring takes them, failures, times per image in s, images
+        failed as a whole)``.
     """
     from tqdm import tqdm
 
@@ -237,14 +233,15 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
     if in_process:
         _WORKER.clear()
         _WORKER.update(est=est, objects=objects, known=set(objects.ids), setup=setup)
+    n_failures, seconds, images = 0, 0.0, 0  # running totals for the progress bar
     try:
         for res in run_units(_run_shard, shards, backend, init=_init_worker, init_args=init_args, stats=stats):
             done[res.index] = res
             bar.update(len(res.times))
-            if progress:
-                times = [t for r in done.values() for t in r.times]
-                bar.set_postfix(fail=sum(len(r.failures) for r in done.values()),
-                                s_per_img=f"{np.mean(times):.3f}")
+            n_failures, seconds, images = n_failures + len(res.failures), seconds + sum(res.times), \
+                images + len(res.times)
+            if progress and images:
+                bar.set_postfix(fail=n_failures, s_per_img=f"{seconds / images:.3f}")
     finally:
         bar.close()
         if in_process:
@@ -254,7 +251,7 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
     failures: list[dict[str, Any]] = []
     times: list[float] = []
     for r in (done[i] for i in range(len(shards))):
-        scales.update({id(row): r.scales[i] for i, row in enumerate(r.results) if i in r.scales})
+        scales.update({id(row): s for row, s in zip(r.results, r.scales) if s != 1.0})
         results += r.results
         failures += r.failures
         times += r.times

@@ -145,3 +145,22 @@ def test_describe_dataset_counts_images_and_instances(small_dataset):
     text = describe_dataset(small_dataset)
     n_img = sum(len(bop.read_scene(d)) for d in bop.scene_dirs(small_dataset / "train_pbr"))
     assert f"{n_img} RGB-D images" in text and "instances per object" in text
+
+
+class ScaledOracle:
+    """The ground-truth pose with a category-level scale that depends on the image (1 on image 0)."""
+
+    needs_gt = True
+
+    def estimate(self, observation):
+        s = 1.0 + 0.25 * observation.im_id
+        return [PoseEstimate(o, R, t, scale=s) for o, (R, t) in zip(observation.target_obj_ids,
+                                                                      observation.gt_poses)]
+
+
+def test_estimated_scales_reach_the_error_rows_of_their_own_estimates(small_dataset, tmp_path):
+    rep = evaluate(small_dataset, ScaledOracle(), progress=False, vsd=False)
+    rows = [r for r in rep.errors if r["matched"]]
+    assert rows and {r["im_id"] for r in rows} >= {0, 1}
+    for r in rows:
+        assert r.get("scale", 1.0) == pytest.approx(1.0 + 0.25 * r["im_id"]), r  # unit scales are left out
