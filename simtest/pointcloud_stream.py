@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.estimators.icp import backproject
 from simtest.io import bop
 from simtest.io.dataset import select_images
 
@@ -104,17 +105,16 @@ class PointCloudSequence:
         K = ref.info["K"]
         out = []
         for j, g in enumerate(ref.info["gt"]):
-            v, u = np.nonzero(bop.read_mask(ref.scene_dir, ref.im_id, j, visible=True) & (depth > 0))
-            num_valid = len(v)
+            valid = bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) & (depth > 0)
+            pts, colors = backproject(depth, K, valid), rgb[valid]  # both in np.nonzero order
+            num_valid = len(pts)
             if num_valid < self.min_points:
                 continue
             if self.num_points is not None:
                 rng = np.random.default_rng([self.seed, ref.scene_id, ref.im_id, j])
-                pick = rng.choice(len(v), self.num_points, replace=len(v) < self.num_points)
-                v, u = v[pick], u[pick]
-            z = depth[v, u].astype(np.float64)
-            pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
-            out.append(ObjectPoints(points=pts.astype(np.float32), colors=rgb[v, u], R=g.T_cam_obj.R.copy(),
+                pick = rng.choice(num_valid, self.num_points, replace=num_valid < self.num_points)
+                pts, colors = pts[pick], colors[pick]
+            out.append(ObjectPoints(points=pts.astype(np.float32), colors=colors, R=g.T_cam_obj.R.copy(),
                                     t=g.T_cam_obj.t.copy(), obj_id=g.obj_id,
                                     category=self.objects.get(g.obj_id).category, gt_id=j,
                                     visib_fract=float(g.visib_fract), num_valid=num_valid,

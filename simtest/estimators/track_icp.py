@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.geometry import as_matrix
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.icp import ModelCloud, model_cloud, point_to_plane_icp, visible_points
 from simtest.estimators.oracle import axis_angle_matrix, random_unit_vector
@@ -182,7 +183,7 @@ class TrackICPEstimator:
                 raise ConfigError(f"track-icp: {name} must be an integer >= {lo}, got {val!r}")
         for name, val in (("gate_mm", gate_mm), ("consistency_mm", consistency_mm), ("normal_deg", normal_deg)):
             if not val > 0:
-                raise ConfigError(f"track-icp: {name} must be > 0 millimetres, got {val!r}")
+                raise ConfigError(f"track-icp: {name} must be > 0, got {val!r}")
         for name, val in (("init_rot_deg", init_rot_deg), ("init_trans_mm", init_trans_mm), ("search_mm", search_mm)):
             if not val >= 0:
                 raise ConfigError(f"track-icp: {name} must be >= 0, got {val!r}")
@@ -207,13 +208,13 @@ class TrackICPEstimator:
         """Forget every track (called by the evaluation before the first frame of each sequence)."""
         self.tracks: dict[int, _Track] = {}
         self._scene: int | None = None
-        self._maps: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (depth, points, normals)
+        #: This frame's depth (metres) and K as float64, and its point and normal maps (set by :meth:`estimate`).
+        self._frame: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # --- tracks ----------------------------------------------------------------------------------------------
     def _start(self, obs: Observation, track_id: int, obj_id: int, pose: tuple[np.ndarray, np.ndarray]) -> _Track:
         """A new track at the given initial pose, perturbed as the ``init_*`` options say."""
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = np.asarray(pose[0], dtype=np.float64), np.asarray(pose[1], dtype=np.float64)
+        T = as_matrix(np.asarray(pose[0], dtype=np.float64), np.asarray(pose[1], dtype=np.float64))
         if self.init_rot > 0 or self.init_trans > 0:
             rng = np.random.default_rng([self.seed, max(obs.scene_id, 0), int(track_id)])
             T[:3, :3] = axis_angle_matrix(random_unit_vector(rng), self.init_rot) @ T[:3, :3]
@@ -231,8 +232,7 @@ class TrackICPEstimator:
     def _select(self, obs: Observation, cloud: ModelCloud, T: np.ndarray, gate: float,
                 rng: np.random.Generator) -> np.ndarray:
         """Observed points (N, 3) within ``gate`` metres of the model surface at pose ``T`` (module doc, step 2)."""
-        depth = np.asarray(obs.depth, dtype=np.float64)
-        K = np.asarray(obs.K, dtype=np.float64)
+        depth, K, point_map, normal_map = self._frame
         R, t = T[:3, :3], T[:3, 3]
         r = 0.5 * cloud.diameter + gate
         if t[2] <= 1e-3:
@@ -244,11 +244,9 @@ class TrackICPEstimator:
         v0, v1 = int(max(0, np.floor(v - rad))), int(min(h, np.ceil(v + rad) + 1))
         if u1 <= u0 or v1 <= v0:
             return np.zeros((0, 3))
-        if self._maps is None or self._maps[0] is not obs.depth:
-            self._maps = (obs.depth, *point_and_normal_maps(depth, K))
         win = (slice(v0, v1, self.pixel_step), slice(u0, u1, self.pixel_step))
         valid = depth[win] > 0
-        pts, nrm = self._maps[1][win][valid], self._maps[2][win][valid]
+        pts, nrm = point_map[win][valid], normal_map[win][valid]
         if len(pts):
             q = (pts - t) @ R
             idx = cloud.nearest_fast(q)
@@ -267,8 +265,7 @@ class TrackICPEstimator:
         step 2)."""
         if self.search <= 0:
             return T
-        depth = np.asarray(obs.depth, dtype=np.float64)
-        K = np.asarray(obs.K, dtype=np.float64)
+        depth, K = self._frame[:2]
         R, t = T[:3, :3], T[:3, 3]
         ray = t / max(float(np.linalg.norm(t)), 1e-9)
         P = cloud.points[visible_points(cloud, (R.T @ ray)[None])[0]] @ R.T
@@ -309,15 +306,13 @@ class TrackICPEstimator:
                 return None
             R, t, it, _ = point_to_plane_icp(pts, cloud, T[:3, :3], T[:3, 3], self.max_iterations)
             U, _, Vt = np.linalg.svd(R)
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t
+            T = as_matrix(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t)
             iters += it
         return T, n_pts, iters
 
     def _score(self, obs: Observation, cloud: ModelCloud, T: np.ndarray, tol: float) -> tuple[float, int, int, int]:
         """``(fitness, explained, violations, occluded)`` of pose ``T`` (module doc, step 4)."""
-        e, v, o = depth_consistency(np.asarray(obs.depth, dtype=np.float64), np.asarray(obs.K, dtype=np.float64),
-                                    cloud, T[:3, :3], T[:3, 3], tol)
+        e, v, o = depth_consistency(*self._frame[:2], cloud, T[:3, :3], T[:3, 3], tol)
         return e / max(e + v + OCCLUDED_WEIGHT * o, 1), e, v, o
 
     def _refine(self, obs: Observation, track: _Track, k: int, rng: np.random.Generator) -> PoseEstimate | None:
@@ -328,7 +323,7 @@ class TrackICPEstimator:
                 if f is not None]
         if not fits:
             self._lose(obs, track, k, f"fewer than min_points={self.min_points} depth points within "
-                                      f"{self.gate * 500:.0f} mm of the predicted surface")
+                                      f"{self.gate * 1000:.0f} mm (the gate, then half of it) of the predicted surface")
             return None
         # The start whose result fits the depth best at a tight tolerance wins.
         T, n_pts, iters = max(fits, key=lambda f: self._score(obs, cloud, f[0], 0.3 * self.tol)[0])
@@ -358,6 +353,8 @@ class TrackICPEstimator:
             self.reset()
             self._scene = obs.scene_id
         rng = obs.rng(self.seed)
+        depth, K = np.asarray(obs.depth, dtype=np.float64), np.asarray(obs.K, dtype=np.float64)
+        self._frame = (depth, K, *point_and_normal_maps(depth, K))  # once per frame, for every track
         out = []
         for k, (obj_id, tid, init) in enumerate(zip(obs.target_obj_ids, obs.track_ids, obs.init_poses)):
             track = self._start(obs, tid, obj_id, init) if init is not None else self.tracks.get(int(tid))

@@ -30,22 +30,15 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.geometry import as_matrix
 from simtest.metrics.nocs import IOU_THRESHOLDS, NOCS_THRESHOLDS, iou_3d
 
-__all__ = ["LOSS_DEG", "LOSS_CM", "pose_matrix", "box_iou", "first_loss", "tracked_fraction", "summarize_frames"]
+__all__ = ["LOSS_DEG", "LOSS_CM", "box_iou", "first_loss", "tracked_fraction", "summarize_frames"]
 
 #: A frame whose rotation error exceeds this (degrees) counts as lost.
 LOSS_DEG = 10.0
 #: A frame whose translation error exceeds this (centimetres) counts as lost.
 LOSS_CM = 5.0
-
-
-def pose_matrix(R: Any, t: Any) -> np.ndarray:
-    """The 4x4 transform ``[[R, t], [0, 1]]`` (``t`` in metres)."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(R, dtype=np.float64).reshape(3, 3)
-    T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
-    return T
 
 
 def _bounds(bounds: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +66,7 @@ def box_iou(R_e: Any, t_e: Any, R_g: Any, t_g: Any, bounds: Any, syms: Any = Non
     centre = np.eye(4)
     centre[:3, 3] = 0.5 * (lo + hi)
     size = hi - lo
-    T_e, T_g = pose_matrix(R_e, t_e) @ centre, pose_matrix(R_g, t_g)
+    T_e, T_g = as_matrix(np.reshape(R_e, (3, 3)), t_e) @ centre, as_matrix(np.reshape(R_g, (3, 3)), t_g)
     S = np.eye(4)[None] if syms is None else np.asarray(syms, dtype=np.float64)
     if S.ndim != 3 or S.shape[1:] != (4, 4) or len(S) == 0:
         raise ConfigError(f"syms must be (S, 4, 4) symmetry transforms, got shape {S.shape}")
