@@ -51,7 +51,8 @@ For RL clients:
   asleep out of view and out of collision (:mod:`simtest.envs.model_cache`). Episodes the pool cannot hold
   (an object three times or more) use a model of their own structure, kept while the structure repeats.
   Before another model is compiled, the old renderer and model are freed. The same seed gives the same
-  observations either way. Parked objects cost physics time in every step, so physics-only envs
+  observations whether a model was reused or compiled anew (a pool model and a per-structure one differ by
+  rounding only: settled poses within about 1e-7 m). Parked objects cost physics time in every step, so physics-only envs
   (``observe_every_step=False``) keep one model per structure unless ``model_pool=True``.
 * GL is made lazily, by the first :meth:`reset`, in the process that renders (never in ``__init__``). GL
   contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
@@ -188,7 +189,9 @@ class PandaGraspEnv(gym.Env):
         """Build and settle a new scene and return the first observation (see the module docstring).
 
         The compiled model and the renderer are reused while the object set and image size stay the same
-        (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations either way.
+        (:class:`simtest.envs.model_cache.GraspModelCache`); the same seed gives the same observations whether the
+        model was reused or compiled anew. (A pooled model and a per-structure one, e.g. ``observe_every_step``
+        off, differ by rounding only: settled poses within about 1e-7 m.)
         """
         super().reset(seed=seed)
         from simtest.envs.scene import build_grasp_scene, tune_occluder

@@ -181,9 +181,9 @@ def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin:
     from simtest.estimators.icp import backproject
 
     T_world_cam = env.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
-    pts = backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)) @ T_world_cam.R.T + T_world_cam.t
-    pts = pts[np.isfinite(pts).all(axis=1) & (pts[:, 2] > env.grasp_scene.table_height + table_margin)]
-    surface = np.asarray(obj.surface_cloud(4000)[0]) @ T_world_obj.R.T + T_world_obj.t
+    pts = T_world_cam.apply(backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)))  # depth > 0 only
+    pts = pts[pts[:, 2] > env.grasp_scene.table_height + table_margin]
+    surface = T_world_obj.apply(obj.surface_cloud(4000)[0])
     dist, _ = cKDTree(surface).query(pts, distance_upper_bound=target_margin)
     pts = pts[~np.isfinite(dist)]
     mujoco.mj_kinematics(env.model, env.data)

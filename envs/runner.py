@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from simtest.backend import Backend, BackendError, RunStats, check_backend, preflight, run_units
+from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
@@ -172,12 +172,9 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
-    # Mesa's llvmpipe renders with one thread per core; with several workers each gets its share of cores
-    # (read when the worker creates its GL context).
-    # On a cluster (ray_address set) every node runs one episode per CPU: one thread each.
-    from simtest.gl import apply_thread_budget, available_cores
+    from simtest.gl import apply_thread_budget, workers_per_machine
 
-    apply_thread_budget(cfg.workers if cfg.ray_address is None else available_cores())
+    apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 
@@ -268,11 +265,8 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         prepare_out_dir(out_dir, overwrite=overwrite)
     if cfg.episodes < 1:
         raise ConfigError(f"episodes must be >= 1, got {cfg.episodes!r}")
-    if cfg.workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {cfg.workers!r}")
     if cfg.seed < 0:
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
-    check_backend(cfg.backend, cfg.ray_address, cfg.workers)
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
     from simtest.envs.grasp_env import EpisodeConfig

@@ -100,20 +100,12 @@ _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
-    from simtest.gl import apply_thread_budget
+    from simtest.gl import apply_thread_budget, workers_per_machine
 
     cfg = GenerateConfig.from_dict(cfg_dict)
-    apply_thread_budget(_workers_per_machine(cfg))  # its share of the cores (llvmpipe, OpenCV), before any render
+    apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores (llvmpipe, OpenCV), before any render
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = _load_objects(cfg)
-
-
-def _workers_per_machine(cfg: GenerateConfig) -> int:
-    """Workers sharing one machine's cores: ``cfg.workers`` here; on a cluster (``ray_address`` set) every node
-    runs one scene per CPU."""
-    from simtest.gl import available_cores
-
-    return cfg.workers if cfg.ray_address is None else available_cores()
 
 
 def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
@@ -173,7 +165,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
             the same as making it here.
     """
     from simtest.generators.annotate import annotate
-    from simtest.gl import thread_budget
+    from simtest.gl import thread_budget, workers_per_machine
     from simtest.render import Renderer
 
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -182,7 +174,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
                          coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
-                         threads=thread_budget(_workers_per_machine(cfg)).writers)
+                         threads=thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).writers)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
     pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
@@ -246,10 +238,12 @@ def _pbr_renderer(cfg: GenerateConfig, scene):
     """The path tracer of the ``pbr`` profile for ``scene``, or ``None`` for the rasterized profiles."""
     if cfg.render.profile != "pbr":
         return None
+    from simtest.gl import thread_budget, workers_per_machine
     from simtest.render_pbr import PbrRenderer
 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
-    threads = max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.workers > 1 else None  # each worker its share
+    shared = workers_per_machine(cfg.workers, cfg.ray_address)
+    threads = thread_budget(shared).cores if shared > 1 else None  # each worker its share of the cores
     return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
                        threads=threads)
 

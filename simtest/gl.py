@@ -32,7 +32,7 @@ from importlib import metadata
 
 __all__ = ["configure", "backend", "check_mujoco", "version_tuple", "SYSTEM_PACKAGES_HINT", "prepare_torch",
            "check_fork", "before_first_context", "FORK_HINT", "forked_after_context", "context_made",
-           "ThreadBudget", "available_cores", "thread_budget", "apply_thread_budget"]
+           "ThreadBudget", "available_cores", "workers_per_machine", "thread_budget", "apply_thread_budget"]
 
 #: What to do instead of forking a process that has made a GL context.
 FORK_HINT = (
@@ -179,6 +179,12 @@ def available_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
         return max(1, os.cpu_count() or 1)
+
+
+def workers_per_machine(workers: int, ray_address: str | None = None) -> int:
+    """Worker processes sharing one machine's cores: ``workers`` on this machine; on a joined Ray cluster
+    (``ray_address`` set) every node runs one unit per CPU, so as many as it has cores."""
+    return workers if ray_address is None else available_cores()
 
 
 def thread_budget(workers: int, cores: int | None = None) -> ThreadBudget:

@@ -139,8 +139,7 @@ def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> No
 
 def _write_mask_file(path: Path, mask: np.ndarray) -> None:
     """Write a mask (non-zero = inside) as a 0/255 8-bit PNG into the scene's private folder."""
-    m = np.asarray(mask)
-    img = m.view(np.uint8) * np.uint8(255) if m.dtype == np.bool_ else (m != 0).view(np.uint8) * np.uint8(255)
+    img = (np.asarray(mask) != 0).view(np.uint8) * np.uint8(255)
     write_new_file(path, _png(img, True))
 
 
