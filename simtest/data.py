@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
+from simtest.io.dataset import select_scene_dirs
 from simtest.pointcloud_stream import ObjectPoints, PointCloudSequence  # per-frame object point clouds (tracking)
 
 __all__ = [
@@ -113,32 +114,25 @@ def check_feed_options(seed: Any, rgb_dtype: Any, crop: Any) -> tuple[int, tuple
     Raises:
         ConfigError: Naming the bad value.
     """
-    if seed is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    seed = check_seed(seed)
     if rgb_dtype not in ("float32", "uint8"):
         raise ConfigError(f"rgb_dtype must be 'float32' or 'uint8', got {rgb_dtype!r}")
     if crop is not None:
         crop = (int(crop[0]), int(crop[1]))
         if min(crop) < 8:
             raise ConfigError(f"crop must be (height, width) of at least 8 pixels each, got {crop!r}")
-    return int(seed), crop
+    return seed, crop
 
 
-def select_scene_dirs(split_dir: Path, scenes: Sequence[int] | None) -> list[Path]:
-    """The complete scene folders of ``split_dir``, only ``scenes`` when given.
+def check_seed(seed: Any) -> int:
+    """``seed`` as an int if it is a non-negative integer.
 
     Raises:
-        ConfigError: A requested scene id that is not in the split (the available ones are listed).
+        ConfigError: Naming the bad value.
     """
-    from simtest.io import bop
-
-    dirs = bop.scene_dirs(split_dir)
-    if scenes is not None:
-        want, known = {int(s) for s in scenes}, {int(d.name) for d in dirs}
-        if want - known:
-            raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
-        dirs = [d for d in dirs if int(d.name) in want]
-    return dirs
+    if seed is None or isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
 
 
 def crop_window(a: np.ndarray, y0: int, x0: int, height: int, width: int) -> np.ndarray:

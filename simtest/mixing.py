@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from simtest.data import (check_feed_options, collate, crop_intrinsics, crop_window, sample_rng,
-                          select_scene_dirs)
+from simtest.data import check_feed_options, check_seed, collate, crop_intrinsics, crop_window, sample_rng
+from simtest.io.dataset import select_scene_dirs
 from simtest.errors import ConfigError, DatasetError
 
 __all__ = ["UnlabelledDataset", "MixedDataset", "collate_mixed"]
@@ -84,7 +84,7 @@ class UnlabelledDataset:
         dirs = select_scene_dirs(split_dir, scenes)
         images: list[_Image] = []
         for d in dirs:
-            cams = bop.read_scene_files(d, require_gt=False).camera
+            cams = bop.read_scene_camera(d)  # the labels, if any, are never read
             for key in sorted(cams, key=int):
                 cam = cams[key]
                 images.append(_Image(str(d), int(d.name), int(key), tuple(float(v) for v in cam["cam_K"]),
@@ -184,7 +184,7 @@ class MixedDataset:
         self.length = int(sizes.sum()) if length is None else int(length)
         if self.length < 1:
             raise ConfigError(f"length must be >= 1, got {length!r}")
-        self.seed = check_feed_options(seed, "float32", None)[0]
+        self.seed = check_seed(seed)
         self.epoch = 0
         self._order: tuple[int, np.ndarray, np.ndarray] | None = None
 

@@ -10,11 +10,12 @@ of the 1-worker local run are the basis of a cluster estimate (:meth:`BackendBen
 from __future__ import annotations
 
 import os
-import resource
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from simtest.benchmarks.generate import cpu_seconds
 
 __all__ = ["BackendBench", "BackendRow", "bench_backend"]
 
@@ -69,12 +70,6 @@ class BackendBench:
                 f"rendering, writing {frames * self.bytes_per_frame / 1e9:,.0f} GB to the shared file system")
 
 
-def _cpu_seconds() -> float:
-    """CPU seconds (user + system) of this process and its finished children."""
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
-
-
 def bench_backend(width: int = 640, height: int = 480, scenes: int = 24, frames_per_scene: int = 25,
                   objects: str = "builtin", runs: tuple[tuple[str, int], ...] = (
                       ("local", 1), ("local", 2), ("ray", 1), ("ray", 2))) -> BackendBench:
@@ -91,11 +86,11 @@ def bench_backend(width: int = 640, height: int = 480, scenes: int = 24, frames_
     bench = BackendBench(width, height, scenes, frames_per_scene, 0.0, os.cpu_count() or 1)
     with tempfile.TemporaryDirectory(prefix="simtest-bench-backend-") as tmp:
         for i, (backend, workers) in enumerate(runs):
-            cpu0, t0 = _cpu_seconds(), time.perf_counter()
+            cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
             rep = generate(cfg.replace(backend=backend, workers=workers), Path(tmp) / f"run{i}", progress=False)
             seconds = time.perf_counter() - t0
             if i == 0:
-                bench.cpu_s_per_frame = (_cpu_seconds() - cpu0) / max(1, rep.frames_written)
+                bench.cpu_s_per_frame = (cpu_seconds(children=True) - cpu0) / max(1, rep.frames_written)
                 written = sum(f.stat().st_size for f in (Path(tmp) / "run0").rglob("*") if f.is_file())
                 bench.bytes_per_frame = written / max(1, rep.frames_written)
             bench.rows.append(BackendRow(backend, workers, seconds, rep.run.startup_s, rep.frames_written))

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from simtest.generators.config import GenerateConfig
 
-__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench"]
+__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "cpu_seconds"]
 
 
 @dataclass
@@ -91,7 +91,7 @@ class GenerateBench:
         return "\n".join(rows)
 
 
-def _cpu_seconds(children: bool = False) -> float:
+def cpu_seconds(children: bool = False) -> float:
     """CPU seconds (user + system, all threads) of this process, plus its waited-for child processes."""
     who = [resource.RUSAGE_SELF] + ([resource.RUSAGE_CHILDREN] if children else [])
     return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))
@@ -146,10 +146,10 @@ def _one_worker(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, f
     pipe = raw = cpu = 0.0
     frames = 0
     for scene_id in range(cfg.scenes):
-        cpu0, t0 = _cpu_seconds(children=True), time.perf_counter()
+        cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
         rep = render_scene(cfg, objects, scene_id, split_dir)  # its own seconds stop before the writes finish
         pipe += time.perf_counter() - t0
-        cpu += _cpu_seconds(children=True) - cpu0
+        cpu += cpu_seconds(children=True) - cpu0
         frames += rep.frames
         raw += _raw_seconds(cfg, objects, scene_id)[0]
     return pipe, raw, cpu, frames
@@ -176,9 +176,9 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
         pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp) / "w1" / cfg.split)
         fps2 = fps2_wall = cpu2 = cpu2_scenes = None
         if two_workers:
-            cpu0 = _cpu_seconds(children=True)
+            cpu0 = cpu_seconds(children=True)
             rep2 = generate(cfg.replace(workers=2), os.path.join(tmp, "w2"), progress=False)
-            cpu2 = (_cpu_seconds(children=True) - cpu0) * 1000.0 / max(1, rep2.frames_written)
+            cpu2 = (cpu_seconds(children=True) - cpu0) * 1000.0 / max(1, rep2.frames_written)
             busy: dict[int, float] = {}
             for s in rep2.scenes:
                 busy[s.worker] = busy.get(s.worker, 0.0) + s.seconds
@@ -227,8 +227,8 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
                 # warm-up outside the timing: GL context, path tracer and denoiser start-up
                 generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
-                cpu0 = _cpu_seconds()
+                cpu0 = cpu_seconds()
                 rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
-                cpu = (_cpu_seconds() - cpu0) / rep.frames_written
+                cpu = (cpu_seconds() - cpu0) / rep.frames_written
             rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu))
     return ProfileBench(rows, scenes, frames_per_scene, pbr_spp)

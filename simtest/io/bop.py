@@ -413,6 +413,15 @@ class SceneFiles:
     gt_info: dict[str, list] | None
 
 
+def read_scene_camera(scene_dir: str | Path) -> dict[str, dict]:
+    """The validated ``scene_camera.json`` of a scene, as stored (keys: image-id strings); no label file is
+    read (:func:`validate_scene_camera`)."""
+    cam_path = Path(scene_dir) / "scene_camera.json"
+    cams = read_json(cam_path)
+    validate_scene_camera(cams, cam_path)
+    return cams
+
+
 def read_scene_files(scene_dir: str | Path, obj_ids: Iterable[int] | None = None,
                      require_gt: bool = True) -> SceneFiles:
     """Read and validate ``scene_camera.json``, ``scene_gt.json`` and ``scene_gt_info.json`` of a scene.

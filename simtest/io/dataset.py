@@ -14,7 +14,7 @@ import numpy as np
 from simtest.errors import ConfigError, DatasetError
 from simtest.io import bop
 
-__all__ = ["ImageRef", "select_images", "image_size", "image_targets", "describe_dataset", "labels_root",
+__all__ = ["ImageRef", "select_scene_dirs", "select_images", "image_size", "image_targets", "describe_dataset", "labels_root",
            "WITHHELD"]
 
 #: Folder (in a dataset root) holding the labels of an unlabelled split: ``withheld/<split>/<scene>/``.
@@ -75,6 +75,21 @@ def _scene_gt_dir(scene_dir: Path, labels: Path | None) -> Path:
     return gt_dir
 
 
+def select_scene_dirs(split_dir: Path, scenes: Sequence[int] | None) -> list[Path]:
+    """The complete scene folders of ``split_dir``, only ``scenes`` when given.
+
+    Raises:
+        ConfigError: A requested scene id that is not in the split (the available ones are listed).
+    """
+    dirs = bop.scene_dirs(split_dir)
+    if scenes is not None:
+        want, known = {int(s) for s in scenes}, {int(d.name) for d in dirs}
+        if want - known:
+            raise ConfigError(f"scenes {sorted(want - known)} not in {split_dir}; available: {sorted(known)}")
+        dirs = [d for d in dirs if int(d.name) in want]
+    return dirs
+
+
 def select_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
                   max_images: int | None, obj_ids: Iterable[int],
                   labels: str | Path | None = None) -> list[ImageRef]:
@@ -100,14 +115,7 @@ def select_images(dataset_dir: Path, split: str, scenes: Sequence[int] | None,
     obj_ids = sorted(obj_ids)
     if max_images is not None and int(max_images) < 1:
         raise ConfigError(f"max_images must be >= 1 or None, got {max_images!r}")
-    dirs = bop.scene_dirs(split_dir)
-    if scenes is not None:
-        want = {int(s) for s in scenes}
-        known = {int(d.name) for d in dirs}
-        missing = sorted(want - known)
-        if missing:
-            raise ConfigError(f"scenes {missing} not in {split_dir}; available: {sorted(known)}")
-        dirs = [d for d in dirs if int(d.name) in want]
+    dirs = select_scene_dirs(split_dir, scenes)
     refs: list[ImageRef] = []
     for d in dirs:
         gt_dir = _scene_gt_dir(d, label_root)

@@ -123,3 +123,18 @@ def test_mixed_loader_yields_both_kinds_deterministically(pair):
     # each image of a source at most once per pass through it
     src, idx = mix.order()
     assert sorted(idx[src == 0].tolist()) == sorted(set(idx[src == 0].tolist()))
+
+
+def test_unlabelled_reader_never_reads_label_files(pair, tmp_path):
+    """Any split can be read without its labels: a labelled copy whose scene_gt.json is broken still reads
+    (only scene_camera.json, images and depth are opened)."""
+    import shutil
+
+    from simtest.mixing import UnlabelledDataset
+
+    copy = tmp_path / "copy"
+    shutil.copytree(pair[0], copy)
+    for gt in (copy / "train_pbr").glob("*/scene_gt.json"):
+        gt.write_text("{ not json")
+    ds = UnlabelledDataset(copy, seed=0)
+    assert len(ds) == 4 and ds.load_numpy(0)["rgb"].shape == (72, 96, 3)
