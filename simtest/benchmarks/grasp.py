@@ -84,6 +84,24 @@ class ResetBench:
         return out
 
 
+def _actions(env, n_steps: int, seed: int) -> np.ndarray:
+    """``n_steps`` random actions of ``env`` (seeded), the rotation part scaled down to 30 %."""
+    actions = np.random.default_rng(seed).uniform(env.action_space.low, env.action_space.high,
+                                                  (n_steps, env.action_space.shape[0])).astype(np.float32)
+    actions[:, 3:6] *= 0.3
+    return actions
+
+
+def _time_steps(env, start, actions: np.ndarray) -> float:
+    """Seconds ``env.step`` takes over ``actions`` from the state ``start`` (an ``MjData`` copy)."""
+    mujoco.mj_copyData(env.data, env.model, start)
+    env.sync_command()
+    t0 = time.perf_counter()
+    for a in actions:
+        env.step(a)
+    return time.perf_counter() - t0
+
+
 def bench_resets(n_resets: int = 500, n_fixed: int = 50, width: int = 320, height: int = 240,
                  seed: int = 0) -> ResetBench:
     """Time :meth:`PandaGraspEnv.reset` and record the resident size (see the module docstring).
@@ -134,18 +152,11 @@ def bench_pool_steps(width: int = 320, height: int = 240, n_steps: int = 40, see
         env = PandaGraspEnv(width=width, height=height, model_pool=pool)
         env.reset(seed=seed, options=opts)
         envs.append((env, copy.copy(env.data)))
-    actions = np.random.default_rng(seed).uniform(envs[0][0].action_space.low, envs[0][0].action_space.high,
-                                                  (n_steps, 7)).astype(np.float32)
-    actions[:, 3:6] *= 0.3
+    actions = _actions(envs[0][0], n_steps, seed)
 
     def run(env, start, images: bool) -> float:
         env.observe_every_step = images
-        mujoco.mj_copyData(env.data, env.model, start)
-        env.sync_command()
-        t0 = time.perf_counter()
-        for a in actions:
-            env.step(a)
-        return time.perf_counter() - t0
+        return _time_steps(env, start, actions)
 
     out = {}
     for images in (False, True):
@@ -226,21 +237,14 @@ def bench_grasp(episodes: int = 3, width: int = 320, height: int = 240, n_steps:
     reset_bench = bench_resets(resets, min(50, max(int(resets), 1)), width, height, seed) if resets > 0 else None
     env = PandaGraspEnv(width=width, height=height, observe_every_step=False)
     env.reset(seed=seed, options={"target": "can_0", "n_distractors": 2})
-    rng = np.random.default_rng(seed)
-    actions = rng.uniform(env.action_space.low, env.action_space.high, (n_steps, 7)).astype(np.float32)
-    actions[:, 3:6] *= 0.3
+    actions = _actions(env, n_steps, seed)
     n_sub = int(round(0.05 / env.model.opt.timestep))
     start = copy.copy(env.data)
 
     inside = [0.0]
 
     def run_env() -> float:
-        mujoco.mj_copyData(env.data, env.model, start)
-        env.sync_command()
-        t0 = time.perf_counter()
-        for a in actions:
-            env.step(a)
-        return time.perf_counter() - t0
+        return _time_steps(env, start, actions)
 
     def run_env_split() -> tuple[float, float]:
         """Total time and time inside ``mj_step`` of the same loop (``mj_step`` wrapped by a timer)."""
@@ -288,13 +292,8 @@ def bench_grasp(episodes: int = 3, width: int = 320, height: int = 240, n_steps:
     outside = min((tot - ins) / ins for tot, ins in splits)
 
     env.observe_every_step = True
-    mujoco.mj_copyData(env.data, env.model, start)
-    env.sync_command()
     k = min(n_steps, 40)
-    t0 = time.perf_counter()
-    for a in actions[:k]:
-        env.step(a)
-    img_rate = k / (time.perf_counter() - t0)
+    img_rate = k / _time_steps(env, start, actions[:k])
     env.close()
 
     out = GraspBench(width, height, env_rate, raw_rate, img_rate, outside, resets=reset_bench,
