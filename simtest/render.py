@@ -189,14 +189,20 @@ class Renderer:
             mujoco.mjr_readPixels(colour, zbuf, self._rect, self._con)
         finally:
             np.copyto(scene.flags, saved)
-        code = colour.astype(np.int32)
-        segid = code[..., 0] + (code[..., 1] << 8) + (code[..., 2] << 16)  # 0 = background, else segid + 1
+        # The colour codes segid + 1 in 24 bits, R lowest (0 = background); codes above ngeom read as ngeom.
         lut = np.full(scene.ngeom + 1, -1, dtype=np.int32)
         for g in scene.geoms[:scene.ngeom]:
             if g.segid != -1 and g.objtype == _GEOM:
                 lut[g.segid + 1] = g.objid
-        seg = lut[np.clip(segid, 0, scene.ngeom)]
-        return np.ascontiguousarray(seg[::-1]), np.ascontiguousarray(zbuf[::-1])
+        flipped = colour[::-1]  # GL rows run bottom-up
+        if scene.ngeom < 255:  # every code fits in R: one 256-entry lookup of one channel
+            seg = lut[np.minimum(np.arange(256), scene.ngeom)][flipped[..., 0]]
+        else:
+            rgbx = np.zeros((self.height, self.width, 4), dtype=np.uint8)
+            rgbx[..., :3] = flipped
+            code = rgbx.view("<u4")[..., 0]
+            seg = lut[np.minimum(code, scene.ngeom, out=code)]
+        return seg, zbuf[::-1]
 
     def _linear_depth(self, zbuf: np.ndarray) -> np.ndarray:
         """Reversed-Z depth buffer values -> planar depth in metres (0 beyond the far plane).
@@ -208,8 +214,12 @@ class Renderer:
         d = -(np.float32(2) * far * near) / (far - near)
         c = np.float32(-0.5) * c - np.float32(0.5)
         d = np.float32(-0.5) * d
-        z = (d / (zbuf.astype(np.float64) + c)).astype(np.float32)
-        return np.where(z < self.zfar * 0.999, z, 0.0).astype(np.float32)
+        z64 = zbuf.astype(np.float64)  # also a contiguous copy of a flipped view
+        z64 += c
+        np.divide(d, z64, out=z64)
+        z = z64.astype(np.float32)
+        z[~(z < self.zfar * 0.999)] = 0.0
+        return z
 
     def close(self) -> None:
         """Free the GL resources of this model (textures, meshes, buffers); the shared context stays."""

@@ -1,9 +1,10 @@
 """Speed benchmarks, reported as ratios against raw MuJoCo measured in the same run.
 
-``bench_generate``: frames/s of the whole ``generate`` pipeline (sampling, building, settling, rendering,
-annotation, image and JSON writing) against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and
-segmentation: three ``render()`` calls per frame, MuJoCo's own API for them) for the same settled scenes and
-camera poses, alternating scene by scene so both see the same machine load; the CPU time per annotated frame
+``bench_generate``: frames/s of the whole ``generate`` pipeline with one worker (its scene loop: sampling,
+building, settling the next scene while the current one renders, rendering, annotation, image and JSON writing)
+against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and segmentation: three ``render()``
+calls per frame, MuJoCo's own API for them) for the same settled scenes and camera poses, each twice in the order
+pipeline, raw, raw, pipeline so both see the same machine load; the CPU time per annotated frame
 (the process and its worker processes, all threads); and 1 vs 2 workers. With 2 workers, throughput is given
 both as frames over the busy time of the slower worker and as frames over the wall time including worker
 start-up (about 1.5 s of imports and object loading per process), each also as a fraction of the ideal
@@ -132,27 +133,41 @@ def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, in
     return total, len(cams)
 
 
-def _one_worker(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, float, float, int]:
-    """Pipeline and raw rendering of each scene in turn, so that both see the same machine load.
+def _pipeline_run(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, float, int]:
+    """One worker making every scene of ``cfg`` as ``simtest generate`` does (its scene loop, with the next
+    scene built and settled ahead while the current one renders), without the once-per-run files (manifest,
+    models).
 
     Returns:
-        ``(pipeline seconds, raw seconds, pipeline CPU seconds, frames)``; the pipeline's are the
-        :func:`~simtest.generators.pipeline.render_scene` calls (sampling, building, settling, rendering,
-        annotation, writing) with the CPU time of every thread of the process.
+        ``(seconds, CPU seconds of every thread, frames)``.
     """
-    from simtest.generators.pipeline import render_scene
+    from simtest.generators.pipeline import GenerateReport, _run_scenes
 
-    split_dir.mkdir(parents=True, exist_ok=True)
+    split_dir.mkdir(parents=True)
+    report = GenerateReport(split_dir.parent, cfg.scenes, 0, 0, 0, 0.0)
+    cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
+    _run_scenes(cfg, objects, list(range(cfg.scenes)), split_dir, report, None)
+    return time.perf_counter() - t0, cpu_seconds(children=True) - cpu0, report.frames_written
+
+
+def _one_worker(cfg: GenerateConfig, objects, tmp: Path, rounds: int = 2) -> tuple[float, float, float, int]:
+    """The pipeline with one worker and raw rendering of the same scenes, ``rounds`` times each, in the order
+    pipeline, raw, raw, pipeline, ... (a load that drifts during the benchmark weighs on both alike).
+
+    Returns:
+        ``(pipeline seconds, raw seconds, pipeline CPU seconds, frames)`` per round (means).
+    """
     pipe = raw = cpu = 0.0
     frames = 0
-    for scene_id in range(cfg.scenes):
-        cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
-        rep = render_scene(cfg, objects, scene_id, split_dir)  # its own seconds stop before the writes finish
-        pipe += time.perf_counter() - t0
-        cpu += cpu_seconds(children=True) - cpu0
-        frames += rep.frames
-        raw += _raw_seconds(cfg, objects, scene_id)[0]
-    return pipe, raw, cpu, frames
+    order = [k % 2 == 0 for k in range(rounds)]  # pipeline first in even rounds
+    for k, pipeline_first in enumerate(order):
+        for step in ((True, False) if pipeline_first else (False, True)):
+            if step:
+                s, c, n = _pipeline_run(cfg, objects, tmp / f"w1_{k}" / cfg.split)
+                pipe, cpu, frames = pipe + s, cpu + c, n
+            else:
+                raw += sum(_raw_seconds(cfg, objects, scene_id)[0] for scene_id in range(cfg.scenes))
+    return pipe / rounds, raw / rounds, cpu / rounds, frames
 
 
 def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 8,
@@ -160,8 +175,8 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
                    seed: int = 0) -> GenerateBench:
     """Measure the pipeline (1 and 2 workers), its CPU time and raw MuJoCo on the same scenes (fast profile).
 
-    One worker and raw MuJoCo alternate scene by scene (their ratio sees the same load); object loading and one
-    warm-up frame (GL context start-up) are outside the 1-worker figures.
+    One worker and raw MuJoCo run twice each, in the order pipeline, raw, raw, pipeline (their ratio sees the
+    same load); object loading and one warm-up frame (GL context start-up) are outside the 1-worker figures.
     """
     from simtest.gl import available_cores
     from simtest.generators.pipeline import _load_objects, generate
@@ -173,7 +188,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     objs = _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
         generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
-        pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp) / "w1" / cfg.split)
+        pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp))
         fps2 = fps2_wall = cpu2 = cpu2_scenes = None
         if two_workers:
             cpu0 = cpu_seconds(children=True)

@@ -43,6 +43,26 @@ def test_renderer_equals_mujoco_renderer(small_config):
     assert (ours.seg >= 0).mean() > 0.5 and (ours.depth > 0).all()
 
 
+def test_segmentation_of_a_scene_with_more_geoms_than_one_colour_channel_codes():
+    """Above 254 drawn geoms the segmentation ids span two colour channels: still MuJoCo's own ids."""
+    boxes = "".join(f'<geom type="box" size="0.011 0.011 0.01" pos="{0.025 * (i % 20) - 0.24:.3f} '
+                    f'{0.025 * (i // 20) - 0.2:.3f} 0" rgba="0.5 0.5 0.5 1"/>' for i in range(320))
+    model = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody><geom type="plane" size="1 1 0.1"/>{boxes}
+        <camera name="top" pos="0 0 1.1" xyaxes="1 0 0 0 1 0" fovy="30"/></worldbody></mujoco>""")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with Renderer(model, 160, 120) as r:
+        ours = r.render(data, "top", rgb=False)
+    ref = mujoco.Renderer(model, 120, 160)
+    ref.update_scene(data, camera="top")
+    ref.enable_segmentation_rendering()
+    seg = ref.render()
+    ref.close()
+    assert model.ngeom > 256
+    assert np.array_equal(ours.seg, np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1))
+    assert ours.seg.max() > 255 and len(np.unique(ours.seg)) > 200
+
+
 def test_renderer_errors_name_the_problem(small_config):
     objects = load_object_set(small_config.objects)
     scene, _, _, _ = prepare_scene(small_config, objects, 0)
