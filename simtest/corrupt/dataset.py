@@ -39,7 +39,7 @@ from simtest.corrupt.occlusion import update_visible_masks, visibility_stats
 from simtest.corrupt.spec import CorruptionSpec
 from simtest.errors import ConfigError, DatasetError
 from simtest.rng import child_rng
-from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_mask,
+from simtest.io.bop import (decode_depth, encode_depth, encode_image, read_depth, read_image, read_mask, rgb_to_bgr,
                             read_scene_files, scene_dirs)
 from simtest.io.files import atomic_write_bytes as _atomic_write
 from simtest.io.files import dump_json_keyed, prepare_out_dir
@@ -302,7 +302,7 @@ def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: 
 
     if change_rgb:
         _atomic_write(dst / rgb_path.relative_to(src),
-                      encode_image(np.ascontiguousarray(out_rgb[..., ::-1]), rgb_path.suffix,
+                      encode_image(rgb_to_bgr(out_rgb), rgb_path.suffix,
                                    jpg_quality=_JPEG_QUALITY))
         produced.add(rgb_path)
     if spec.depth_noise is not None:

@@ -34,7 +34,7 @@ from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_ke
 
 __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
-    "encode_depth", "decode_depth",
+    "encode_depth", "decode_depth", "rgb_to_bgr",
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
     "dataset_split_dir", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
     "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
@@ -86,8 +86,9 @@ def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     Missing depth (0) stays 0; depth beyond the largest representable value becomes 0 (missing) rather than
     wrapping or clipping to a wrong distance.
     """
-    v = np.round(np.asarray(depth_m, dtype=np.float64) * (MM_PER_M / depth_scale))
-    v[(v > _UINT16_MAX) | ~np.isfinite(v) | (v < 0)] = 0
+    v = np.asarray(depth_m, dtype=np.float64) * (MM_PER_M / depth_scale)
+    np.rint(v, out=v)  # np.round's rounding (half to even), in place
+    v[~((v >= 0) & (v <= _UINT16_MAX))] = 0  # NaN fails both comparisons
     return v.astype(np.uint16)
 
 
@@ -127,8 +128,7 @@ def encode_image(img: np.ndarray, suffix: str = ".png", mask: bool = False, jpg_
 
 def _write_rgb_file(path: Path, rgb: np.ndarray, jpg_quality: int) -> None:
     """Encode an RGB-order image as ``path``'s format (:func:`encode_image`) into the scene's private folder."""
-    bgr = np.ascontiguousarray(rgb[..., ::-1])
-    write_new_file(path, encode_image(bgr, path.suffix, jpg_quality=jpg_quality))
+    write_new_file(path, encode_image(rgb_to_bgr(rgb), path.suffix, jpg_quality=jpg_quality))
 
 
 def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> None:
@@ -137,10 +137,17 @@ def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> No
     write_new_file(path, _png(encode_depth(depth_m, depth_scale)))
 
 
-def _write_mask_file(path: Path, mask: np.ndarray) -> None:
-    """Write a mask (non-zero = inside) as a 0/255 8-bit PNG into the scene's private folder."""
-    img = (np.asarray(mask) != 0).view(np.uint8) * np.uint8(255)
-    write_new_file(path, _png(img, True))
+def rgb_to_bgr(rgb: np.ndarray) -> np.ndarray:
+    """An (H, W, 3) uint8 image with its channels reversed (OpenCV's order), as a new contiguous array."""
+    return cv2.cvtColor(np.asarray(rgb), cv2.COLOR_RGB2BGR)
+
+
+def _write_mask_files(paths: list[Path], masks: list[np.ndarray]) -> None:
+    """Write masks (non-zero = inside) as 0/255 8-bit PNGs into the scene's private folder."""
+    for path, mask in zip(paths, masks):
+        mask = np.asarray(mask)
+        inside = mask.view(np.uint8) if mask.dtype == bool else (mask != 0).view(np.uint8)
+        write_new_file(path, _png(np.multiply(inside, np.uint8(255)), True))
 
 
 def write_camera_json(path: str | Path, camera: CameraModel, depth_scale: float) -> None:
@@ -247,7 +254,7 @@ class SceneWriter:
         the masks must not be modified afterwards (:meth:`close` waits for every write).
         """
         key = str(im_id)
-        self._drain(keep=64)  # bound the memory held by queued images
+        self._drain(keep=16)  # bound the memory held by queued images (four tasks per image)
         self._write_rgb(im_id, rgb)
         self._submit(_write_depth_file, self.dir / "depth" / f"{im_id:06d}.png", depth_m, self.depth_scale)
         T_cam_world = camera.T_cam_world
@@ -255,14 +262,16 @@ class SceneWriter:
         self.scene_camera[key] = {"cam_K": [float(v) for v in camera.K.reshape(-1)], "depth_scale": self.depth_scale,
                                   "cam_R_w2c": R9, "cam_t_w2c": t_mm}
         gts, infos = [], []
-        for gt_id, (inst, m, mv) in enumerate(zip(instances, masks, masks_visib)):
+        names = [f"{im_id:06d}_{gt_id:06d}.png" for gt_id in range(len(instances))]
+        # One task per mask folder and image: the writer threads share out fewer, larger pieces of work.
+        self._submit(_write_mask_files, [self.dir / "mask" / n for n in names], list(masks))
+        self._submit(_write_mask_files, [self.dir / "mask_visib" / n for n in names], list(masks_visib))
+        for inst, m, mv in zip(instances, masks, masks_visib):
             R9, t_mm = pose_to_bop(inst.T_cam_obj)
             gts.append({"cam_R_m2c": R9, "cam_t_m2c": t_mm, "obj_id": int(inst.obj_id)})
             infos.append({"bbox_obj": list(inst.bbox_obj), "bbox_visib": list(inst.bbox_visib),
                           "px_count_all": int(inst.px_count_all), "px_count_valid": int(inst.px_count_valid),
                           "px_count_visib": int(inst.px_count_visib), "visib_fract": float(inst.visib_fract)})
-            self._submit(_write_mask_file, self.dir / "mask" / f"{im_id:06d}_{gt_id:06d}.png", m)
-            self._submit(_write_mask_file, self.dir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png", mv)
             if self.coco and mv.any():
                 self._coco_annotation(im_id, inst, m, mv)
         self.scene_gt[key] = gts
