@@ -177,6 +177,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
 
     One worker and raw MuJoCo run twice each, in the order pipeline, raw, raw, pipeline (their ratio sees the
     same load); object loading and one warm-up frame (GL context start-up) are outside the 1-worker figures.
+    The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
     """
     from simtest.gl import available_cores
     from simtest.generators.pipeline import _load_objects, generate

@@ -13,7 +13,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     bsub = p.add_subparsers(dest="bench_command", metavar="BENCH")
     g = bsub.add_parser("generate", parents=[common_parser()],
                         help="dataset generation frames/s vs raw MuJoCo rendering, CPU ms per frame; "
-                             "1 vs 2 workers")
+                             "1 vs 2 workers",
+                        description="Dataset generation frames/s against raw MuJoCo rendering of the same scenes, "
+                                    "CPU ms per frame, 1 vs 2 workers. The datasets are written under $TMPDIR: "
+                                    "file creation costs differ between disks, so point it at the one your "
+                                    "datasets go to.")
     g.add_argument("--width", type=int, default=640)
     g.add_argument("--height", type=int, default=480)
     g.add_argument("--objects-per-scene", type=int, default=10)
