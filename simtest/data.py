@@ -274,7 +274,73 @@ class _ImageEntry:
     px_count_all: tuple[int, ...]  # amodal pixel counts (BOP scene_gt_info), -1 if unknown
 
 
-class PoseDataset:
+class ImageFeed:
+    """What the map-style datasets over a split's images share (:class:`PoseDataset`,
+    :class:`simtest.mixing.UnlabelledDataset`): one entry per image (with ``scene_dir``, ``scene_id``, ``im_id``,
+    ``K`` and ``depth_scale``), the epoch, and :meth:`__getitem__`: the sample's numpy arrays
+    (:meth:`load_numpy`), its seeded transform and crop (:func:`sample_rng`), then tensors (:meth:`_finish`)."""
+
+    _entries: list
+    seed: int
+    epoch: int
+    transform: Callable | None
+    crop: tuple[int, int] | None
+    rgb_dtype: str
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch whose random transforms :meth:`__getitem__` draws (see :func:`sample_rng`)."""
+        self.epoch = int(epoch)
+
+    def image_key(self, index: int) -> tuple[int, int]:
+        """``(scene_id, im_id)`` of sample ``index``."""
+        e = self._entries[index]
+        return e.scene_id, e.im_id
+
+    def load_numpy(self, index: int) -> dict[str, Any]:  # pragma: no cover - every feed has its own
+        raise NotImplementedError
+
+    def _crop(self, s: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:  # pragma: no cover
+        raise NotImplementedError
+
+    def _finish(self, s: dict[str, Any], torch: Any) -> dict[str, Any]:  # pragma: no cover
+        raise NotImplementedError
+
+    def _read_rgbd(self, index: int) -> dict[str, Any]:
+        """Image ``index``'s ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) metres, ``K`` and ids, as numpy."""
+        from simtest.io import bop
+
+        e = self._entries[index]
+        return {"rgb": bop.read_image(e.scene_dir, e.im_id), "depth": bop.read_depth(e.scene_dir, e.im_id, e.depth_scale),
+                "K": np.asarray(e.K, np.float64).reshape(3, 3), "scene_id": e.scene_id, "im_id": e.im_id,
+                "index": int(index)}
+
+    def _image_tensors(self, s: dict[str, Any], torch: Any) -> dict[str, Any]:
+        """``rgb`` (3, H, W) (float32 in [0, 1] or uint8, see ``rgb_dtype``), ``depth`` (1, H, W) and ``K``
+        tensors of sample ``s``."""
+        rgb = torch.from_numpy(np.ascontiguousarray(s["rgb"].transpose(2, 0, 1)))
+        if self.rgb_dtype == "float32":
+            rgb = rgb.to(torch.float32).div_(255.0)
+        return {"rgb": rgb, "depth": torch.from_numpy(np.ascontiguousarray(s["depth"], dtype=np.float32))[None],
+                "K": torch.from_numpy(s["K"].astype(np.float64))}
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        import torch
+
+        if not 0 <= int(index) < len(self._entries):
+            raise IndexError(f"index {index} out of range for {len(self._entries)} images")
+        tf_rng, crop_rng = sample_rng(self.seed, self.epoch, int(index)).spawn(2)
+        s = self.load_numpy(int(index))
+        if self.transform is not None:
+            s = self.transform(s, tf_rng)
+        if self.crop is not None:
+            s = self._crop(s, crop_rng)
+        return self._finish(s, torch)
+
+
+class PoseDataset(ImageFeed):
     """Map-style dataset over the images of a BOP dataset (see the module doc for the sample keys).
 
     Args:
@@ -369,22 +435,10 @@ class PoseDataset:
         self._entries = entries
 
     # -----------------------------------------------------------------------------------------------------
-    def __len__(self) -> int:
-        return len(self._entries)
-
     @property
     def num_classes(self) -> int:
         """Object classes (background excluded)."""
         return len(self.class_ids)
-
-    def set_epoch(self, epoch: int) -> None:
-        """Select the epoch whose random transforms :meth:`__getitem__` draws (see :func:`sample_rng`)."""
-        self.epoch = int(epoch)
-
-    def image_key(self, index: int) -> tuple[int, int]:
-        """``(scene_id, im_id)`` of sample ``index``."""
-        e = self._entries[index]
-        return e.scene_id, e.im_id
 
     def load_numpy(self, index: int) -> dict[str, Any]:
         """Sample ``index`` before the transforms, as numpy arrays (``rgb`` (H, W, 3) uint8, ``depth`` (H, W)
@@ -392,17 +446,14 @@ class PoseDataset:
         from simtest.io import bop
 
         e = self._entries[index]
-        rgb = bop.read_image(e.scene_dir, e.im_id)
-        depth = bop.read_depth(e.scene_dir, e.im_id, e.depth_scale)
-        h, w = rgb.shape[:2]
+        out = self._read_rgbd(index)
+        h, w = out["rgb"].shape[:2]
         n = len(e.instances)
         masks = np.stack([bop.read_mask(e.scene_dir, e.im_id, j, True) for j, *_ in e.instances]) if n else \
             np.zeros((0, h, w), bool)
-        out = {"rgb": rgb, "depth": depth, "K": np.asarray(e.K, np.float64).reshape(3, 3), "masks": masks,
-               "obj_ids": np.array([o for _, o, _, _ in e.instances], np.int64),
-               "R": np.array([r for *_, r, _ in e.instances], np.float64).reshape(n, 3, 3),
-               "t": np.array([t for *_, t in e.instances], np.float64).reshape(n, 3),
-               "scene_id": e.scene_id, "im_id": e.im_id, "index": int(index)}
+        out.update(masks=masks, obj_ids=np.array([o for _, o, _, _ in e.instances], np.int64),
+                   R=np.array([r for *_, r, _ in e.instances], np.float64).reshape(n, 3, 3),
+                   t=np.array([t for *_, t in e.instances], np.float64).reshape(n, 3))
         if self.amodal_masks:
             out["masks_amodal"] = np.stack([bop.read_mask(e.scene_dir, e.im_id, j, False) for j, *_ in e.instances]) \
                 if n else np.zeros((0, h, w), bool)
@@ -411,20 +462,6 @@ class PoseDataset:
               for k, c in enumerate(e.px_count_all)]
         out["px_all"] = np.array([max(1, c) for c in px], np.int64)
         return out
-
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        import torch
-
-        if not 0 <= int(index) < len(self._entries):
-            raise IndexError(f"index {index} out of range for {len(self._entries)} images")
-        rng = sample_rng(self.seed, self.epoch, int(index))
-        tf_rng, crop_rng = rng.spawn(2)
-        s = self.load_numpy(int(index))
-        if self.transform is not None:
-            s = self.transform(s, tf_rng)
-        if self.crop is not None:
-            s = self._crop(s, crop_rng)
-        return self._finish(s, torch)
 
     # -----------------------------------------------------------------------------------------------------
     def _crop(self, s: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
@@ -478,13 +515,8 @@ class PoseDataset:
                 boxes[k] = mask_bbox(masks[k])
         visib = np.array([masks[k].sum() / s["px_all"][k] for k in range(n)], np.float32) if n else \
             np.zeros(0, np.float32)
-        rgb = torch.from_numpy(np.ascontiguousarray(s["rgb"].transpose(2, 0, 1)))
-        if self.rgb_dtype == "float32":
-            rgb = rgb.to(torch.float32).div_(255.0)
         out = {
-            "rgb": rgb,
-            "depth": torch.from_numpy(np.ascontiguousarray(s["depth"], dtype=np.float32))[None],
-            "K": torch.from_numpy(s["K"].astype(np.float64)),
+            **self._image_tensors(s, torch),
             "masks": torch.from_numpy(np.ascontiguousarray(masks, dtype=bool)),
             "obj_ids": torch.from_numpy(s["obj_ids"]),
             "labels": torch.from_numpy(labels),

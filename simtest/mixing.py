@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from simtest.data import check_feed_options, check_seed, collate, crop_intrinsics, crop_window, sample_rng
+from simtest.data import ImageFeed, check_feed_options, check_seed, collate, crop_intrinsics, crop_window
 from simtest.io.dataset import select_scene_dirs
 from simtest.errors import ConfigError, DatasetError
 
@@ -51,7 +51,7 @@ class _Image:
     depth_scale: float
 
 
-class UnlabelledDataset:
+class UnlabelledDataset(ImageFeed):
     """Map-style dataset of the images of a split without their labels (see the module doc for the keys).
 
     Args:
@@ -93,49 +93,21 @@ class UnlabelledDataset:
             images = images[:int(max_images)]
         if not images:
             raise DatasetError(f"{split_dir}: no images found")
-        self._images = images
-
-    def __len__(self) -> int:
-        return len(self._images)
-
-    def set_epoch(self, epoch: int) -> None:
-        """Select the epoch whose random transforms :meth:`__getitem__` draws."""
-        self.epoch = int(epoch)
-
-    def image_key(self, index: int) -> tuple[int, int]:
-        """``(scene_id, im_id)`` of sample ``index``."""
-        e = self._images[index]
-        return e.scene_id, e.im_id
+        self._entries = images
 
     def load_numpy(self, index: int) -> dict[str, Any]:
         """Sample ``index`` before the transforms: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) metres, ``K``,
         empty ``masks`` (0, H, W), ids."""
-        from simtest.io import bop
+        s = self._read_rgbd(index)
+        s["masks"] = np.zeros((0,) + s["rgb"].shape[:2], bool)
+        return s
 
-        e = self._images[index]
-        rgb = bop.read_image(e.scene_dir, e.im_id)
-        depth = bop.read_depth(e.scene_dir, e.im_id, e.depth_scale)
-        return {"rgb": rgb, "depth": depth, "K": np.asarray(e.K, np.float64).reshape(3, 3),
-                "masks": np.zeros((0,) + rgb.shape[:2], bool), "scene_id": e.scene_id, "im_id": e.im_id,
-                "index": int(index)}
+    def _crop(self, s: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+        return _random_crop(s, self.crop, rng)
 
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        import torch
-
-        if not 0 <= int(index) < len(self._images):
-            raise IndexError(f"index {index} out of range for {len(self._images)} images")
-        tf_rng, crop_rng = sample_rng(self.seed, self.epoch, int(index)).spawn(2)
-        s = self.load_numpy(int(index))
-        if self.transform is not None:
-            s = self.transform(s, tf_rng)
-        if self.crop is not None:
-            s = _random_crop(s, self.crop, crop_rng)
-        rgb = torch.from_numpy(np.ascontiguousarray(s["rgb"].transpose(2, 0, 1)))
-        if self.rgb_dtype == "float32":
-            rgb = rgb.to(torch.float32).div_(255.0)
-        return {"rgb": rgb, "depth": torch.from_numpy(np.ascontiguousarray(s["depth"], dtype=np.float32))[None],
-                "K": torch.from_numpy(s["K"].astype(np.float64)), "labelled": False,
-                "scene_id": int(s["scene_id"]), "im_id": int(s["im_id"]), "index": int(s["index"])}
+    def _finish(self, s: dict[str, Any], torch: Any) -> dict[str, Any]:
+        return {**self._image_tensors(s, torch), "labelled": False, "scene_id": int(s["scene_id"]),
+                "im_id": int(s["im_id"]), "index": int(s["index"])}
 
 
 def _random_crop(s: dict[str, Any], size: tuple[int, int], rng: np.random.Generator) -> dict[str, Any]:
