@@ -45,8 +45,10 @@ from pathlib import Path
 import numpy as np
 
 from simtest.camera import CameraModel
+from simtest.colour import srgb_to_linear
 from simtest.errors import ConfigError
 from simtest.io.files import atomic_write_json
+from simtest.objects.appearance import render_texture
 
 __all__ = ["COLOUR_NAMES", "CAPTIONS_FILE", "CaptionObject", "srgb_to_lab", "colour_name", "dominant_colour",
            "caption_category", "check_caption_objects", "relation_matrix", "caption_scene", "scene_captions",
@@ -121,8 +123,7 @@ class CaptionObject:
 # Colour
 def srgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     """CIELAB (D65) of sRGB colours ``(..., 3)`` in [0, 1]."""
-    c = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
-    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    lin = srgb_to_linear(rgb)
     m = np.array([[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750],
                   [0.0193339, 0.1191920, 0.9503041]])
     xyz = lin @ m.T / np.array([0.95047, 1.0, 1.08883])
@@ -142,20 +143,18 @@ def colour_name(rgb: Sequence[float]) -> str:
 
 
 def _face_colours(obj) -> np.ndarray | None:
-    """(M, 3) colour in [0, 1] of each face of a textured / vertex- or face-coloured object, else None."""
-    app = obj.appearance
-    if app is None or app.kind == "none":
+    """(M, 3) colour in [0, 1] of each face of a textured / vertex- or face-coloured object, else None: the
+    texel the renderer draws at the face's UV centroid (:func:`~simtest.objects.appearance.render_texture`, which
+    bakes vertex and face colours into one texel per face)."""
+    drawn = None if obj.appearance is None else render_texture(obj.appearance, obj.faces)
+    if drawn is None:
         return None
-    if app.kind == "texture":
-        tex = app.texture
-        h, w = tex.shape[:2]
-        uv = np.mod(app.face_uv.mean(axis=1), 1.0)  # UV centroid per face, wrapped
-        col = np.clip(np.floor(uv[:, 0] * w).astype(np.int64), 0, w - 1)
-        row = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(np.int64), 0, h - 1)  # v up, row 0 at the top
-        return tex[row, col].astype(np.float64) / 255.0
-    if app.kind == "vertex":
-        return app.vertex_colors[obj.faces].astype(np.float64).mean(axis=1) / 255.0
-    return app.face_colors.astype(np.float64) / 255.0
+    tex, face_uv = drawn
+    h, w = tex.shape[:2]
+    uv = np.mod(face_uv.mean(axis=1), 1.0)  # UV centroid per face, wrapped
+    col = np.clip(np.floor(uv[:, 0] * w).astype(np.int64), 0, w - 1)
+    row = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(np.int64), 0, h - 1)  # v up, row 0 at the top
+    return tex[row, col].astype(np.float64) / 255.0
 
 
 def dominant_colour(obj, rgba: Sequence[float]) -> tuple[str, tuple[float, float, float]]:

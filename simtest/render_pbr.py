@@ -33,11 +33,12 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.camera import CameraModel
+from simtest.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
 from simtest.render import Frame, camera_id
 from simtest.rng import child_sequence
 
-__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "srgb_to_linear", "linear_to_srgb8", "INSTALL_HINT"]
+__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "INSTALL_HINT"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
@@ -114,19 +115,6 @@ def frame_seed(seed: int, scene_id: int, im_id: int) -> int:
     """The sampler seed (uint32) of image ``im_id`` of scene ``scene_id``: a stream of its own below the run's
     seed, so path tracing draws nothing from the scene's generator (which keeps every other file unchanged)."""
     return int(child_sequence(seed, _SEED_STREAM, scene_id, im_id).generate_state(1)[0])
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear values (IEC 61966-2-1)."""
-    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb8(c: np.ndarray) -> np.ndarray:
-    """Linear radiance (clipped to [0, 1]) -> sRGB-encoded uint8."""
-    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
-    s = np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055)
-    return np.round(s * 255.0).astype(np.uint8)
 
 
 def _finite(img) -> np.ndarray:
