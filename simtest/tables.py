@@ -6,7 +6,7 @@ them out.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,24 +30,22 @@ SUMMARY_METRICS: tuple[str, ...] = (
     "num_targets", "num_estimates", "num_failures", "mean_time_per_image_s")
 
 
-def _columns(vsd_on: bool) -> list[str]:
-    return [k for k in TABLE_METRICS if vsd_on or k != "ar_vsd"]
+def _metric_table(first: str, metrics: Sequence[str], rows: list[tuple[str, dict[str, Any]]], report: Any) -> str:
+    """A Markdown table: column ``first`` then one per metric (``ar_vsd`` left out, and AR named for its two
+    terms, when the report ran without VSD); one line per ``(name, values)`` row; ends with a newline."""
+    vsd_on = bool(report.settings.get("vsd", True))
+    keys = [k for k in metrics if vsd_on or k != "ar_vsd"]
+    cols = [first, *[("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]]
+    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
+    return head + "".join("| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in keys]) + " |\n"
+                          for name, values in rows)
 
 
 def format_table(report: Any) -> str:
     """Markdown tables of an :class:`~simtest.eval.EvalReport`: one row per object and one overall; units in
     the headers (percent, degrees, centimetres)."""
-    vsd_on = bool(report.settings.get("vsd", True))
-    keys = _columns(vsd_on)
-    headers = [("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]
-    cols = ["Object", *headers]
-
-    def line(name: str, values: dict[str, Any]) -> str:
-        return "| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in keys]) + " |"
-
-    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
-    body = [line(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
-    body.append(line("**All**", report.overall))
+    rows = [(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
+    table = _metric_table("Object", TABLE_METRICS, rows + [("**All**", report.overall)], report)
     s = report.settings
     o = report.overall
     title = s.get("estimator") or s.get("results", "")
@@ -57,8 +55,7 @@ def format_table(report: Any) -> str:
               f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
               "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
-    text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + head + "\n".join(
-        body) + "\n" + footer
+    text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + table + footer
     per_category = getattr(report, "per_category", None)
     return text + ("\n" + category_table(report) if per_category else "")
 
@@ -68,19 +65,9 @@ def category_table(report: Any) -> str:
     ``#### Per category``; empty when the report has no categories."""
     if not getattr(report, "per_category", None):
         return ""
-    vsd_on = bool(report.settings.get("vsd", True))
-    keys = [k for k in CATEGORY_METRICS if vsd_on or k != "ar_vsd"]
-    headers = [("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]
-    cols = ["Category", *headers]
-
-    def line(name: str, values: dict[str, Any]) -> str:
-        return "| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in keys]) + " |"
-
-    head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
-    body = [line(c, m) for c, m in report.per_category.items()]
     overall = {**report.overall, "num_objects": sum(m["num_objects"] for m in report.per_category.values())}
-    body.append(line("**All**", overall))
-    return (f"#### Per category ({len(report.per_category)} categories)\n\n" + head + "\n".join(body) + "\n"
+    table = _metric_table("Category", CATEGORY_METRICS, [*report.per_category.items(), ("**All**", overall)], report)
+    return (f"#### Per category ({len(report.per_category)} categories)\n\n" + table +
             "Acc@π/6, Acc@π/18: the viewpoint protocol's rotation accuracy, e = ||logm(R_p^T R_gt)||_F / √2 "
             "(smallest over the object's symmetries; misses count as π).\n")
 

@@ -74,9 +74,7 @@ def object_table(objects, grasps: bool = True) -> str:
                      "-" if n is None else ("yes" if (o.graspable if o.graspable_override is not None else n > 0)
                                             else "no"),
                      "-" if n is None else str(n)])
-    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header] + rows]
-    return "\n".join(lines)
+    return _text_table(header, rows)
 
 
 def _load(args):
@@ -100,6 +98,7 @@ def _id_ranges(ids: list[int]) -> str:
 
 
 def _text_table(header: list[str], rows: list[list[str]]) -> str:
+    """Left-aligned columns two spaces apart, one line per row after the header."""
     widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header] + rows)
 
