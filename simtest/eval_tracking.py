@@ -30,6 +30,7 @@ from simtest.metrics.pose import re_sym
 from simtest.metrics.registry import metric
 from simtest.metrics.tracking import LOSS_CM, LOSS_DEG, box_iou, first_loss, summarize_frames
 from simtest.scoring import match_estimates
+from simtest.tables import metric_table
 
 __all__ = ["TrackingReport", "is_sequence_dataset", "score_tracking", "tracking_table", "write_tracking",
            "TRACKING_METRICS", "FRAME_COLUMNS"]
@@ -155,18 +156,11 @@ def score_tracking(root: str | Path, results: Iterable[ResultRow], refs: Sequenc
 
 def tracking_table(report: TrackingReport) -> str:
     """A Markdown table: one row per object, one overall; labels and units from the registry."""
-    head = ["Object", *(metric(k).header for k in TRACKING_METRICS)]
-
-    def line(name: str, values: dict[str, Any]) -> str:
-        return "| " + " | ".join([name] + [metric(k).format(values.get(k)) for k in TRACKING_METRICS]) + " |"
-
-    body = [line(f"{report.object_names.get(o, o)} ({o})", v) for o, v in sorted(report.per_object.items())]
-    body.append(line("**All**", report.overall))
+    rows = [(f"{report.object_names.get(o, o)} ({o})", v) for o, v in sorted(report.per_object.items())]
     s = report.settings
     return (f"### Tracking: {s.get('estimator', '')} on {Path(s.get('dataset', '')).name} "
             f"({s.get('num_sequences', 0)} sequences, {s.get('num_frames', 0)} frames)\n\n"
-            "| " + " | ".join(head) + " |\n|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|\n"
-            + "\n".join(body) + "\n\nIoU: exact 3D IoU of the model's bounding box at the estimated vs the "
+            + metric_table("Object", TRACKING_METRICS, rows + [("**All**", report.overall)]) + "\nIoU: exact 3D IoU of the model's bounding box at the estimated vs the "
             "ground-truth pose (best over symmetries; misses 0). R_err, T_err: means over frames with an "
             f"estimate. tracked: mean fraction of a track's frames before its first loss (no estimate, R_err > "
             f"{s.get('loss_deg', LOSS_DEG):g}° or T_err > {s.get('loss_cm', LOSS_CM):g} cm).\n")

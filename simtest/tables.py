@@ -13,8 +13,8 @@ from typing import Any
 from simtest.metrics.bop19 import VISIB_GT_MIN
 from simtest.metrics.registry import NDEG_MCM, metric
 
-__all__ = ["format_table", "category_table", "overall_table", "failure_counts", "TABLE_METRICS", "SUMMARY_METRICS",
-           "CATEGORY_METRICS"]
+__all__ = ["format_table", "category_table", "metric_table", "overall_table", "failure_counts", "TABLE_METRICS",
+           "SUMMARY_METRICS", "CATEGORY_METRICS"]
 
 #: Metric keys of the Markdown table's columns (after the object name), in order. ``ar_vsd`` is dropped when
 #: VSD was not evaluated.
@@ -30,10 +30,11 @@ SUMMARY_METRICS: tuple[str, ...] = (
     "num_targets", "num_estimates", "num_failures", "mean_time_per_image_s")
 
 
-def _metric_table(first: str, metrics: Sequence[str], rows: list[tuple[str, dict[str, Any]]], report: Any) -> str:
-    """A Markdown table: column ``first`` then one per metric (``ar_vsd`` left out, and AR named for its two
-    terms, when the report ran without VSD); one line per ``(name, values)`` row; ends with a newline."""
-    vsd_on = bool(report.settings.get("vsd", True))
+def metric_table(first: str, metrics: Sequence[str], rows: list[tuple[str, dict[str, Any]]],
+                 vsd_on: bool = True) -> str:
+    """A Markdown table: column ``first`` then one per metric key (header, format and unit from the registry;
+    without VSD, ``ar_vsd`` is left out and AR is named for its two terms); one line per ``(name, values)`` row;
+    ends with a newline."""
     keys = [k for k in metrics if vsd_on or k != "ar_vsd"]
     cols = [first, *[("AR (MSSD, MSPD) [%]" if k == "ar" and not vsd_on else metric(k).header) for k in keys]]
     head = "| " + " | ".join(cols) + " |\n|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|\n"
@@ -41,11 +42,15 @@ def _metric_table(first: str, metrics: Sequence[str], rows: list[tuple[str, dict
                           for name, values in rows)
 
 
+def _vsd_on(report: Any) -> bool:
+    return bool(report.settings.get("vsd", True))
+
+
 def format_table(report: Any) -> str:
     """Markdown tables of an :class:`~simtest.eval.EvalReport`: one row per object and one overall; units in
     the headers (percent, degrees, centimetres)."""
     rows = [(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
-    table = _metric_table("Object", TABLE_METRICS, rows + [("**All**", report.overall)], report)
+    table = metric_table("Object", TABLE_METRICS, rows + [("**All**", report.overall)], _vsd_on(report))
     s = report.settings
     o = report.overall
     title = s.get("estimator") or s.get("results", "")
@@ -66,7 +71,8 @@ def category_table(report: Any) -> str:
     if not getattr(report, "per_category", None):
         return ""
     overall = {**report.overall, "num_objects": sum(m["num_objects"] for m in report.per_category.values())}
-    table = _metric_table("Category", CATEGORY_METRICS, [*report.per_category.items(), ("**All**", overall)], report)
+    table = metric_table("Category", CATEGORY_METRICS, [*report.per_category.items(), ("**All**", overall)],
+                         _vsd_on(report))
     return (f"#### Per category ({len(report.per_category)} categories)\n\n" + table +
             "Acc@π/6, Acc@π/18: the viewpoint protocol's rotation accuracy, e = ||logm(R_p^T R_gt)||_F / √2 "
             "(smallest over the object's symmetries; misses count as π).\n")

@@ -31,7 +31,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.geometry import as_matrix
-from simtest.metrics.nocs import IOU_THRESHOLDS, NOCS_THRESHOLDS, iou_3d
+from simtest.metrics.nocs import iou_3d, iou_accuracy, n_deg_m_cm_accuracy
 
 __all__ = ["LOSS_DEG", "LOSS_CM", "box_iou", "first_loss", "tracked_fraction", "summarize_frames"]
 
@@ -124,10 +124,9 @@ def summarize_frames(frames: Iterable[dict[str, Any]]) -> dict[str, float]:
     iou = np.where(m, [float(r.get("iou", 0.0)) if r["matched"] else 0.0 for r in rows], 0.0)
     r_deg = np.array([float(r["re_deg"]) if r["matched"] else np.inf for r in rows])
     t_cm = np.array([float(r["te_cm"]) if r["matched"] else np.inf for r in rows])
-    out: dict[str, float] = {f"iou{round(th * 100):d}": float(np.mean(iou >= th)) for th in IOU_THRESHOLDS}
+    out: dict[str, float] = iou_accuracy(iou)
     out["mean_iou"] = float(np.mean(iou))
-    for nd, mc in NOCS_THRESHOLDS:
-        out[f"{nd:g}deg{mc:g}cm"] = float(np.mean((r_deg <= nd) & (t_cm <= mc)))
+    out.update(n_deg_m_cm_accuracy(r_deg, t_cm))
     out["mean_re_deg"] = float(np.mean(r_deg[m])) if m.any() else float("nan")
     out["mean_te_m"] = float(np.mean(t_cm[m])) / 100.0 if m.any() else float("nan")
     out["num_targets"] = len(rows)
