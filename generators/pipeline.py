@@ -457,10 +457,8 @@ def _write_models(objects, models_dir: Path, split_dir: Path, scenes_done: bool 
     does not add to the cost of its scenes."""
     from simtest.io.bop import read_json
     from simtest.io.bop_models import INFO_FILE, write_bop_models
-    from simtest.objects.lazy import LazyObjectSet
-
     info = models_dir / INFO_FILE
-    if not isinstance(objects, LazyObjectSet):
+    if not objects.lazy:
         if not scenes_done and not info.exists():
             write_bop_models(objects, models_dir)
         return

@@ -33,6 +33,8 @@ class LazyObjectSet(ObjectSet):
         name: Name of the set (the folder path).
     """
 
+    lazy = True
+
     def __init__(self, entries: Iterable[ObjectEntry], loader: Loader, name: str = "custom",
                  _models: dict[int, ObjectModel] | None = None) -> None:
         self.name = name

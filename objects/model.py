@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -416,8 +416,16 @@ class ObjectSet(Sequence[ObjectModel]):
         raise AssetError(f"unknown object name {name!r} in set {self.name!r}; known: "
                          f"{', '.join(o.name for o in self._objects)}")
 
+    #: Whether objects are read when first asked for (:class:`~simtest.objects.lazy.LazyObjectSet`) rather
+    #: than all up front.
+    lazy: bool = False
+
     def subset(self, obj_ids: Iterable[int], name: str | None = None) -> "ObjectSet":
         return ObjectSet([self.get(i) for i in obj_ids], name or f"{self.name}-subset")
+
+    def mapped(self, transform: Callable[[ObjectModel], ObjectModel]) -> "ObjectSet":
+        """The same set with ``transform`` applied to every object (which must keep its id, name and category)."""
+        return ObjectSet([transform(o) for o in self._objects], self.name)
 
     @property
     def categories(self) -> list[str]:

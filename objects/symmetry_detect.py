@@ -322,13 +322,9 @@ def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float =
     Raises:
         ConfigError: ``policy`` is not one of :data:`SYMMETRY_POLICIES`.
     """
-    from simtest.objects.lazy import LazyObjectSet
-
     if policy not in SYMMETRY_POLICIES:
         raise ConfigError(f"symmetry must be one of {', '.join(SYMMETRY_POLICIES)}, got {policy!r}")
-    if isinstance(objects, LazyObjectSet):
-        return objects.mapped(lambda obj: with_symmetry_policy(obj, policy, tol))
-    return ObjectSet([with_symmetry_policy(obj, policy, tol) for obj in objects], name=objects.name)
+    return objects.mapped(lambda obj: with_symmetry_policy(obj, policy, tol))
 
 
 def with_symmetry_policy(obj: ObjectModel, policy: str = "auto", tol: float = DEFAULT_TOLERANCE) -> ObjectModel:

@@ -138,8 +138,6 @@ def _chosen_categories(objects, text: str | None) -> list[str] | None:
 
 
 def _cmd_list(args) -> int:
-    from simtest.objects.lazy import LazyObjectSet
-
     objects = _load(args)
     cats = objects.categories
     chosen = _chosen_categories(objects, args.category)
@@ -151,7 +149,7 @@ def _cmd_list(args) -> int:
             return 0
         print()
     ids = [e.obj_id for e in objects.entries if chosen is None or e.category in chosen]
-    if isinstance(objects, LazyObjectSet) and chosen is None:
+    if objects.lazy and chosen is None:
         print("# meshes are read on first use; --category NAME lists sizes, mass, symmetry and grasps")
         print(entry_table(objects.entries, objects.name))
         return 0
