@@ -23,13 +23,13 @@ from typing import Any
 import numpy as np
 
 from simtest.io import bop
-from simtest.io.dataset import ImageRef, image_targets
+from simtest.io.dataset import ImageRef
 from simtest.io.files import atomic_write_bytes, atomic_write_text, csv_text, jsonable
-from simtest.metrics.bop19 import VISIB_GT_MIN, ResultRow
+from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.pose import re_sym
 from simtest.metrics.registry import metric
 from simtest.metrics.tracking import LOSS_CM, LOSS_DEG, box_iou, first_loss, summarize_frames
-from simtest.scoring import match_estimates
+from simtest.scoring import image_matches
 from simtest.tables import metric_table
 
 __all__ = ["TrackingReport", "is_sequence_dataset", "score_tracking", "tracking_table", "write_tracking",
@@ -81,19 +81,13 @@ def is_sequence_dataset(root: str | Path) -> bool:
 
 def _frame_rows(refs: Sequence[ImageRef], results: Iterable[ResultRow], objects) -> list[dict[str, Any]]:
     """Per target-frame errors (``lost`` still unset), frames numbered from 0 within each scene."""
-    by_image: dict[tuple[int, int], list[ResultRow]] = defaultdict(list)
-    for e in results:
-        by_image[(int(e.scene_id), int(e.im_id))].append(e)
     models = {o.obj_id: o for o in objects}
     syms: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # (fine for R_err, 20 steps per turn for the IoU)
     rows: list[dict[str, Any]] = []
     scene, frame = None, 0
-    for ref in refs:
+    for ref, targets, ests, match in image_matches(refs, results, models):
         frame = frame + 1 if ref.scene_id == scene else 0
         scene = ref.scene_id
-        targets = image_targets(ref, VISIB_GT_MIN)
-        ests = [e for e in by_image.get((ref.scene_id, ref.im_id), []) if e.obj_id in models]
-        match = match_estimates(ests, targets)
         for j, (gt_id, g) in enumerate(targets):
             obj = models[g.obj_id]
             if g.obj_id not in syms:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +25,11 @@ from simtest.metrics.registry import NDEG_MCM
 from simtest.metrics.viewpoint import PI_6, PI_18, accuracy_at
 from simtest.objects.loaders import load_dataset_objects
 
-__all__ = ["score_estimates", "aggregate", "aggregate_by_category", "has_categories"]
+__all__ = ["score_estimates", "aggregate", "aggregate_by_category", "has_categories", "match_estimates",
+           "image_matches"]
 
 
-def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dict[int, int]:
+def match_estimates(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dict[int, int]:
     """{target index -> estimate index}: by decreasing score, nearest translation, one estimate per target."""
     order = sorted(range(len(ests)), key=lambda i: -float(ests[i].score))
     free = set(range(len(targets)))
@@ -43,8 +44,18 @@ def _match(ests: list[ResultRow], targets: list[tuple[int, bop.ImageGT]]) -> dic
     return out
 
 
-#: The matching of :func:`score_estimates`, for other scorers (tracking) that must match the same way.
-match_estimates = _match
+def image_matches(refs: Iterable[ImageRef], estimates: Iterable[ResultRow], models: dict[int, Any]
+                  ) -> Iterator[tuple[ImageRef, list[tuple[int, bop.ImageGT]], list[ResultRow], dict[int, int]]]:
+    """Per image of ``refs`` (in order): ``(ref, targets, estimates, match)``: its targets (``(gt_id, gt)`` with
+    ``visib_fract >= VISIB_GT_MIN``), its estimates of objects in ``models``, and :func:`match_estimates` of the
+    two. The one matching of every scorer (:func:`score_estimates`, tracking)."""
+    by_image: dict[tuple[int, int], list[ResultRow]] = defaultdict(list)
+    for e in estimates:
+        by_image[(int(e.scene_id), int(e.im_id))].append(e)
+    for ref in refs:
+        targets = image_targets(ref, VISIB_GT_MIN)
+        ests = [e for e in by_image.get((ref.scene_id, ref.im_id), []) if e.obj_id in models]
+        yield ref, targets, ests, match_estimates(ests, targets)
 
 
 def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -158,23 +169,18 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
     objects = load_dataset_objects(root) if objects is None else objects
     refs = _refs if _refs is not None else select_images(root, split, scenes, max_images, objects.ids)
     width, height = image_size(root)
-    by_image: dict[tuple[int, int], list[ResultRow]] = defaultdict(list)
-    for e in estimates:
-        by_image[(int(e.scene_id), int(e.im_id))].append(e)
     models = {o.obj_id: o for o in objects}
     sym_cache: dict[int, np.ndarray] = {}
     rows: list[dict[str, Any]] = []
     # BOP19 hit counts: sum over images of ar_x * num_targets, per object.
     bop_hits: dict[int, dict[str, float]] = defaultdict(lambda: defaultdict(float))
     error_types = ("vsd", "mssd", "mspd") if vsd_enabled else ("mssd", "mspd")
-    for ref in tqdm(refs, desc="score", unit="img", disable=not progress, dynamic_ncols=True):
-        targets = image_targets(ref, VISIB_GT_MIN)
+    bar = tqdm(refs, desc="score", unit="img", disable=not progress, dynamic_ncols=True)
+    for ref, targets, ests, match in image_matches(bar, estimates, models):
         if not targets:
             continue
-        ests = [e for e in by_image.get((ref.scene_id, ref.im_id), []) if e.obj_id in models]
         K = ref.info["K"]
         depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]) if vsd_enabled else None
-        match = _match(ests, targets)
         for j, (gt_id, g) in enumerate(targets):
             obj = models[g.obj_id]
             if g.obj_id not in sym_cache:
