@@ -313,7 +313,8 @@ class ImageFeed:
         from simtest.io import bop
 
         e = self._entries[index]
-        return {"rgb": bop.read_image(e.scene_dir, e.im_id), "depth": bop.read_depth(e.scene_dir, e.im_id, e.depth_scale),
+        return {"rgb": bop.read_image(e.scene_dir, e.im_id),
+                "depth": bop.read_depth(e.scene_dir, e.im_id, e.depth_scale),
                 "K": np.asarray(e.K, np.float64).reshape(3, 3), "scene_id": e.scene_id, "im_id": e.im_id,
                 "index": int(index)}
 

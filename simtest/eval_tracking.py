@@ -154,8 +154,9 @@ def tracking_table(report: TrackingReport) -> str:
     s = report.settings
     return (f"### Tracking: {s.get('estimator', '')} on {Path(s.get('dataset', '')).name} "
             f"({s.get('num_sequences', 0)} sequences, {s.get('num_frames', 0)} frames)\n\n"
-            + metric_table("Object", TRACKING_METRICS, rows + [("**All**", report.overall)]) + "\nIoU: exact 3D IoU of the model's bounding box at the estimated vs the "
-            "ground-truth pose (best over symmetries; misses 0). R_err, T_err: means over frames with an "
+            + metric_table("Object", TRACKING_METRICS, rows + [("**All**", report.overall)])
+            + "\nIoU: exact 3D IoU of the model's bounding box at the estimated vs the ground-truth pose (best over "
+            "symmetries; misses 0). R_err, T_err: means over frames with an "
             f"estimate. tracked: mean fraction of a track's frames before its first loss (no estimate, R_err > "
             f"{s.get('loss_deg', LOSS_DEG):g}° or T_err > {s.get('loss_cm', LOSS_CM):g} cm).\n")
 
