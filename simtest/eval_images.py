@@ -213,13 +213,13 @@ def _portable(spec: Any) -> Any:
 
 def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards: list[_Shard], backend: Backend,
                 stats: RunStats, progress: bool, setup: WorkerSetup, objects: Any
-                ) -> tuple[list[ResultRow], dict[int, float], list[dict[str, Any]], list[float], int]:
+                ) -> tuple[list[ResultRow], list[float], list[dict[str, Any]], list[float], int]:
     """Run every shard on ``backend`` (in this process with the loaded ``est`` when the back end says so) and
     join their outputs in shard order, which is the image order of a sequential run.
 
     Returns:
-        ``(results, non-unit scales by id(row) as scoring takes them, failures, times per image in s, images
-        failed as a whole)``.
+        ``(results, their scales (parallel to results), failures, times per image in s, images failed as a
+        whole)``.
     """
     from tqdm import tqdm
 
@@ -247,12 +247,12 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
         if in_process:
             _WORKER.clear()
     results: list[ResultRow] = []
-    scales: dict[int, float] = {}
+    scales: list[float] = []
     failures: list[dict[str, Any]] = []
     times: list[float] = []
     for r in (done[i] for i in range(len(shards))):
-        scales.update({id(row): s for row, s in zip(r.results, r.scales) if s != 1.0})
         results += r.results
+        scales += r.scales
         failures += r.failures
         times += r.times
     return results, scales, failures, times, sum(r.failed_images for r in done.values())

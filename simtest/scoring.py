@@ -144,7 +144,7 @@ def _errors(e: ResultRow, g: bop.ImageGT, obj, syms: np.ndarray, K: np.ndarray, 
 
 def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str = "train_pbr",
                     scenes: Sequence[int] | None = None, max_images: int | None = None, vsd_enabled: bool = True,
-                    scales: dict[int, float] | None = None, objects=None, progress: bool = False,
+                    scales: Sequence[float] | None = None, objects=None, progress: bool = False,
                     _refs: list[ImageRef] | None = None) -> tuple[dict, dict, list[dict], dict[int, str]]:
     """Score estimates (metres) against the dataset's ground truth.
 
@@ -155,7 +155,8 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
         scenes: Scene ids to evaluate (default all).
         max_images: Evaluate only the first N images (scenes in order, images in order).
         vsd_enabled: Compute VSD (per-target mean over taus and BOP19 AR_VSD).
-        scales: Optional ``{id(estimate): scale}`` to copy into the error rows.
+        scales: Optional scale of each estimate (parallel to ``estimates``), copied into the error rows of the
+            matched ones when it is not 1.
         objects: The object set (default :func:`simtest.objects.loaders.load_dataset_objects`).
         progress: Show a progress bar.
 
@@ -169,6 +170,8 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
     objects = load_dataset_objects(root) if objects is None else objects
     refs = _refs if _refs is not None else select_images(root, split, scenes, max_images, objects.ids)
     width, height = image_size(root)
+    estimates = list(estimates)
+    scale_of = {} if scales is None else {id(e): float(s) for e, s in zip(estimates, scales, strict=True) if s != 1.0}
     models = {o.obj_id: o for o in objects}
     sym_cache: dict[int, np.ndarray] = {}
     rows: list[dict[str, Any]] = []
@@ -192,8 +195,8 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
             if j in match:
                 e = ests[match[j]]
                 row.update(_errors(e, g, obj, syms, K, width, depth if vsd_enabled else None))
-                if scales is not None and id(e) in scales:
-                    row["scale"] = float(scales[id(e)])
+                if id(e) in scale_of:
+                    row["scale"] = scale_of[id(e)]
             rows.append(row)
         # BOP19 on this image.
         gts = [GroundTruthPose(ref.scene_id, ref.im_id, j, g.obj_id, g.T_cam_obj.R, g.T_cam_obj.t, g.visib_fract)
