@@ -83,8 +83,7 @@ class LazyObjectSet(ObjectSet):
         try:
             return self._by_entry[int(obj_id)]
         except (KeyError, TypeError, ValueError):
-            known = ", ".join(f"{e.obj_id} ({e.name})" for e in self._entries)
-            raise AssetError(f"unknown object id {obj_id!r} in set {self.name!r}; known ids: {known}") from None
+            raise self._unknown_id(obj_id) from None
 
     def get(self, obj_id: int) -> ObjectModel:
         """The object with ``obj_id``, read on first use; :class:`AssetError` listing the known ids if there is
@@ -98,13 +97,6 @@ class LazyObjectSet(ObjectSet):
                                  f"listed as obj_id {entry.obj_id} {entry.name!r} ({entry.category})")
             self._models[entry.obj_id] = obj
         return obj
-
-    def by_name(self, name: str) -> ObjectModel:
-        for e in self._entries:
-            if e.name == name:
-                return self.get(e.obj_id)
-        raise AssetError(f"unknown object name {name!r} in set {self.name!r}; known: "
-                         f"{', '.join(e.name for e in self._entries)}")
 
     def __getitem__(self, index):  # type: ignore[override]
         if isinstance(index, slice):

@@ -406,15 +406,20 @@ class ObjectSet(Sequence[ObjectModel]):
         try:
             return self._by_id[int(obj_id)]
         except (KeyError, TypeError, ValueError):
-            known = ", ".join(f"{o.obj_id} ({o.name})" for o in self._objects)
-            raise AssetError(f"unknown object id {obj_id!r} in set {self.name!r}; known ids: {known}") from None
+            raise self._unknown_id(obj_id) from None
+
+    def _unknown_id(self, obj_id: object) -> AssetError:
+        """The error for an id the set does not hold, listing the ones it does."""
+        known = ", ".join(f"{e.obj_id} ({e.name})" for e in self.entries)
+        return AssetError(f"unknown object id {obj_id!r} in set {self.name!r}; known ids: {known}")
 
     def by_name(self, name: str) -> ObjectModel:
-        for o in self._objects:
-            if o.name == name:
-                return o
+        """The object named ``name`` (a lazy set reads only that one)."""
+        for e in self.entries:
+            if e.name == name:
+                return self.get(e.obj_id)
         raise AssetError(f"unknown object name {name!r} in set {self.name!r}; known: "
-                         f"{', '.join(o.name for o in self._objects)}")
+                         f"{', '.join(e.name for e in self.entries)}")
 
     #: Whether objects are read when first asked for (:class:`~simtest.objects.lazy.LazyObjectSet`) rather
     #: than all up front.
