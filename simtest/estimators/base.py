@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
            "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
            "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL",
-           "GT_INIT_LABEL", "needs_gt_init", "reset_estimator"]
+           "GT_INIT_LABEL", "needs_gt_init", "reset_estimator", "check_int_options"]
 
 #: Entry-point group under which installed packages register estimators by name.
 ENTRY_POINT_GROUP = "simtest.estimators"
@@ -243,6 +243,14 @@ class Estimator(Protocol):
 
 #: Built-in estimators by name -> "module:attr" (imported lazily, so torch-based ones cost nothing unused).
 ESTIMATORS: dict[str, str] = {}
+
+
+def check_int_options(who: str, *options: tuple[str, Any, int]) -> None:
+    """Raise :class:`ConfigError` unless every ``(name, value, lo)`` is an integer (not a bool) ``>= lo``; the
+    message names the estimator ``who``, the option, its value and what is allowed."""
+    for name, value, lo in options:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo:
+            raise ConfigError(f"{who}: {name} must be an integer >= {lo}, got {value!r}")
 
 
 def register_estimator(name: str, target: str) -> None:

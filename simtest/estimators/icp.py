@@ -40,7 +40,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 
 #: Sources of the object masks (the ``masks`` option).
 MASK_SOURCES = ("gt", "segicp")
@@ -286,18 +286,14 @@ class ICPEstimator:
         if checkpoint is not None and masks != "segicp":
             raise ConfigError(f"icp: checkpoint={checkpoint!r} is a segmentation checkpoint; it needs "
                               "masks='segicp'")
-        for name, val, lo in (("max_iterations", max_iterations, 1), ("coarse_rotations", coarse_rotations, 1),
-                              ("refine_top", refine_top, 1), ("model_points", model_points, 10),
-                              ("max_points", max_points, 10), ("coarse_points", coarse_points, 10),
-                              ("min_points", min_points, 3)):
-            if not isinstance(val, (int, np.integer)) or val < lo:
-                raise ConfigError(f"icp: {name} must be an integer >= {lo}, got {val!r}")
+        check_int_options("icp", ("max_iterations", max_iterations, 1), ("coarse_rotations", coarse_rotations, 1),
+                          ("refine_top", refine_top, 1), ("model_points", model_points, 10),
+                          ("max_points", max_points, 10), ("coarse_points", coarse_points, 10),
+                          ("min_points", min_points, 3), ("seed", seed, 0))
         if not inlier_threshold_mm > 0:
             raise ConfigError(f"icp: inlier_threshold_mm must be > 0 millimetres, got {inlier_threshold_mm!r}")
         if not 0.0 <= min_fitness <= 1.0:
             raise ConfigError(f"icp: min_fitness must be in [0, 1], got {min_fitness!r}")
-        if seed is None or int(seed) < 0:
-            raise ConfigError(f"icp: seed must be a non-negative integer, got {seed!r}")
         self.max_iterations = int(max_iterations)
         self.refine_top = int(refine_top)
         self.model_points = int(model_points)

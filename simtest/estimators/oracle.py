@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 
 __all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix"]
 
@@ -69,8 +69,7 @@ class OracleEstimator:
             raise ConfigError(f"oracle: drop_rate must be in [0, 1], got {drop_rate!r}")
         if rot_noise_mode not in _MODES:
             raise ConfigError(f"oracle: rot_noise_mode must be one of {', '.join(_MODES)}, got {rot_noise_mode!r}")
-        if seed is None or int(seed) < 0:
-            raise ConfigError(f"oracle: seed must be a non-negative integer, got {seed!r}")
+        check_int_options("oracle", ("seed", seed, 0))
         self.rot_noise = float(np.radians(rot_noise_deg))
         self.trans_noise = float(trans_noise_mm) / 1000.0  # option given in mm; metres inside
         self.seed = int(seed)

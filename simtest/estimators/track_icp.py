@@ -45,7 +45,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.geometry import as_matrix
-from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 from simtest.estimators.icp import ModelCloud, model_cloud, point_to_plane_icp, visible_points
 from simtest.estimators.oracle import axis_angle_matrix, random_unit_vector
 
@@ -176,11 +176,9 @@ class TrackICPEstimator:
                  init_trans_mm: float = 0.0, pixel_step: int = 1, seed: int = 0) -> None:
         if on_loss not in LOSS_POLICIES:
             raise ConfigError(f"track-icp: on_loss must be one of {', '.join(LOSS_POLICIES)}, got {on_loss!r}")
-        for name, val, lo in (("max_iterations", max_iterations, 1), ("model_points", model_points, 10),
-                              ("max_points", max_points, 10), ("min_points", min_points, 3),
-                              ("pixel_step", pixel_step, 1)):
-            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < lo:
-                raise ConfigError(f"track-icp: {name} must be an integer >= {lo}, got {val!r}")
+        check_int_options("track-icp", ("max_iterations", max_iterations, 1), ("model_points", model_points, 10),
+                          ("max_points", max_points, 10), ("min_points", min_points, 3), ("pixel_step", pixel_step, 1),
+                          ("seed", seed, 0))
         for name, val in (("gate_mm", gate_mm), ("consistency_mm", consistency_mm), ("normal_deg", normal_deg)):
             if not val > 0:
                 raise ConfigError(f"track-icp: {name} must be > 0, got {val!r}")
@@ -189,8 +187,6 @@ class TrackICPEstimator:
                 raise ConfigError(f"track-icp: {name} must be >= 0, got {val!r}")
         if not 0.0 <= min_fitness <= 1.0:
             raise ConfigError(f"track-icp: min_fitness must be in [0, 1], got {min_fitness!r}")
-        if seed is None or int(seed) < 0:
-            raise ConfigError(f"track-icp: seed must be a non-negative integer, got {seed!r}")
         self.velocity_prior = bool(velocity_prior)
         self.max_iterations, self.model_points, self.max_points = max_iterations, model_points, max_points
         self.gate = float(gate_mm) / 1000.0  # options in mm; metres inside

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 from simtest.estimators.icp import ICPEstimator, backproject, model_cloud
 
 __all__ = ["umeyama", "ransac_umeyama", "UmeyamaEstimator"]
@@ -175,8 +175,7 @@ class UmeyamaEstimator:
             raise ConfigError(f"umeyama: nocs_noise_mm must be >= 0 millimetres, got {nocs_noise_mm!r}")
         if not 0.0 <= outlier_rate < 1.0:
             raise ConfigError(f"umeyama: outlier_rate must be in [0, 1), got {outlier_rate!r}")
-        if seed is None or int(seed) < 0:
-            raise ConfigError(f"umeyama: seed must be a non-negative integer, got {seed!r}")
+        check_int_options("umeyama", ("seed", seed, 0))
         self.mode = correspondences
         self.needs_gt = correspondences == "nocs-oracle"
         self.reference_set = reference_set
