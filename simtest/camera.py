@@ -16,7 +16,7 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
 __all__ = ["CameraModel", "R_MJ_CV", "intrinsics_matrix", "default_intrinsics", "D435_FOCAL_PX",
-           "mujoco_camera_intrinsics"]
+           "mujoco_camera_intrinsics", "pinhole_pixels", "pinhole_points"]
 
 #: Rotation from the OpenCV camera frame to the MuJoCo camera frame (and back: it is its own inverse).
 R_MJ_CV = np.diag([1.0, -1.0, -1.0])
@@ -29,6 +29,21 @@ def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
 
 #: Focal length (pixels) of the default RealSense-D435-like colour camera at 640 px width.
 D435_FOCAL_PX = 615.0
+
+
+def pinhole_pixels(K: np.ndarray, points: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates ``(u, v)`` of camera-frame points (..., 3), metres, under intrinsics ``K``:
+    ``u = fx x / z + cx``, ``v = fy y / z + cy`` (OpenCV: pixel centres at integers). ``z`` replaces the points'
+    own depth as the divisor (e.g. kept away from 0)."""
+    p = np.asarray(points, dtype=np.float64)
+    z = p[..., 2] if z is None else z
+    return K[0, 0] * p[..., 0] / z + K[0, 2], K[1, 1] * p[..., 1] / z + K[1, 2]
+
+
+def pinhole_points(K: np.ndarray, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Camera-frame points (..., 3), metres, of pixels ``(u, v)`` at planar depth ``z`` (metres) under intrinsics
+    ``K``: the inverse of :func:`pinhole_pixels`."""
+    return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
 
 
 def default_intrinsics(width: int, height: int, fx: float | None = None, fy: float | None = None,

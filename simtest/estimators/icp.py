@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from simtest.camera import pinhole_pixels, pinhole_points
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 
@@ -63,10 +64,7 @@ def backproject(depth: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None
     if mask is not None:
         valid &= np.asarray(mask, dtype=bool)
     v, u = np.nonzero(valid)
-    z = np.asarray(depth, dtype=np.float64)[v, u]
-    x = (u - K[0, 2]) * z / K[0, 0]
-    y = (v - K[1, 2]) * z / K[1, 1]
-    return np.stack([x, y, z], axis=1)
+    return pinhole_points(K, u, v, np.asarray(depth, dtype=np.float64)[v, u])
 
 
 def fibonacci_rotations(count: int, inplane: int | None = None) -> np.ndarray:
@@ -334,9 +332,7 @@ class ICPEstimator:
         pc = np.matmul(P[None], Rs.transpose(0, 2, 1)) + ts[:, None, :]
         nc = np.matmul(N[None], Rs.transpose(0, 2, 1))
         vis = (pc * nc).sum(axis=2) < 0
-        z = np.maximum(pc[..., 2], 1e-6)
-        u = np.rint(K[0, 0] * pc[..., 0] / z + K[0, 2]).astype(np.int64)
-        v = np.rint(K[1, 1] * pc[..., 1] / z + K[1, 2]).astype(np.int64)
+        u, v = (np.rint(c).astype(np.int64) for c in pinhole_pixels(K, pc, np.maximum(pc[..., 2], 1e-6)))
         inside = (u >= 0) & (u < w) & (v >= 0) & (v < h) & vis
         uu, vv = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
         dobs = depth[vv, uu]

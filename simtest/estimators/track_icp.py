@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from simtest.camera import pinhole_pixels, pinhole_points
 from simtest.errors import ConfigError
 from simtest.geometry import as_matrix
 from simtest.estimators.base import Observation, PoseEstimate, check_int_options
@@ -80,8 +81,7 @@ def depth_consistency(depth: np.ndarray, K: np.ndarray, cloud: ModelCloud, R: np
     P = cloud.points[vis] @ R.T + t
     P = P[P[:, 2] > 1e-3]
     h, w = depth.shape
-    u = np.rint(K[0, 0] * P[:, 0] / P[:, 2] + K[0, 2]).astype(np.int64)
-    v = np.rint(K[1, 1] * P[:, 1] / P[:, 2] + K[1, 2]).astype(np.int64)
+    u, v = (np.rint(c).astype(np.int64) for c in pinhole_pixels(K, P))
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     d = depth[v[inside], u[inside]]
     z = P[inside, 2]
@@ -100,7 +100,7 @@ def point_and_normal_maps(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray,
     """
     h, w = depth.shape
     v, u = np.mgrid[0:h, 0:w]
-    P = np.stack([(u - K[0, 2]) * depth / K[0, 0], (v - K[1, 2]) * depth / K[1, 1], depth], axis=-1)
+    P = pinhole_points(K, u, v, depth)
     du = np.zeros_like(P)
     dv = np.zeros_like(P)
     du[:, :-1] = P[:, 1:] - P[:, :-1]
@@ -123,8 +123,7 @@ def _consistency_scores(depth: np.ndarray, K: np.ndarray, P: np.ndarray, ts: np.
     h, w = depth.shape
     Q = P[None] + ts[:, None, :]  # (M, N, 3)
     z = np.maximum(Q[..., 2], 1e-3)
-    u = np.rint(K[0, 0] * Q[..., 0] / z + K[0, 2]).astype(np.int64)
-    v = np.rint(K[1, 1] * Q[..., 1] / z + K[1, 2]).astype(np.int64)
+    u, v = (np.rint(c).astype(np.int64) for c in pinhole_pixels(K, Q, z))
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h) & (Q[..., 2] > 1e-3)
     d = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)]
     valid = inside & (d > 0)
@@ -233,7 +232,7 @@ class TrackICPEstimator:
         r = 0.5 * cloud.diameter + gate
         if t[2] <= 1e-3:
             return np.zeros((0, 3))
-        u, v = K[0, 0] * t[0] / t[2] + K[0, 2], K[1, 1] * t[1] / t[2] + K[1, 2]
+        u, v = pinhole_pixels(K, t)
         rad = K[0, 0] * r / max(t[2] - r, 0.05)
         h, w = depth.shape
         u0, u1 = int(max(0, np.floor(u - rad))), int(min(w, np.ceil(u + rad) + 1))
