@@ -47,6 +47,7 @@ import numpy as np
 from simtest.camera import CameraModel
 from simtest.colour import srgb_to_linear
 from simtest.errors import ConfigError
+from simtest.geometry import Pose
 from simtest.io.files import atomic_write_json
 from simtest.objects.appearance import render_texture
 
@@ -390,7 +391,7 @@ def scene_captions(scene, objects, camera: CameraModel, table_height: float) -> 
         oid = scene.instance_obj_ids[i]
         obj = objects.get(oid)
         R, t = scene.object_pose_world(i)
-        pts = obj.vertices @ R.T + t
+        pts = Pose(R, t).apply(obj.vertices)
         name, rgb = dominant_colour(obj, scene.spec.objects[i].rgba)
         objs.append(CaptionObject(
             gt_id=gt_id, obj_id=int(oid), category=caption_category(obj.category) or obj.category, colour=name,
