@@ -7,14 +7,12 @@ for evaluation); :class:`UnlabelledDataset` reads it (or any split, ignoring its
 :class:`MixedDataset` draws from several datasets in a fixed ratio. :func:`collate_mixed` batches both kinds:
 images of every sample, targets only of the labelled ones.
 
-Unlabelled sample (a ``dict``; image ``H x W`` after an optional crop):
+Unlabelled sample (a ``dict``; image ``H x W`` after an optional crop): ``rgb``, ``depth`` and ``K`` as in a
+:class:`simtest.data.PoseDataset` sample (the same code makes them, :class:`simtest.data.ImageFeed`), and:
 
 ==================  ===================  ===================================================================
 key                 type / shape         meaning
 ==================  ===================  ===================================================================
-``rgb``             float32 (3, H, W)    colour in [0, 1] (``uint8`` when ``rgb_dtype="uint8"``)
-``depth``           float32 (1, H, W)    planar depth in metres, 0 = missing
-``K``               float64 (3, 3)       intrinsics of this (possibly cropped) image, pixels
 ``labelled``        bool                 ``False``
 ``scene_id``,
 ``im_id``,``index`` int                  where the sample came from
