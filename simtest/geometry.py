@@ -23,8 +23,9 @@ class Pose:
     t: np.ndarray
 
     def __post_init__(self) -> None:
-        R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
-        t = np.asarray(self.t, dtype=np.float64).reshape(3)
+        # Own copies: a pose made from live arrays (MuJoCo's data.xpos, cam_xpos) must not move with them.
+        R = np.array(self.R, dtype=np.float64).reshape(3, 3)
+        t = np.array(self.t, dtype=np.float64).reshape(3)
         if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
             raise ValueError(f"Pose has non-finite values: R={R.tolist()}, t={t.tolist()}")
         R.setflags(write=False)

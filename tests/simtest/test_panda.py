@@ -238,6 +238,21 @@ def test_wrist_camera_frame_matches_tcp_geometry(box_scene):
     assert abs(cam.T_world_cam.R[:, 0] @ T_world_tcp.R[:, 1]) > 0.9999
 
 
+def test_wrist_camera_keeps_its_pose_when_the_arm_moves_on(box_scene):
+    """A camera (and any Pose) made from MuJoCo's live arrays owns its values: the arm moving afterwards
+    (the next view of a wrist rig, the next env step) does not move a camera already handed out."""
+    model, _, ids = box_scene
+    data = mujoco.MjData(model)
+    reset_arm(model, data, ids)
+    cam = wrist_camera_model(data, ids)
+    before = cam.T_world_cam.t.copy(), cam.T_world_cam.R.copy()
+    reset_arm(model, data, ids, HOME_QPOS + np.array([0.3, 0.2, -0.2, 0.3, 0.4, -0.3, 0.5]))
+    assert np.linalg.norm(data.cam_xpos[ids.camera] - before[0]) > 0.01  # the live array did move
+    np.testing.assert_array_equal(cam.T_world_cam.t, before[0])
+    np.testing.assert_array_equal(cam.T_world_cam.R, before[1])
+    assert data.cam_xpos.flags.writeable  # and the live array was left writeable
+
+
 def test_wrist_camera_render_sees_the_object_where_projected(box_scene):
     model, _, ids = box_scene
     data = mujoco.MjData(model)
