@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simtest.camera import CameraModel
-from simtest.generators.builder import SimScene
+from simtest.generators.builder import SceneState, SimScene
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
 from simtest.objects import ObjectSet
@@ -122,7 +122,7 @@ def _box_union(a: list[int], b: list[int]) -> list[int]:
     return [x0, y0, x1 - x0, y1 - y0]
 
 
-def _silhouette(scene: SimScene, i: int, obj, camera: CameraModel, T_cam_world: Pose, near: float):
+def _silhouette(scene: SimScene | SceneState, i: int, obj, camera: CameraModel, T_cam_world: Pose, near: float):
     """(T_cam_obj, silhouette mask over its pixel bbox, (x0, y0)) of instance ``i``."""
     R, t = scene.object_pose_world(i)
     T = T_cam_world @ Pose(R, t)
@@ -141,19 +141,19 @@ def _silhouette(scene: SimScene, i: int, obj, camera: CameraModel, T_cam_world: 
     return T, sil, origin
 
 
-def amodal_counts(scene: SimScene, camera: CameraModel, objects: ObjectSet, near: float = 0.01) -> dict[int, int]:
+def amodal_counts(scene: SimScene | SceneState, camera: CameraModel, objects: ObjectSet, near: float = 0.01) -> dict[int, int]:
     """``{instance: px_count_all}`` of every active instance seen by ``camera`` (no rendering needed)."""
     T_cam_world = camera.T_cam_world
     return {i: int(_silhouette(scene, i, objects.get(oid), camera, T_cam_world, near)[1].sum())
             for i, oid in enumerate(scene.instance_obj_ids) if scene.active[i]}
 
 
-def annotate(scene: SimScene, frame: Frame, camera: CameraModel, objects: ObjectSet,
+def annotate(scene: SimScene | SceneState, frame: Frame, camera: CameraModel, objects: ObjectSet,
              near: float = 0.01) -> list[InstanceAnnotation]:
     """Annotate every active instance of ``scene`` in ``frame`` seen by ``camera``.
 
     Args:
-        scene: The settled scene at the state that was rendered.
+        scene: The settled scene at the state that was rendered, or that state (:meth:`SimScene.state`).
         frame: The rendered frame (needs ``seg`` and ``depth``).
         camera: The camera that rendered it (``T_world_cam`` in OpenCV convention).
         objects: The object set (meshes for the silhouettes).

@@ -22,7 +22,7 @@ from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
 
-__all__ = ["SimScene", "SceneBuilder", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
+__all__ = ["SimScene", "SceneState", "SceneBuilder", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
 
 VISUAL_GROUP = 1
 COLLISION_GROUP = 3
@@ -71,6 +71,12 @@ class SimScene:
         b = self.instance_bodies[instance]
         return self.data.xmat[b].reshape(3, 3).copy(), self.data.xpos[b].copy()
 
+    def state(self) -> "SceneState":
+        """What annotation reads of the scene now (instance poses, which are active), kept apart from the
+        simulation: it stays as it is while the scene moves on (occluders, the arm, the next view)."""
+        return SceneState(tuple(self.instance_obj_ids), tuple(self.active), self.geom_instance,
+                          tuple(self.object_pose_world(i) for i in range(len(self.instance_obj_ids))))
+
     def set_arm(self, q: np.ndarray) -> None:
         """Put the Panda (if present) at joint configuration ``q`` (rad) and update kinematics."""
         from simtest.robot import reset_arm
@@ -84,6 +90,28 @@ class SimScene:
         pos, R_mj = camera.mujoco_pose()
         self.data.cam_xpos[self.camera_id] = pos
         self.data.cam_xmat[self.camera_id] = R_mj.reshape(-1)
+
+
+@dataclass(frozen=True)
+class SceneState:
+    """The instances of a :class:`SimScene` at one moment (:meth:`SimScene.state`): what a view's annotation
+    needs, with the same names as on the scene.
+
+    Attributes:
+        instance_obj_ids: obj_id of each instance.
+        active: Instances on the table at that moment.
+        geom_instance: (ngeom,) instance index of each geom, -1 for geoms that are not annotated objects.
+        poses: ``(R (3x3), t (3,) metres)`` of each instance's model frame in the world.
+    """
+
+    instance_obj_ids: tuple[int, ...]
+    active: tuple[bool, ...]
+    geom_instance: np.ndarray
+    poses: tuple[tuple[np.ndarray, np.ndarray], ...]
+
+    def object_pose_world(self, instance: int) -> tuple[np.ndarray, np.ndarray]:
+        """(R (3x3), t (3,) metres) of an instance's model frame in the world at that moment."""
+        return self.poses[instance]
 
 
 class SceneBuilder:

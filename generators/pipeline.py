@@ -157,12 +157,14 @@ def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndar
 
 
 def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
-                 prepared: tuple | None = None) -> SceneReport:
+                 prepared: tuple | None = None, finish_behind: bool = True) -> SceneReport:
     """Make scene ``scene_id`` and write it under ``split_dir`` (atomically, as a whole).
 
     Args:
         prepared: The scene's :func:`prepare_scene` result when it was made ahead (see :class:`ScenesAhead`);
             the same as making it here.
+        finish_behind: Annotate and write each view on a helper thread while the next one renders
+            (:class:`ViewsBehind`); ``False`` finishes each view before the next (the same files, one thread).
     """
     from simtest.generators.annotate import annotate
     from simtest.gl import thread_budget, workers_per_machine
@@ -177,9 +179,22 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
                          threads=thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).writers)
     occ_cfg = cfg.occlusion
     occlusion_log: dict[str, dict] = {}
+
+    def finish_view(im_id: int, frame, cam: CameraModel, state, record) -> None:
+        """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer."""
+        anns = annotate(state, frame, cam, objects)
+        writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns], [a.mask_visib for a in anns])
+        if record is not None:
+            from simtest.generators.occlusion import measured_level
+
+            occlusion_log[str(im_id)] = record.to_dict(
+                {a.instance: j for j, a in enumerate(anns)},
+                [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
+
     pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
     with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
-                  profile="fast" if pbr is not None else cfg.render.profile) as renderer:
+                  profile="fast" if pbr is not None else cfg.render.profile) as renderer, \
+            ViewsBehind(threaded=finish_behind) as behind:
         for im_id, (cam, arm_q) in enumerate(cameras):
             if arm_q is not None:
                 scene.set_arm(arm_q)
@@ -201,15 +216,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
 
                 rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
                 frame = dataclasses.replace(frame, rgb=rgb)
-            anns = annotate(scene, frame, cam, objects)
-            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
-                       [a.mask_visib for a in anns])
-            if record is not None:
-                from simtest.generators.occlusion import measured_level
-
-                occlusion_log[str(im_id)] = record.to_dict(
-                    {a.instance: j for j, a in enumerate(anns)},
-                    [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
+            behind.submit(finish_view, im_id, frame, cam, scene.state(), record)
     if occlusion_log:
         from simtest.io.files import dump_json_keyed, atomic_write_text
 
@@ -430,6 +437,57 @@ class ScenesAhead:
         for future in self._futures.values():
             future.cancel()
         self._pool.shutdown(wait=True)
+
+
+class ViewsBehind:
+    """Finishes a rendered view (annotation, writing) on a helper thread while the next view renders.
+
+    Rendering spends much of a frame in single-threaded steps (scene update, pixel read-back) that leave a
+    core idle; the annotation of the view before fills it. One view is in flight at a time, views finish in
+    order, and each is annotated from the scene's state when it was rendered (:meth:`SimScene.state`), so the
+    output is the same as finishing every view before rendering the next. An error in a view's work is
+    raised by the next :meth:`submit` or by :meth:`close`.
+    """
+
+    def __init__(self, threaded: bool = True) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="simtest-view-behind") if threaded else None
+        self._pending = None
+
+    def submit(self, fn, *args) -> None:
+        """Wait for the view in flight (raising its error), then start ``fn(*args)`` (run it now when not
+        ``threaded``)."""
+        self.wait()
+        if self._pool is None:
+            fn(*args)
+        else:
+            self._pending = self._pool.submit(fn, *args)
+
+    def wait(self) -> None:
+        """Wait for the view in flight; raise its error."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+
+    def __enter__(self) -> "ViewsBehind":
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        try:  # already failing: let the view in flight end, keep the first error
+            self.close()
+        except Exception:
+            log.debug("error in the view finished behind a failure", exc_info=True)
 
 
 def _record_run(manifest: Path, cfg: GenerateConfig, report: GenerateReport) -> None:

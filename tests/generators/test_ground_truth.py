@@ -22,6 +22,19 @@ def _instances(dataset):
 
 
 
+@pytest.fixture(scope="module", params=["shell", "wrist"])
+def rig_dataset(request, small_dataset, small_config, tmp_path_factory):
+    """The small dataset (camera shell rig) and one made through the Panda's wrist camera, whose camera moves
+    with the arm between views."""
+    if request.param == "shell":
+        return small_dataset
+    from simtest.generators.pipeline import generate
+
+    out = tmp_path_factory.mktemp("ds") / "wrist"
+    generate(small_config.replace(rig="wrist"), out, progress=False)
+    return out
+
+
 def _segmentation(spec, cam: CameraModel) -> np.ndarray:
     """Geom-id segmentation of the MjSpec ``spec`` seen by ``cam`` (added as camera "c"), rendered by MuJoCo."""
     import mujoco
@@ -146,11 +159,11 @@ def test_pixel_centres_follow_opencv_and_vispy_needs_half_pixel_shift():
     assert (seg & opencv).sum() / (seg | opencv).sum() > 0.95
 
 
-def test_reprojected_vertices_land_on_masks(small_dataset):
+def test_reprojected_vertices_land_on_masks(rig_dataset):
     """Model vertices through the GT pose and K: inside the amodal mask; visible ones inside the visible mask."""
     objects = load_object_set("builtin-small")
     checked = 0
-    for scene_dir, im_id, im, depth, gt_id, gt in _instances(small_dataset):
+    for scene_dir, im_id, im, depth, gt_id, gt in _instances(rig_dataset):
         if gt.px_count_visib < 30:
             continue
         cam = CameraModel(im["K"], depth.shape[1], depth.shape[0])
@@ -177,11 +190,11 @@ def test_reprojected_vertices_land_on_masks(small_dataset):
     assert checked >= 5
 
 
-def test_depth_equals_model_surface_depth(small_dataset):
+def test_depth_equals_model_surface_depth(rig_dataset):
     """Rendered depth equals the model surface depth at the GT pose (median |diff| < 1 mm on visible pixels)."""
     objects = load_object_set("builtin-small")
     diffs = []
-    for scene_dir, im_id, im, depth, gt_id, gt in _instances(small_dataset):
+    for scene_dir, im_id, im, depth, gt_id, gt in _instances(rig_dataset):
         if gt.px_count_visib < 30:
             continue
         obj = objects.get(gt.obj_id)

@@ -298,3 +298,73 @@ def test_scenes_made_ahead_equal_scenes_made_in_turn(tmp_path):
 
     a, b = digest(tmp_path / "ahead"), digest(tmp_path / "turn")
     assert len(a) > 10 and a == b
+
+
+@pytest.mark.parametrize("changes", [{"rig": "wrist"}, {"occlusion.level": "mixed"}],
+                         ids=["wrist", "occlusion"])
+def test_views_finished_behind_equal_views_finished_in_turn(tmp_path, changes):
+    """Each view is annotated and written on a helper thread while the next one renders; every file is the
+    same as when each view is finished before the next, also where the scene changes between views (the wrist
+    camera moves with the arm; occluders move)."""
+    import hashlib
+
+    from simtest.generators.pipeline import _load_objects, prepare_scene, render_scene
+
+    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 4,
+                                      "camera.width": 96, "camera.height": 72, "seed": 11, **changes})
+    objects = _load_objects(cfg)
+    for name, behind in (("behind", True), ("turn", False)):
+        render_scene(cfg, objects, 0, tmp_path / name, prepared=prepare_scene(cfg, objects, 0),
+                     finish_behind=behind)
+
+    def digest(root):
+        return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    a, b = digest(tmp_path / "behind"), digest(tmp_path / "turn")
+    assert len(a) > 10 and a == b
+
+
+def test_scene_state_stays_as_taken():
+    """``SimScene.state()`` keeps the instances' poses of its moment while the simulation moves on."""
+    from simtest.generators.pipeline import _load_objects
+
+    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "seed": 2})
+    scene, _, _, _ = prepare_scene(cfg, _load_objects(cfg), 0)
+    state = scene.state()
+    before = [(R.copy(), t.copy()) for R, t in state.poses]
+    scene.data.qpos[scene.instance_qpos[0]:scene.instance_qpos[0] + 3] += 0.3
+    mujoco.mj_forward(scene.model, scene.data)
+    assert not np.allclose(scene.object_pose_world(0)[1], before[0][1])
+    for (R, t), (R0, t0) in zip(state.poses, before):
+        np.testing.assert_array_equal(R, R0)
+        np.testing.assert_array_equal(t, t0)
+    assert state.object_pose_world(0) is state.poses[0]
+    assert state.instance_obj_ids == tuple(scene.instance_obj_ids) and state.active == tuple(scene.active)
+
+
+def test_views_behind_raise_a_failed_views_error_and_keep_the_first():
+    from simtest.generators.pipeline import ViewsBehind
+
+    done = []
+
+    def view(k):
+        if k == 2:
+            raise ValueError(f"view {k} failed")
+        done.append(k)
+
+    behind = ViewsBehind()
+    behind.submit(view, 0)
+    behind.submit(view, 1)
+    behind.submit(view, 2)
+    with pytest.raises(ValueError, match="view 2 failed"):
+        behind.submit(view, 3)  # the failure surfaces before the next view starts
+    behind.close()
+    assert done == [0, 1]  # in order; nothing after the failed view
+    with pytest.raises(ValueError, match="view 2 failed"):
+        with ViewsBehind() as behind:
+            behind.submit(view, 2)
+    with pytest.raises(KeyError):  # an error of the rendering side is kept over the view's
+        with ViewsBehind() as behind:
+            behind.submit(view, 2)
+            raise KeyError("render failed")
