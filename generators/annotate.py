@@ -107,9 +107,12 @@ def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, 
     xc = s[idx, 0] + t * (e[idx, 0] - s[idx, 0])
     col = np.clip(np.ceil(xc).astype(np.int64) - x0, 0, x1 - x0 + 1)
     H, W = y1 - y0 + 1, x1 - x0 + 1
-    diff = np.zeros((H, W + 1), dtype=np.int32)
-    np.add.at(diff, (rows - y0, col), w[idx].astype(np.int32))
-    mask = np.cumsum(diff[:, :W], axis=1) != 0
+    # A winding number is at most the triangle count in size, a step between two pixels twice that: 16 bits
+    # hold both exactly below 2^14 triangles (and sum faster than 32).
+    dtype = np.int16 if len(tris) < 2**14 else np.int32
+    diff = np.zeros((H, W + 1), dtype=dtype)
+    np.add.at(diff, (rows - y0, col), w[idx].astype(dtype))
+    mask = np.cumsum(diff[:, :W], axis=1, dtype=dtype) != 0
     return mask, (x0, y0)
 
 
@@ -161,9 +164,9 @@ def annotate(scene: SimScene | SceneState, frame: Frame, camera: CameraModel, ob
     """
     H, W = camera.height, camera.width
     T_cam_world = camera.T_cam_world
-    # Instance index per pixel in one lookup: entry 0 is the background (seg -1), entry g + 1 is geom g.
-    lut = np.concatenate([np.full(1, -1, dtype=np.int32), scene.geom_instance.astype(np.int32, copy=False)])
-    seg_inst = lut[frame.seg + 1]
+    # Instance index per pixel in one lookup: entry g is geom g's, the last entry (index -1) the background's.
+    lut = np.append(scene.geom_instance, -1).astype(np.int16 if len(scene.instance_obj_ids) < 2**15 else np.int32)
+    seg_inst = lut[frame.seg]
     out = []
     for i, oid in enumerate(scene.instance_obj_ids):
         if not scene.active[i]:

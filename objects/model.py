@@ -181,8 +181,9 @@ class ObjectModel:
         h.update(self.faces.astype(np.int64).tobytes())
         return h.hexdigest()
 
-    @property
+    @functools.cached_property
     def is_watertight(self) -> bool:
+        """Whether the mesh is closed (every edge shared by exactly two faces); the mesh is read-only."""
         return bool(self.mesh.is_watertight)
 
     # --- physics -----------------------------------------------------------------------------------------
