@@ -176,17 +176,21 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     """Measure the pipeline (1 and 2 workers), its CPU time and raw MuJoCo on the same scenes (fast profile).
 
     One worker and raw MuJoCo run twice each, in the order pipeline, raw, raw, pipeline (their ratio sees the
-    same load); object loading and one warm-up frame (GL context start-up) are outside the 1-worker figures.
+    same load); object loading, each scene made once (filling the on-disk caches of the objects it uses, such as
+    collision hulls, which a first run computes) and one warm-up frame (GL context start-up) are outside the
+    1-worker figures.
     The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
     """
     from simtest.gl import available_cores
-    from simtest.generators.pipeline import _load_objects, generate
+    from simtest.generators.pipeline import _load_objects, generate, prepare_scene
 
     cfg = GenerateConfig().replace(**{
         "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": width,
         "camera.height": height, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
         "render.profile": "fast", "seed": seed})
-    objs = _load_objects(cfg)  # warm caches (meshes, collision hulls) outside the timings
+    objs = _load_objects(cfg)
+    for scene_id in range(scenes):  # caches outside the timings: the scenes' meshes, collision hulls, symmetries
+        prepare_scene(cfg, objs, scene_id)
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
         generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
         pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp))
