@@ -5,7 +5,9 @@ building, settling the next scene while the current one renders, rendering, anno
 against raw ``mujoco.Renderer`` rendering of the same outputs (RGB, depth and segmentation: three ``render()``
 calls per frame, MuJoCo's own API for them) for the same settled scenes and camera poses, each twice in the order
 pipeline, raw, raw, pipeline so both see the same machine load; the CPU time per annotated frame
-(the process and its worker processes, all threads); and 1 vs 2 workers. With 2 workers, throughput is given
+(the process and its worker processes, all threads), also by thread group where Linux reports it
+(:class:`ThreadCpu`: rendering, llvmpipe's rasterizers, annotation, writers, the scene made ahead); and 1 vs 2
+workers. With 2 workers, throughput is given
 both as frames over the busy time of the slower worker and as frames over the wall time including worker
 start-up (about 1.5 s of imports and object loading per process), each also as a fraction of the ideal
 ``cores / (CPU seconds per frame of one worker)``.
@@ -17,12 +19,12 @@ import os
 import resource
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from simtest.generators.config import GenerateConfig
 
-__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "cpu_seconds"]
+__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "cpu_seconds", "ThreadCpu"]
 
 
 @dataclass
@@ -42,6 +44,9 @@ class GenerateBench:
     cpu_ms_per_frame_2workers: float | None = None
     cores: int = 1
     cpu_ms_per_frame_2workers_scenes: float | None = None
+    #: CPU ms per annotated frame of one worker by thread group (:class:`ThreadCpu`), largest first; empty
+    #: where the operating system does not report per-thread CPU time.
+    cpu_ms_by_thread: dict[str, float] = field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -73,6 +78,10 @@ class GenerateBench:
             f"| CPU ms per annotated frame, 1 worker (all threads) | {self.cpu_ms_per_frame:.1f} |",
             f"| cores; ideal frames/s = cores / CPU s per frame | {self.cores}; {self.ideal_fps:.2f} |",
         ]
+        if self.cpu_ms_by_thread:
+            parts = ", ".join(f"{name} {ms:.1f}" for name, ms in self.cpu_ms_by_thread.items())
+            rows.append(f"| CPU ms per frame by thread, 1 worker (threads that ended between two reads: not "
+                        f"attributed) | {parts} |")
         if self.pipeline_fps_2workers is not None:
             rows += [
                 f"| full pipeline, 2 workers, frames/s (busy time of the slower worker) | "
@@ -96,6 +105,80 @@ def cpu_seconds(children: bool = False) -> float:
     """CPU seconds (user + system, all threads) of this process, plus its waited-for child processes."""
     who = [resource.RUSAGE_SELF] + ([resource.RUSAGE_CHILDREN] if children else [])
     return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))
+
+
+#: Thread groups of :class:`ThreadCpu`, by thread name prefix (Python's name, or the OS's for native threads).
+THREAD_GROUPS = (("MainThread", "rendering"), ("simtest-view-behind", "annotation"),
+                 ("simtest-scene-ahead", "scene ahead"), ("bop-writer", "writers"), ("llvmpipe", "llvmpipe"))
+
+
+class ThreadCpu:
+    """CPU seconds of this process's threads by group (:data:`THREAD_GROUPS`, the rest as "other") while a
+    ``with`` block runs, from Linux's per-thread counters (``/proc/self/task``: ``schedstat``, nanoseconds).
+
+    Threads are read every ``interval`` seconds; a thread that ends between two reads loses what it ran since
+    the last one (at most ``interval`` per thread), so the groups can add up to slightly less than the
+    process's CPU time. :attr:`available` is ``False`` (and :meth:`groups` empty) where there is no such file.
+    """
+
+    def __init__(self, interval: float = 0.02) -> None:
+        import threading
+
+        self.interval = interval
+        self.available = os.path.exists(f"/proc/self/task/{threading.get_native_id()}/schedstat")
+        self._start: dict[int, float] = {}
+        self._last: dict[int, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="simtest-thread-cpu", daemon=True)
+
+    @staticmethod
+    def _group(name: str) -> str:
+        for prefix, group in THREAD_GROUPS:
+            if name.startswith(prefix):
+                return group
+        return "other"
+
+    def _read(self) -> dict[int, tuple[str, float]]:
+        import threading
+
+        names = {t.native_id: t.name for t in threading.enumerate()}
+        out = {}
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{tid}/schedstat") as fh:
+                    ns = int(fh.read().split()[0])
+                with open(f"/proc/self/task/{tid}/comm") as fh:
+                    comm = fh.read().strip()
+            except (FileNotFoundError, ProcessLookupError, ValueError, IndexError):
+                continue  # the thread ended while being read
+            out[int(tid)] = (names.get(int(tid), comm), ns * 1e-9)
+        return out
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval):
+            self._last.update(self._read())
+
+    def __enter__(self) -> "ThreadCpu":
+        if self.available:
+            self._start = {tid: cpu for tid, (_, cpu) in self._read().items()}
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.available:
+            self._stop.set()
+            self._thread.join()
+            self._last.update(self._read())
+
+    def groups(self) -> dict[str, float]:
+        """CPU seconds by group while the block ran (this sampler's own thread left out), largest first."""
+        out: dict[str, float] = {}
+        for tid, (name, cpu) in self._last.items():
+            if name == "simtest-thread-cpu":
+                continue
+            group = self._group(name)
+            out[group] = out.get(group, 0.0) + cpu - self._start.get(tid, 0.0)
+        return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
 def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, int]:
@@ -133,41 +216,48 @@ def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, in
     return total, len(cams)
 
 
-def _pipeline_run(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, float, int]:
+def _pipeline_run(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float, float, int, dict[str, float]]:
     """One worker making every scene of ``cfg`` as ``simtest generate`` does (its scene loop, with the next
     scene built and settled ahead while the current one renders), without the once-per-run files (manifest,
     models).
 
     Returns:
-        ``(seconds, CPU seconds of every thread, frames)``.
+        ``(seconds, CPU seconds of every thread, frames, CPU seconds by thread group)`` (:class:`ThreadCpu`).
     """
     from simtest.generators.pipeline import GenerateReport, _run_scenes
 
     split_dir.mkdir(parents=True)
     report = GenerateReport(split_dir.parent, cfg.scenes, 0, 0, 0, 0.0)
-    cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
-    _run_scenes(cfg, objects, list(range(cfg.scenes)), split_dir, report, None)
-    return time.perf_counter() - t0, cpu_seconds(children=True) - cpu0, report.frames_written
+    with ThreadCpu() as threads:
+        cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
+        _run_scenes(cfg, objects, list(range(cfg.scenes)), split_dir, report, None)
+        seconds, cpu = time.perf_counter() - t0, cpu_seconds(children=True) - cpu0
+    return seconds, cpu, report.frames_written, threads.groups()
 
 
-def _one_worker(cfg: GenerateConfig, objects, tmp: Path, rounds: int = 2) -> tuple[float, float, float, int]:
+def _one_worker(cfg: GenerateConfig, objects, tmp: Path, rounds: int = 2
+                ) -> tuple[float, float, float, int, dict[str, float]]:
     """The pipeline with one worker and raw rendering of the same scenes, ``rounds`` times each, in the order
     pipeline, raw, raw, pipeline, ... (a load that drifts during the benchmark weighs on both alike).
 
     Returns:
-        ``(pipeline seconds, raw seconds, pipeline CPU seconds, frames)`` per round (means).
+        ``(pipeline seconds, raw seconds, pipeline CPU seconds, frames, pipeline CPU seconds by thread group)``
+        per round (means).
     """
     pipe = raw = cpu = 0.0
     frames = 0
+    by_thread: dict[str, float] = {}
     order = [k % 2 == 0 for k in range(rounds)]  # pipeline first in even rounds
     for k, pipeline_first in enumerate(order):
         for step in ((True, False) if pipeline_first else (False, True)):
             if step:
-                s, c, n = _pipeline_run(cfg, objects, tmp / f"w1_{k}" / cfg.split)
+                s, c, n, groups = _pipeline_run(cfg, objects, tmp / f"w1_{k}" / cfg.split)
                 pipe, cpu, frames = pipe + s, cpu + c, n
+                for name, seconds in groups.items():
+                    by_thread[name] = by_thread.get(name, 0.0) + seconds / rounds
             else:
                 raw += sum(_raw_seconds(cfg, objects, scene_id)[0] for scene_id in range(cfg.scenes))
-    return pipe / rounds, raw / rounds, cpu / rounds, frames
+    return pipe / rounds, raw / rounds, cpu / rounds, frames, by_thread
 
 
 def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 8,
@@ -193,7 +283,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
         prepare_scene(cfg, objs, scene_id)
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
         generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
-        pipe_s, raw_s, cpu_s, frames = _one_worker(cfg, objs, Path(tmp))
+        pipe_s, raw_s, cpu_s, frames, by_thread = _one_worker(cfg, objs, Path(tmp))
         fps2 = fps2_wall = cpu2 = cpu2_scenes = None
         if two_workers:
             cpu0 = cpu_seconds(children=True)
@@ -207,7 +297,19 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
             cpu2_scenes = sum(s.cpu_seconds for s in rep2.scenes) * 1000.0 / max(1, rep2.frames_written)
     return GenerateBench(width, height, objects_per_scene, scenes, frames_per_scene, frames / pipe_s,
                          frames / raw_s, fps2, fps2_wall, cpu_s * 1000.0 / frames, cpu2, available_cores(),
-                         cpu2_scenes)
+                         cpu2_scenes, _per_frame_by_thread(by_thread, cpu_s, frames))
+
+
+def _per_frame_by_thread(by_thread: dict[str, float], cpu_s: float, frames: int) -> dict[str, float]:
+    """CPU ms per frame by thread group, plus what the groups miss of the process's CPU time (threads that
+    ended between two reads of :class:`ThreadCpu`) as "not attributed"."""
+    if not by_thread:
+        return {}
+    out = {name: sec * 1000.0 / frames for name, sec in by_thread.items()}
+    missing = (cpu_s - sum(by_thread.values())) * 1000.0 / frames
+    if missing >= 0.05:
+        out["not attributed"] = missing
+    return out
 
 
 @dataclass

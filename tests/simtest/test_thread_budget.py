@@ -96,3 +96,12 @@ def test_bench_generate_reports_ratios_cpu_time_and_worker_efficiency(capsys):
     assert 0 < float(scene_work) <= float(with_start_up)
     assert float(rows["2 workers (busy) / (cores / their scene-work CPU s per frame)"]) == pytest.approx(
         busy * float(scene_work) / 1000 / int(cores), rel=0.02, abs=0.01)
+    # Where the CPU time goes, by thread group (Linux's per-thread counters); the groups add up to the total.
+    if not os.path.isdir("/proc/self/task"):
+        return
+    by_thread = rows["CPU ms per frame by thread, 1 worker (threads that ended between two reads: not attributed)"]
+    parts = dict(part.rsplit(" ", 1) for part in by_thread.split(", "))
+    assert {"rendering", "scene ahead"} <= set(parts) <= {
+        "rendering", "annotation", "scene ahead", "writers", "llvmpipe", "other", "not attributed"}
+    assert all(float(v) >= 0 for v in parts.values())
+    assert sum(map(float, parts.values())) == pytest.approx(cpu, rel=0.15, abs=1.0)
