@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import logging
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,7 +24,7 @@ from simtest.io.files import atomic_write_bytes
 if TYPE_CHECKING:
     from simtest.objects.model import ObjectModel
 
-__all__ = ["convex_parts", "enclosed_volume", "open_mesh_is_concave", "open_mesh_note"]
+__all__ = ["convex_parts", "decomposition_cache_path", "enclosed_volume", "open_mesh_is_concave", "open_mesh_note"]
 
 log = logging.getLogger(__name__)
 
@@ -50,14 +51,22 @@ OPEN_CONCAVITY_RATIO = 1.1
 FILL_RESOLUTION = 64
 
 
-def convex_parts(obj: "ObjectModel") -> tuple[trimesh.Trimesh, ...]:
-    """Convex pieces (model frame, metres) whose union approximates ``obj.mesh`` for collision."""
+def decomposition_cache_path(obj: "ObjectModel") -> Path | None:
+    """Where the CoACD parts of ``obj`` are cached (by mesh hash, under :func:`~simtest.objects.model.cache_dir`),
+    or ``None`` for a convex object (its hull needs no decomposition)."""
     if not obj.is_concave:
-        return (obj.mesh.convex_hull,)
+        return None
     from simtest.objects.model import cache_dir
 
     tag = "" if obj.mesh.is_watertight else f"_open{_OPEN_CACHE_VERSION}"
-    path = cache_dir() / "coacd" / f"{obj.mesh_hash}_v{_CACHE_VERSION}_{COACD_THRESHOLD}{tag}.npz"
+    return cache_dir() / "coacd" / f"{obj.mesh_hash}_v{_CACHE_VERSION}_{COACD_THRESHOLD}{tag}.npz"
+
+
+def convex_parts(obj: "ObjectModel") -> tuple[trimesh.Trimesh, ...]:
+    """Convex pieces (model frame, metres) whose union approximates ``obj.mesh`` for collision."""
+    path = decomposition_cache_path(obj)
+    if path is None:
+        return (obj.mesh.convex_hull,)
     if path.exists():
         try:
             with np.load(path) as data:

@@ -1,11 +1,13 @@
-"""``simtest objects``: list an object set, export it as BOP models, render a preview of one object."""
+"""``simtest objects``: list an object set, export it as BOP models, render a preview of one object, fill its
+caches ahead of a run."""
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
-from simtest.cli.common import common_parser
+from simtest.cli.common import add_backend_options, backend_from_args, common_parser
 from simtest.errors import AssetError
 
 __all__ = ["register", "object_table", "category_table", "entry_table"]
@@ -53,6 +55,18 @@ def register(subparsers) -> None:
     p_prev.add_argument("--size", type=int, default=256, help="pixels per view (square)")
     p_prev.add_argument("--views", type=int, default=4, help="views per object, at evenly spaced azimuths")
     p_prev.set_defaults(func=_cmd_preview)
+
+    p_prep = sub.add_parser(
+        "prepare", parents=[common_parser()],
+        help="compute and cache every object's collision parts (and a lazily read mesh's symmetries) ahead of a run",
+        description="Compute what each object of the set needs on first use (the convex decomposition of concave "
+                    "objects, detected symmetries of lazily read meshes) and cache it under $SIMTEST_CACHE "
+                    "(default ~/.cache/simtest), so the first scenes of a run do not wait for it. On a cluster, "
+                    "run it once with a shared $SIMTEST_CACHE (or on every node with a cache per node).")
+    common(p_prep)
+    p_prep.add_argument("--workers", type=int, default=1, metavar="N", help="objects prepared at once (processes)")
+    add_backend_options(p_prep, "object")
+    p_prep.set_defaults(func=_cmd_prepare)
 
     parser.set_defaults(func=lambda args: (parser.print_help(), 2)[1])
 
@@ -187,6 +201,28 @@ def _cmd_preview(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(out)
     print(f"wrote {out} ({', '.join(o.name for o in chosen)}, {image.shape[1]}x{image.shape[0]} px)")
+    return 0
+
+
+def _cmd_prepare(args) -> int:
+    import sys
+
+    from simtest.backend import RunStats
+    from simtest.objects.model import cache_dir
+    from simtest.objects.prepare import prepare_objects
+
+    backend, stats = backend_from_args(args), RunStats()
+    start = time.perf_counter()
+    done = prepare_objects(args.set, units=args.units, seed=args.seed, scale=args.scale, symmetry=args.symmetry,
+                           backend=backend, progress=not args.quiet, stats=stats)
+    seconds = time.perf_counter() - start
+    if not args.quiet:
+        print(f"simtest objects prepare: {stats.summary()}", file=sys.stderr)
+    print(_text_table(["id", "name", "collision", "parts", "seconds"],
+                      [[str(r.obj_id), r.name, r.collision, str(r.parts), f"{r.seconds:.2f}"] for r in done]))
+    count = {k: sum(r.collision == k for r in done) for k in ("computed", "cached", "hull")}
+    print(f"# {len(done)} objects in {seconds:.1f} s: {count['computed']} decompositions computed, "
+          f"{count['cached']} already cached, {count['hull']} convex (hull); cache: {cache_dir()}")
     return 0
 
 

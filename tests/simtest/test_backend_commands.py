@@ -184,3 +184,17 @@ def test_sweep_on_ray_gives_the_local_tables(local_ray, tmp_path):
     # where a sweep runs is not part of its config: a local resume of the Ray sweep reuses every cell
     again = run_sweep(SweepConfig.from_dict(data), tmp_path / "ray", resume=True, progress=False)
     assert again.cells_run == [] and len(again.cells_skipped) == 4
+
+
+def test_objects_prepare_on_ray_gives_the_local_parts(local_ray):
+    """``simtest objects prepare --backend ray``: one Ray task per object, the same collision parts as locally
+    (the workers read and fill the cache the instance was started with)."""
+    from simtest.backend import Backend, RunStats
+    from simtest.objects.prepare import prepare_objects
+
+    local = prepare_objects("builtin-small", progress=False)
+    stats = RunStats()
+    ray_rows = prepare_objects("builtin-small", backend=Backend("ray", 2), progress=False, stats=stats)
+    assert [(r.obj_id, r.name, r.parts) for r in ray_rows] == [(r.obj_id, r.name, r.parts) for r in local]
+    assert {r.collision for r in ray_rows} <= {"hull", "cached"}  # the local run above filled the cache
+    assert stats.backend == "ray" and stats.finished == len(local) == 4
