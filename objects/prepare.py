@@ -89,11 +89,14 @@ def prepare_objects(spec: str = "builtin", *, units: str = "auto", seed: int = 0
     preflight(backend)
     _WORKER["objects"] = objects  # used when the units run in this process
     done: list[PreparedObject] = []
-    results: Iterator[PreparedObject] = run_units(_prepare_one, ids, backend, init=_init, init_args=(set_spec,),
-                                                  stats=stats)
-    with tqdm(total=len(ids), desc="prepare", unit="obj", disable=not progress, dynamic_ncols=True) as bar:
-        for result in results:
-            done.append(result)
-            bar.set_postfix_str(result.name, refresh=False)
-            bar.update()
+    try:
+        results: Iterator[PreparedObject] = run_units(_prepare_one, ids, backend, init=_init,
+                                                      init_args=(set_spec,), stats=stats)
+        with tqdm(total=len(ids), desc="prepare", unit="obj", disable=not progress, dynamic_ncols=True) as bar:
+            for result in results:
+                done.append(result)
+                bar.set_postfix_str(result.name, refresh=False)
+                bar.update()
+    finally:
+        _WORKER.clear()  # the set is not kept alive by this module after the call
     return sorted(done, key=lambda r: r.obj_id)

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from simtest.cli import main
-from simtest.errors import AssetError, ConfigError
+from simtest.errors import AssetError
 from simtest.objects import load_object_set
 from simtest.objects.builtin import build_object
 from simtest.objects.collision import decomposition_cache_path
@@ -55,15 +55,12 @@ def test_prepare_computes_then_reads_the_cache(mesh_folder, capsys, tmp_path, mo
         np.testing.assert_allclose(a.vertices, b.vertices)
 
 
-def test_prepare_refuses_bad_input_before_any_work(tmp_path, monkeypatch):
+def test_prepare_refuses_bad_input_before_any_work(tmp_path, monkeypatch, capsys):
     from simtest.objects.prepare import prepare_objects
 
     monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path / "cache"))
     with pytest.raises(AssetError, match="not found"):
         prepare_objects(str(tmp_path / "missing"), progress=False)
-    assert main(["objects", "prepare", "--workers", "0", "--quiet"]) == 2
-    with pytest.raises(ConfigError, match="workers"):
-        from simtest.backend import Backend
-
-        Backend("local", 0)
-    assert not (tmp_path / "cache").exists()
+    assert main(["objects", "prepare", "--set", "builtin-small", "--workers", "0", "--quiet"]) == 2
+    assert "workers must be an integer >= 1; got 0" in capsys.readouterr().err
+    assert not (tmp_path / "cache").exists()  # nothing was decomposed
