@@ -411,12 +411,15 @@ class ScenesAhead:
     as preparing each one when it is rendered.
     """
 
+    #: Name prefix of the helper thread (benchmarks group CPU time by it).
+    THREAD_NAME = "simtest-scene-ahead"
+
     def __init__(self, cfg: GenerateConfig, objects, order: list[int]) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
         self._cfg, self._objects, self._order = cfg, objects, list(order)
         self._position = {scene_id: k for k, scene_id in enumerate(self._order)}
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="simtest-scene-ahead")
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix=self.THREAD_NAME)
         self._futures: dict[int, Any] = {}
         self._submit(0)
 
@@ -449,10 +452,13 @@ class ViewsBehind:
     raised by the next :meth:`submit` or by :meth:`close`.
     """
 
+    #: Name prefix of the helper thread (benchmarks group CPU time by it).
+    THREAD_NAME = "simtest-view-behind"
+
     def __init__(self, threaded: bool = True) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="simtest-view-behind") if threaded else None
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix=self.THREAD_NAME) if threaded else None
         self._pending = None
 
     def submit(self, fn, *args) -> None:
@@ -481,12 +487,12 @@ class ViewsBehind:
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
-        if exc_type is None:
-            self.close()
-            return
-        try:  # already failing: let the view in flight end, keep the first error
+        try:
             self.close()
         except Exception:
+            if exc_type is None:
+                raise
+            # already failing: the view in flight has ended; the first error is the one raised
             log.debug("error in the view finished behind a failure", exc_info=True)
 
 

@@ -107,13 +107,18 @@ def cpu_seconds(children: bool = False) -> float:
     return sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage, who))
 
 
-#: Thread groups of :class:`ThreadCpu`, by thread name prefix (Python's name, or the OS's for native threads).
-THREAD_GROUPS = (("MainThread", "rendering"), ("simtest-view-behind", "annotation"),
-                 ("simtest-scene-ahead", "scene ahead"), ("bop-writer", "writers"), ("llvmpipe", "llvmpipe"))
+def thread_groups() -> tuple[tuple[str, str], ...]:
+    """``(thread name prefix, group)`` pairs of :class:`ThreadCpu`: Python's thread names as the pipeline's
+    thread owners give them, or the OS's for native threads (llvmpipe's rasterizers)."""
+    from simtest.generators.pipeline import ScenesAhead, ViewsBehind
+    from simtest.io.bop import SceneWriter
+
+    return (("MainThread", "rendering"), (ViewsBehind.THREAD_NAME, "annotation"),
+            (ScenesAhead.THREAD_NAME, "scene ahead"), (SceneWriter.THREAD_NAME, "writers"), ("llvmpipe", "llvmpipe"))
 
 
 class ThreadCpu:
-    """CPU seconds of this process's threads by group (:data:`THREAD_GROUPS`, the rest as "other") while a
+    """CPU seconds of this process's threads by group (:func:`thread_groups`, the rest as "other") while a
     ``with`` block runs, from Linux's per-thread counters (``/proc/self/task``: ``schedstat``, nanoseconds).
 
     Threads are read every ``interval`` seconds; a thread that ends between two reads loses what it ran since
@@ -130,10 +135,10 @@ class ThreadCpu:
         self._last: dict[int, tuple[str, float]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="simtest-thread-cpu", daemon=True)
+        self._groups = thread_groups()
 
-    @staticmethod
-    def _group(name: str) -> str:
-        for prefix, group in THREAD_GROUPS:
+    def _group(self, name: str) -> str:
+        for prefix, group in self._groups:
             if name.startswith(prefix):
                 return group
         return "other"
