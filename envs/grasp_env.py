@@ -58,8 +58,8 @@ For RL clients:
   contexts do not survive ``fork()``: in a process forked after its parent rendered, :meth:`reset` raises a
   :class:`~simtest.errors.RenderError` instead of hanging. For ``gymnasium.make_vec(...,
   vectorization_mode="async")`` pass ``vector_kwargs={"context": "spawn"}``.
-* With the CUDA wheels of torch, import ``torch._dynamo`` (or call :func:`simtest.gl.prepare_torch`) before
-  the first render; simtest does it itself when torch is already imported (see :mod:`simtest.gl`).
+* With the CUDA wheels of torch, import ``torch._dynamo`` (or call :func:`simtest.render.gl.prepare_torch`) before
+  the first render; simtest does it itself when torch is already imported (see :mod:`simtest.render.gl`).
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ from simtest.envs.options import (CONTROL_DT, HOLD_TIME, MAX_STEP_ROTATION, MAX_
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.robot import rotvec_to_matrix
-from simtest.render import Frame, Renderer
+from simtest.render.rasterizer import Frame, Renderer
 
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
            "SUCCESS_HEIGHT", "HOLD_TIME", "load_objects"]

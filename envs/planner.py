@@ -178,7 +178,7 @@ def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin:
     """
     from scipy.spatial import cKDTree
 
-    from simtest.estimators.icp import backproject
+    from simtest.camera import backproject
 
     T_world_cam = env.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
     pts = T_world_cam.apply(backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)))  # depth > 0 only

@@ -172,7 +172,7 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
-    from simtest.gl import apply_thread_budget, workers_per_machine
+    from simtest.render.gl import apply_thread_budget, workers_per_machine
 
     apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores
     _WORKER.clear()

@@ -418,7 +418,7 @@ def tune_occluder(scene: GraspScene, renderer, camera_id: int, q_observe: np.nda
 
     Args:
         scene: The settled scene (must have an occluder).
-        renderer: A :class:`simtest.render.Renderer` of the scene's model.
+        renderer: A :class:`simtest.render.rasterizer.Renderer` of the scene's model.
         camera_id: The wrist camera id.
         q_observe: Arm configuration (7,) rad of the observation pose.
         level: 1..3.

@@ -18,7 +18,7 @@ from simtest.generators.builder import SceneState, SimScene
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
 from simtest.objects import ObjectSet
-from simtest.render import Frame
+from simtest.render.rasterizer import Frame
 
 __all__ = ["InstanceAnnotation", "annotate", "amodal_counts", "rasterize_silhouette"]
 

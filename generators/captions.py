@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from simtest.camera import CameraModel
-from simtest.colour import srgb_to_linear
+from simtest.render.colour import srgb_to_linear
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.io.files import atomic_write_json

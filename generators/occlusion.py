@@ -30,7 +30,7 @@ from simtest.camera import CameraModel
 from simtest.corrupt.occlusion import OCCLUSION_BANDS
 from simtest.generators.builder import N_OCCLUDERS, SimScene
 from simtest.geometry import Pose
-from simtest.render import Renderer
+from simtest.render.rasterizer import Renderer
 
 __all__ = ["OcclusionRecord", "measured_level", "occlude_view", "hide_occluders", "bisect_occlusion"]
 

@@ -82,13 +82,13 @@ def _versions(cfg: GenerateConfig) -> dict[str, str]:
     out = {"simtest": simtest.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
            "python": platform.python_version()}
     if cfg.render.profile == "pbr":
-        from simtest.render_pbr import renderer_versions
+        from simtest.render.pbr import renderer_versions
 
         out.update(renderer_versions())
     return out
 
 
-def _load_objects(cfg: GenerateConfig):
+def load_objects(cfg: GenerateConfig):
     from simtest.objects import load_object_set
 
     return load_object_set(cfg.objects, units=cfg.units, scale=cfg.scale)
@@ -100,12 +100,12 @@ _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
-    from simtest.gl import apply_thread_budget, workers_per_machine
+    from simtest.render.gl import apply_thread_budget, workers_per_machine
 
     cfg = GenerateConfig.from_dict(cfg_dict)
     apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores (llvmpipe, OpenCV), before any render
     _WORKER["cfg"] = cfg
-    _WORKER["objects"] = _load_objects(cfg)
+    _WORKER["objects"] = load_objects(cfg)
 
 
 def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
@@ -167,8 +167,8 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
             (:class:`ViewsBehind`); ``False`` finishes each view before the next (the same files, one thread).
     """
     from simtest.generators.annotate import annotate
-    from simtest.gl import thread_budget, workers_per_machine
-    from simtest.render import Renderer
+    from simtest.render.gl import thread_budget, workers_per_machine
+    from simtest.render.rasterizer import Renderer
 
     t0, cpu0 = time.perf_counter(), time.process_time()
     scene, settled, attempts, reasons = prepared if prepared is not None else prepare_scene(cfg, objects, scene_id)
@@ -212,7 +212,7 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
                                       occ_cfg.standing_first)
             frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
             if pbr is not None:
-                from simtest.render_pbr import frame_seed
+                from simtest.render.pbr import frame_seed
 
                 rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
                 frame = dataclasses.replace(frame, rgb=rgb)
@@ -245,8 +245,8 @@ def _pbr_renderer(cfg: GenerateConfig, scene):
     """The path tracer of the ``pbr`` profile for ``scene``, or ``None`` for the rasterized profiles."""
     if cfg.render.profile != "pbr":
         return None
-    from simtest.gl import thread_budget, workers_per_machine
-    from simtest.render_pbr import PbrRenderer
+    from simtest.render.gl import thread_budget, workers_per_machine
+    from simtest.render.pbr import PbrRenderer
 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
     shared = workers_per_machine(cfg.workers, cfg.ray_address)
@@ -321,13 +321,13 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     """
     out = Path(out_dir)
     if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
-        from simtest.render_pbr import require_pbr
+        from simtest.render.pbr import require_pbr
 
         require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
     preflight(Backend.of(cfg))  # before the output is touched
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
-    objects = _load_objects(cfg)
+    objects = load_objects(cfg)
     if cfg.captions:
         from simtest.generators.captions import check_caption_objects
 
@@ -359,7 +359,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         bar = tqdm(total=len(todo) * cfg.frames_per_scene, unit="frame", desc="generate", dynamic_ncols=True,
                    smoothing=0.1, file=sys.stderr)
     try:
-        _run_scenes(cfg, objects, todo, split_dir, report, bar)
+        run_scenes(cfg, objects, todo, split_dir, report, bar)
         _write_models(objects, out / "models", split_dir, scenes_done=True, unlabelled=cfg.unlabelled)
     finally:
         if bar is not None:
@@ -370,7 +370,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     return report
 
 
-def _run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, report: GenerateReport,
+def run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, report: GenerateReport,
                 bar) -> None:
     """Make the scenes ``todo`` where ``cfg.backend`` says, accounting each in ``report`` as it finishes.
 

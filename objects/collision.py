@@ -52,11 +52,11 @@ FILL_RESOLUTION = 64
 
 
 def decomposition_cache_path(obj: "ObjectModel") -> Path | None:
-    """Where the CoACD parts of ``obj`` are cached (by mesh hash, under :func:`~simtest.objects.model.cache_dir`),
+    """Where the CoACD parts of ``obj`` are cached (by mesh hash, under :func:`~simtest.objects.cache.cache_dir`),
     or ``None`` for a convex object (its hull needs no decomposition)."""
     if not obj.is_concave:
         return None
-    from simtest.objects.model import cache_dir
+    from simtest.objects.cache import cache_dir
 
     tag = "" if obj.mesh.is_watertight else f"_open{_OPEN_CACHE_VERSION}"
     return cache_dir() / "coacd" / f"{obj.mesh_hash}_v{_CACHE_VERSION}_{COACD_THRESHOLD}{tag}.npz"

@@ -9,15 +9,14 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from simtest.errors import AssetError
+from simtest.objects.cache import cache_dir
 from simtest.objects.appearance import Appearance
 
 __all__ = [
@@ -32,14 +31,6 @@ __all__ = [
 
 #: Mesh vertices are rounded to this many decimals (metres) before hashing, so equal geometry hashes equal.
 _HASH_DECIMALS = 7
-
-
-def cache_dir() -> Path:
-    """Folder for on-disk caches (``$SIMTEST_CACHE`` or ``~/.cache/simtest``)."""
-    root = os.environ.get("SIMTEST_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "simtest")
-    path = Path(root)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """``prepare_objects``: fill an object set's on-disk caches before a run.
 
 What an object needs is computed on its first use and cached by mesh hash under
-:func:`~simtest.objects.model.cache_dir` (``$SIMTEST_CACHE`` or ``~/.cache/simtest``): the CoACD convex
+:func:`~simtest.objects.cache.cache_dir` (``$SIMTEST_CACHE`` or ``~/.cache/simtest``): the CoACD convex
 decomposition of a concave object (0.3-15 s of one core each for the built-in and test meshes) and, for a mesh
 library read lazily, the detected symmetries of a mesh that declares none. Without this step the first scenes of
 a run wait for them, and on a cluster with a cache per node every node computes each one again.

@@ -251,7 +251,7 @@ def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_T
 
 def symmetry_cache_path(mesh_hash: str, tol: float = DEFAULT_TOLERANCE) -> Path:
     """The on-disk cache file of the symmetries detected for a mesh hash and tolerance."""
-    from simtest.objects.model import cache_dir
+    from simtest.objects.cache import cache_dir
 
     return cache_dir() / "symmetry" / f"{mesh_hash}_v{_DISK_VERSION}_{float(tol):g}.json"
 

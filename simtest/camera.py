@@ -15,7 +15,7 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
-__all__ = ["CameraModel", "R_MJ_CV", "intrinsics_matrix", "default_intrinsics", "D435_FOCAL_PX",
+__all__ = ["CameraModel", "backproject", "R_MJ_CV", "intrinsics_matrix", "default_intrinsics", "D435_FOCAL_PX",
            "mujoco_camera_intrinsics", "pinhole_pixels", "pinhole_points"]
 
 #: Rotation from the OpenCV camera frame to the MuJoCo camera frame (and back: it is its own inverse).
@@ -44,6 +44,21 @@ def pinhole_points(K: np.ndarray, u: np.ndarray, v: np.ndarray, z: np.ndarray) -
     """Camera-frame points (..., 3), metres, of pixels ``(u, v)`` at planar depth ``z`` (metres) under intrinsics
     ``K``: the inverse of :func:`pinhole_pixels`."""
     return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+
+
+def backproject(depth: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Camera-frame points (N, 3), metres, of the pixels with depth > 0 (inside ``mask`` if given).
+
+    Args:
+        depth: (H, W) planar depth, metres, 0 = missing.
+        K: 3x3 intrinsics (pixels); pixel centres at integer coordinates.
+        mask: Optional (H, W) bool.
+    """
+    valid = np.asarray(depth) > 0
+    if mask is not None:
+        valid &= np.asarray(mask, dtype=bool)
+    v, u = np.nonzero(valid)
+    return pinhole_points(K, u, v, np.asarray(depth, dtype=np.float64)[v, u])
 
 
 def default_intrinsics(width: int, height: int, fx: float | None = None, fy: float | None = None,

@@ -229,13 +229,13 @@ def _pipeline_run(cfg: GenerateConfig, objects, split_dir: Path) -> tuple[float,
     Returns:
         ``(seconds, CPU seconds of every thread, frames, CPU seconds by thread group)`` (:class:`ThreadCpu`).
     """
-    from simtest.generators.pipeline import GenerateReport, _run_scenes
+    from simtest.generators.pipeline import GenerateReport, run_scenes
 
     split_dir.mkdir(parents=True)
     report = GenerateReport(split_dir.parent, cfg.scenes, 0, 0, 0, 0.0)
     with ThreadCpu() as threads:
         cpu0, t0 = cpu_seconds(children=True), time.perf_counter()
-        _run_scenes(cfg, objects, list(range(cfg.scenes)), split_dir, report, None)
+        run_scenes(cfg, objects, list(range(cfg.scenes)), split_dir, report, None)
         seconds, cpu = time.perf_counter() - t0, cpu_seconds(children=True) - cpu0
     return seconds, cpu, report.frames_written, threads.groups()
 
@@ -276,14 +276,14 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     1-worker figures.
     The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
     """
-    from simtest.gl import available_cores
-    from simtest.generators.pipeline import _load_objects, generate, prepare_scene
+    from simtest.render.gl import available_cores
+    from simtest.generators.pipeline import load_objects, generate, prepare_scene
 
     cfg = GenerateConfig().replace(**{
         "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": width,
         "camera.height": height, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
         "render.profile": "fast", "seed": seed})
-    objs = _load_objects(cfg)
+    objs = load_objects(cfg)
     for scene_id in range(scenes):  # caches outside the timings: the scenes' meshes, collision hulls, symmetries
         prepare_scene(cfg, objs, scene_id)
     with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
@@ -341,7 +341,7 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
                    seed: int = 0) -> ProfileBench:
     """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading and one warm-up
     frame per profile excluded) of each profile at each ``(width, height)``, measured in one run."""
-    from simtest.generators.pipeline import _load_objects, generate
+    from simtest.generators.pipeline import load_objects, generate
 
     rows = []
     for w, h in sizes:
@@ -350,7 +350,7 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
                 "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": w,
                 "camera.height": h, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
                 "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
-            _load_objects(cfg)
+            load_objects(cfg)
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
                 # warm-up outside the timing: GL context, path tracer and denoiser start-up
                 generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)

@@ -27,7 +27,7 @@ from simtest.metrics import (
     ycb_auc,
 )
 from simtest.objects import ContinuousSymmetry, ObjectModel
-from simtest.raster import rasterize_depth, render_depth
+from simtest.render.zbuffer import rasterize_depth, render_depth
 
 
 def run(number: int = 5, repeat: int = 3) -> dict[str, float]:

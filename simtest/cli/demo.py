@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from simtest.io.dataset import describe_dataset
-    from simtest.sweep import DEMO_SWEEP, SweepConfig, run_sweep
+    from simtest.sweeps.grid import DEMO_SWEEP, SweepConfig, run_sweep
 
     out = Path(args.out)
     data = json.loads(json.dumps(DEMO_SWEEP))

@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from simtest.backend import RunStats
     from simtest.estimators.base import parse_options
-    from simtest.eval import evaluate, format_table, overall_table, score_results
+    from simtest.evaluation.run import evaluate, format_table, overall_table, score_results
 
     scenes = None
     if args.scenes:
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(report))
     print(overall_table(report))
     if report.tracking is not None:
-        from simtest.eval_tracking import tracking_table
+        from simtest.evaluation.tracking import tracking_table
 
         print()
         print(tracking_table(report.tracking))

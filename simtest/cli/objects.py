@@ -208,7 +208,7 @@ def _cmd_prepare(args) -> int:
     import sys
 
     from simtest.backend import RunStats
-    from simtest.objects.model import cache_dir
+    from simtest.objects.cache import cache_dir
     from simtest.objects.prepare import prepare_objects
 
     backend, stats = backend_from_args(args), RunStats()

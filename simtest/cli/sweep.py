@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simtest.sweep import load_sweep_config, run_sweep
+    from simtest.sweeps.grid import load_sweep_config, run_sweep
 
     cfg = load_sweep_config(args.config)
     where = {k: v for k, v in (("backend", args.backend), ("ray_address", args.ray_address)) if v is not None}

@@ -329,7 +329,7 @@ def _load_entry_point(spec: str, ep: importlib.metadata.EntryPoint) -> Any:
                           f"package {dist!r}) failed to load: {type(exc).__name__}: {exc}") from exc
 
 
-def _is_file_target(module_part: str) -> bool:
+def is_file_target(module_part: str) -> bool:
     return module_part.endswith(".py") or "/" in module_part or "\\" in module_part
 
 
@@ -339,7 +339,7 @@ def _import_target(spec: str, target: str) -> Any:
     if not mod_name or not attr:
         raise ConfigError(f"estimator {spec!r}: expected 'module:attr' or 'path/to/file.py:attr' with both parts "
                           "given")
-    module = _import_file(spec, mod_name, attr) if _is_file_target(mod_name) else _import_module(spec, mod_name, attr)
+    module = _import_file(spec, mod_name, attr) if is_file_target(mod_name) else _import_module(spec, mod_name, attr)
     obj: Any = module
     for part in attr.split("."):
         try:

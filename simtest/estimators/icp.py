@@ -39,32 +39,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from simtest.camera import pinhole_pixels, pinhole_points
+from simtest.camera import backproject, pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 
 #: Sources of the object masks (the ``masks`` option).
 MASK_SOURCES = ("gt", "segicp")
 
-__all__ = ["ICPEstimator", "MASK_SOURCES", "backproject", "fibonacci_rotations", "ModelCloud", "model_cloud",
+__all__ = ["ICPEstimator", "MASK_SOURCES", "fibonacci_rotations", "ModelCloud", "model_cloud",
            "point_to_plane_icp"]
 
 log = logging.getLogger(__name__)
-
-
-def backproject(depth: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Camera-frame points (N, 3), metres, of the pixels with depth > 0 (inside ``mask`` if given).
-
-    Args:
-        depth: (H, W) planar depth, metres, 0 = missing.
-        K: 3x3 intrinsics (pixels); pixel centres at integer coordinates.
-        mask: Optional (H, W) bool.
-    """
-    valid = np.asarray(depth) > 0
-    if mask is not None:
-        valid &= np.asarray(mask, dtype=bool)
-    v, u = np.nonzero(valid)
-    return pinhole_points(K, u, v, np.asarray(depth, dtype=np.float64)[v, u])
 
 
 def fibonacci_rotations(count: int, inplane: int | None = None) -> np.ndarray:

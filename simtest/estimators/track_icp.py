@@ -94,7 +94,7 @@ def depth_consistency(depth: np.ndarray, K: np.ndarray, cloud: ModelCloud, R: np
 def point_and_normal_maps(depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (H, W, 3) and unit normals (H, W, 3) of a depth image, metres.
 
-    ``x = (u - cx) z / fx, y = (v - cy) z / fy`` as :func:`simtest.estimators.icp.backproject`; the normal is the
+    ``x = (u - cx) z / fx, y = (v - cy) z / fy`` as :func:`simtest.camera.backproject`; the normal is the
     cross product of the differences to the right and lower neighbours, turned toward the camera. Pixels without
     depth, or with a neighbour without depth, have a zero normal.
     """

@@ -33,7 +33,8 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate, check_int_options
-from simtest.estimators.icp import ICPEstimator, backproject, model_cloud
+from simtest.camera import backproject
+from simtest.estimators.icp import ICPEstimator, model_cloud
 
 __all__ = ["umeyama", "ransac_umeyama", "UmeyamaEstimator"]
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, as_symmetries, mspd, mssd, vsd_from_depth
-from simtest.raster import render_depth
+from simtest.render.zbuffer import render_depth
 
 __all__ = [
     "ResultRow",

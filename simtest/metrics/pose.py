@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from simtest.errors import ConfigError
-from simtest.raster import depth_to_distance, render_depth
+from simtest.render.zbuffer import depth_to_distance, render_depth
 
 __all__ = [
     "add",
@@ -311,7 +311,7 @@ def vsd_from_depth(depth_est: np.ndarray, depth_gt: np.ndarray, depth_test: np.n
                    normalized_by_diameter: bool = True, cost_type: str = "step") -> np.ndarray:
     """Visible Surface Discrepancy from already rendered depth images (BOP ``vsd`` after its renders).
 
-    The depth images are converted to distance images (:func:`simtest.raster.depth_to_distance`); the
+    The depth images are converted to distance images (:func:`simtest.render.zbuffer.depth_to_distance`); the
     visibility masks follow BOP19: a model pixel is visible where ``d_model - d_test <= delta`` or the test
     depth is missing (0); the estimate's mask also includes pixels visible in the ground truth where the
     estimate is rendered. Then, for each ``tau``::
@@ -383,7 +383,7 @@ def vsd(R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, dept
         normalized_by_diameter: bool = True, cost_type: str = "step") -> np.ndarray:
     """Visible Surface Discrepancy (BOP ``vsd``; Hodan et al. 2016, BOP19 variant).
 
-    Renders the model's depth at both poses with :func:`simtest.raster.render_depth` at the size of
+    Renders the model's depth at both poses with :func:`simtest.render.zbuffer.render_depth` at the size of
     ``depth_test``, then applies :func:`vsd_from_depth`.
 
     Args:

@@ -1,8 +1,8 @@
 """The metric registry: every aggregate metric declared once (key, label, definition, direction, format).
 
-Evaluation tables (:mod:`simtest.tables`, :mod:`simtest.eval_tracking`), ``metrics.json`` definitions, sweep
+Evaluation tables (:mod:`simtest.evaluation.tables`, :mod:`simtest.evaluation.tracking`), ``metrics.json`` definitions, sweep
 configs (which metrics to tabulate), sweep tables and the HTML report all read this table, so a new metric is added here and in the code
-that computes it (:func:`simtest.scoring.aggregate` or the BOP19 evaluation), nowhere else.
+that computes it (:func:`simtest.evaluation.scoring.aggregate` or the BOP19 evaluation), nowhere else.
 
 Values are stored in SI units or fractions (metres, degrees where the key says ``_deg``, seconds, fractions
 in [0, 1]); ``scale`` and ``unit`` say how they are shown (e.g. a fraction as percent).
@@ -114,7 +114,7 @@ METRICS: tuple[Metric, ...] = (
            digits=4, sweepable=False),
     Metric("median_time_per_image_s", "median time/image", "median wall time of estimate() per image", 1.0, "s",
            None, digits=4, sweepable=False),
-    # Tracking (simtest.eval_tracking): pooled over the target-frames of sequences, or averaged over tracks.
+    # Tracking (simtest.evaluation.tracking): pooled over the target-frames of sequences, or averaged over tracks.
     *(Metric(f"iou{round(th * 100):d}", f"IoU{round(th * 100):d}",
              f"tracking: fraction of target-frames whose 3D IoU of the model's bounding box at the estimated and "
              f"ground-truth pose is >= {th:g} (misses count as 0)", sweepable=False) for th in (0.25, 0.5, 0.75)),

@@ -188,8 +188,8 @@ def test_torch_compiler_stack_imports_after_rendering():
         import sys
         import torch
         import mujoco
-        import simtest.gl
-        from simtest.render import Renderer
+        import simtest.render.gl
+        from simtest.render.rasterizer import Renderer
         xml = "<mujoco><worldbody><camera name='c' pos='0 0 1'/><geom type='sphere' size='.1'/></worldbody></mujoco>"
         model = mujoco.MjModel.from_xml_string(xml)
         data = mujoco.MjData(model)
@@ -198,7 +198,7 @@ def test_torch_compiler_stack_imports_after_rendering():
             assert r.render(data, "c").seg.max() == 0
         assert "torch._dynamo" in sys.modules  # imported before the first GL context
         import torch._dynamo  # noqa: F401
-        print("ok", simtest.gl.backend())
+        print("ok", simtest.render.gl.backend())
         """)
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.startswith("ok")
@@ -207,7 +207,7 @@ def test_torch_compiler_stack_imports_after_rendering():
 def test_simtest_does_not_import_torch():
     res = _run("""
         import sys
-        import simtest.envs.grasp_env, simtest.render, simtest.gl
+        import simtest.envs.grasp_env, simtest.render.rasterizer, simtest.render.gl
         assert "torch" not in sys.modules, "simtest imported torch"
         print("ok")
         """)

@@ -13,7 +13,7 @@ from simtest.envs.episode import _Monitor, _move_joints
 from simtest.envs.planner import GraspPlanner, observed_obstacles
 from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
 from simtest.errors import ConfigError
-from simtest.estimators.icp import backproject
+from simtest.camera import backproject
 from simtest.geometry import Pose
 
 

@@ -10,7 +10,7 @@ import pytest
 from simtest.camera import CameraModel, intrinsics_matrix
 from simtest.io.bop import read_depth, read_mask, read_scene, scene_dirs
 from simtest.objects import load_object_set
-from simtest.raster import render_depth
+from simtest.render.zbuffer import render_depth
 
 
 def _instances(dataset):
@@ -40,7 +40,7 @@ def _segmentation(spec, cam: CameraModel) -> np.ndarray:
     import mujoco
 
     from simtest.geometry import Pose
-    from simtest.render import Renderer
+    from simtest.render.rasterizer import Renderer
 
     pos, R_mj = cam.mujoco_pose()
     c = spec.worldbody.add_camera(name="c", pos=pos.tolist(), **cam.mujoco_intrinsics())
@@ -237,7 +237,7 @@ def test_amodal_mask_equals_independent_silhouette(small_config):
     from simtest.generators.annotate import annotate
     from simtest.generators.pipeline import prepare_scene, scene_cameras
     from simtest.generators.settle import park
-    from simtest.render import Renderer
+    from simtest.render.rasterizer import Renderer
 
     objects = load_object_set(small_config.objects)
     scene, _, _, _ = prepare_scene(small_config, objects, 0)

@@ -163,7 +163,7 @@ def _rotated(R: np.ndarray, degrees: float) -> np.ndarray:
 def test_per_category_viewpoint_accuracy_from_a_results_file(library_dataset, tmp_path):
     """A hand-made results file: every object of one category 20 deg off (Acc@pi/6 1, Acc@pi/18 0), of
     another 5 deg off (1, 1), the others missing (0, 0); the category table says exactly that."""
-    from simtest.eval import score_results
+    from simtest.evaluation.run import score_results
     from simtest.io.bop_results import write_bop_results
     from simtest.metrics.bop19 import ResultRow
     from simtest.objects.loaders import load_dataset_objects

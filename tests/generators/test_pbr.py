@@ -116,7 +116,7 @@ def test_missing_extra_names_the_install_command():
         "import mujoco\n"
         "from simtest.camera import CameraModel\n"
         "from simtest.errors import RenderError\n"
-        "from simtest.render_pbr import PbrRenderer\n"
+        "from simtest.render.pbr import PbrRenderer\n"
         "model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
         "try:\n"
         "    PbrRenderer(model, CameraModel.default(32, 24))\n"

@@ -278,11 +278,11 @@ def test_scenes_made_ahead_equal_scenes_made_in_turn(tmp_path):
     import hashlib
 
     from simtest.generators.config import GenerateConfig
-    from simtest.generators.pipeline import ScenesAhead, _load_objects, prepare_scene, render_scene
+    from simtest.generators.pipeline import ScenesAhead, load_objects, prepare_scene, render_scene
 
     cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 3, "frames_per_scene": 2,
                                       "camera.width": 96, "camera.height": 72, "seed": 5})
-    objects = _load_objects(cfg)
+    objects = load_objects(cfg)
     ahead = ScenesAhead(cfg, objects, [2, 0, 1])
     try:
         for i in (2, 0, 1):
@@ -308,11 +308,11 @@ def test_views_finished_behind_equal_views_finished_in_turn(tmp_path, changes):
     camera moves with the arm; occluders move)."""
     import hashlib
 
-    from simtest.generators.pipeline import _load_objects, prepare_scene, render_scene
+    from simtest.generators.pipeline import load_objects, prepare_scene, render_scene
 
     cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 4,
                                       "camera.width": 96, "camera.height": 72, "seed": 11, **changes})
-    objects = _load_objects(cfg)
+    objects = load_objects(cfg)
     for name, behind in (("behind", True), ("turn", False)):
         render_scene(cfg, objects, 0, tmp_path / name, prepared=prepare_scene(cfg, objects, 0),
                      finish_behind=behind)
@@ -327,10 +327,10 @@ def test_views_finished_behind_equal_views_finished_in_turn(tmp_path, changes):
 
 def test_scene_state_stays_as_taken():
     """``SimScene.state()`` keeps the instances' poses of its moment while the simulation moves on."""
-    from simtest.generators.pipeline import _load_objects
+    from simtest.generators.pipeline import load_objects
 
     cfg = GenerateConfig().replace(**{"objects": "builtin-small", "seed": 2})
-    scene, _, _, _ = prepare_scene(cfg, _load_objects(cfg), 0)
+    scene, _, _, _ = prepare_scene(cfg, load_objects(cfg), 0)
     state = scene.state()
     before = [(R.copy(), t.copy()) for R, t in state.poses]
     scene.data.qpos[scene.instance_qpos[0]:scene.instance_qpos[0] + 3] += 0.3

@@ -9,7 +9,7 @@ from PIL import Image
 
 from simtest.errors import ConfigError
 from simtest.generators.builder import load_texture_image
-from simtest.generators.pipeline import _load_objects, prepare_scene
+from simtest.generators.pipeline import load_objects, prepare_scene
 from simtest.generators.scene_spec import texture_images
 
 
@@ -34,7 +34,7 @@ def test_texture_folder_images_cover_the_room_and_distractors(small_config, text
     cfg = small_config.replace(**{"materials.textures": str(texture_dir), "scene.distractors": [2, 2],
                                   "camera.width": 64, "camera.height": 48})
     assert [p.rsplit("/", 1)[-1] for p in texture_images(str(texture_dir))] == ["checker.jpg", "ramp.png"]
-    scene, *_ = prepare_scene(cfg, _load_objects(cfg), 0)
+    scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
     spec = scene.spec
     used = {spec.table.image, spec.floor.image, spec.walls.image, *(d.image for d in spec.distractors)}
     assert used <= set(texture_images(str(texture_dir))) and None not in used
@@ -45,14 +45,14 @@ def test_texture_folder_images_cover_the_room_and_distractors(small_config, text
 
 
 def test_without_texture_folder_surfaces_stay_procedural(small_config):
-    scene, *_ = prepare_scene(small_config, _load_objects(small_config), 0)
+    scene, *_ = prepare_scene(small_config, load_objects(small_config), 0)
     assert scene.spec.table.image is None and all(d.image is None for d in scene.spec.distractors)
 
 
 def test_texture_folder_errors_name_the_field(small_config, tmp_path):
     with pytest.raises(ConfigError, match="materials.textures.*not a folder"):
         prepare_scene(small_config.replace(**{"materials.textures": str(tmp_path / "missing")}),
-                      _load_objects(small_config), 0)
+                      load_objects(small_config), 0)
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(ConfigError, match="materials.textures.*no .png"):
         texture_images(str(tmp_path))

@@ -17,7 +17,7 @@ from simtest.generators.scene_spec import (LightSpec, ObjectPlacement, SceneSpec
                                           sample_scene_spec)
 from simtest.io.bop_models import write_bop_models
 from simtest.objects import ObjectSet, load_object_set
-from simtest.render import Renderer
+from simtest.render.rasterizer import Renderer
 
 HALF = 0.03  # cube half size, metres
 CELLS = 4  # checkerboard cells per side
@@ -277,7 +277,7 @@ def test_pbr_profile_renders_the_texture_where_the_uvs_put_it(textured_cube):
     """The path tracer reads the mesh's texture coordinates: every checker cell of the top face shows its hue."""
     pytest.importorskip("mitsuba")
     pytest.importorskip("pyoidn")
-    from simtest.render_pbr import PbrRenderer
+    from simtest.render.pbr import PbrRenderer
 
     _, camera, centre, sim = render(textured_cube)
     rgb = PbrRenderer(sim.model, camera, spp=16, denoise=True).render(sim.data, sim.camera_id).rgb

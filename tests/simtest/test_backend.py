@@ -120,7 +120,7 @@ def test_an_unreachable_cluster_fails_before_any_output_is_written(tmp_path):
     pytest.importorskip("ray")
     from simtest.corrupt.dataset import corrupt_dataset
     from simtest.corrupt.spec import CorruptionSpec
-    from simtest.eval import evaluate
+    from simtest.evaluation.run import evaluate
     from simtest.generators.config import GenerateConfig
     from simtest.generators.pipeline import generate
 

@@ -133,7 +133,7 @@ def test_backend_settings_are_checked_in_every_config():
         GenerateConfig().replace(backend="dask")
     with pytest.raises(ConfigError, match="backend must be one of local, ray"):
         run_grasp_episodes(GraspRunConfig(backend="spark", episodes=1), progress=False)
-    from simtest.sweep import SweepConfig
+    from simtest.sweeps.grid import SweepConfig
 
     with pytest.raises(ConfigError, match="ray_address 'h:1' needs backend 'ray'"):
         SweepConfig.from_dict({"estimators": [{"name": "o", "estimator": "oracle"}],
@@ -162,7 +162,7 @@ def test_grasp_on_ray_gives_the_local_episodes(local_ray, tmp_path):
 
 
 def test_sweep_on_ray_gives_the_local_tables(local_ray, tmp_path):
-    from simtest.sweep import SweepConfig, run_sweep
+    from simtest.sweeps.grid import SweepConfig, run_sweep
 
     data = {"seed": 1, "estimators": [{"name": "oracle", "estimator": "oracle", "options": {"rot_noise_deg": 2.0}}],
             "dataset": {"generate": {"objects": "builtin-small", "scenes": 2, "frames_per_scene": 2,

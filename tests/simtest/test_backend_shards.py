@@ -14,7 +14,7 @@ from simtest.backend import Backend, RunStats
 from simtest.cli import main
 from simtest.corrupt import CorruptionSpec, corrupt_dataset
 from simtest.errors import ConfigError, EstimatorError
-from simtest.eval import evaluate
+from simtest.evaluation.run import evaluate
 
 #: An estimator with a fault of each kind on given images (loaded by path in the workers).
 FAULTY = '''

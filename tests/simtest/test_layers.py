@@ -1,4 +1,5 @@
-"""The layers of the house: low modules never import high ones, and no module-level import cycle."""
+"""The layers of the house (docs/architecture.md): no module imports a higher layer, no module-level import
+cycle, no private name imported from another module, and modules and functions of a readable size."""
 
 from __future__ import annotations
 
@@ -11,13 +12,28 @@ ROOT = Path(__file__).resolve().parents[2]
 #: Source folders and the import name each is installed under.
 PACKAGES = {"simtest": ROOT / "simtest", "simtest.objects": ROOT / "objects",
             "simtest.generators": ROOT / "generators", "simtest.envs": ROOT / "envs"}
-#: Low layers: pure data, geometry, files, metrics and rendering.
-LOW = ("simtest.metrics", "simtest.io", "simtest.camera", "simtest.geometry", "simtest.raster", "simtest.render",
-       "simtest.errors", "simtest.rng", "simtest.backend")
-#: High layers: orchestration, the object library, generation and the env.
-HIGH = ("simtest.envs", "simtest.generators", "simtest.eval", "simtest.eval_images", "simtest.eval_tracking",
-        "simtest.scoring", "simtest.sweep", "simtest.report",
-        "simtest.cli", "simtest.objects", "simtest.benchmarks", "simtest.cells")
+#: Layer of each package or module (the longest matching prefix counts); a module may import its own layer and
+#: the ones below, never one above, neither at module level nor lazily inside a function.
+LAYERS = {
+    # base: errors, seeds, poses, the camera model, config trees, where units of work run
+    "simtest.errors": 0, "simtest.rng": 0, "simtest.geometry": 0, "simtest.camera": 0, "simtest.schema": 0,
+    "simtest.backend": 0,
+    # files, metrics, rendering
+    "simtest.io": 1, "simtest.metrics": 1, "simtest.render": 1,
+    # what a scene is made of and what happens to finished images
+    "simtest.corrupt": 2, "simtest.robot": 2, "simtest.objects": 2, "simtest.materials": 2, "simtest.sensors": 2,
+    # generation, training feeds, estimators
+    "simtest.generators": 3, "simtest.data": 3, "simtest.estimators": 3,
+    # evaluation and the closed loop
+    "simtest.evaluation": 4, "simtest.envs": 4,
+    # orchestration: sweeps, benchmarks, the trainers (they drive feeds and evaluation), the command line
+    "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.estimators.keypoints.train": 5,
+    "simtest.estimators.segicp.train": 5, "simtest.cli": 6,
+}
+#: Modules directly under simtest/ (the package face and the base); everything else lives in a package.
+MAX_TOP_LEVEL_MODULES = 8
+MAX_FILE_LINES = 550
+MAX_FUNCTION_LINES = 120
 
 
 def _modules() -> dict[str, Path]:
@@ -46,17 +62,24 @@ def _imports(path: Path, top_level_only: bool) -> set[str]:
     return {m for m in out if m.startswith("simtest")}
 
 
-def _within(name: str, prefixes: tuple[str, ...]) -> bool:
-    return any(name == p or name.startswith(p + ".") for p in prefixes)
+def layer(name: str) -> int | None:
+    """The layer of a dotted module name (None for the package face ``simtest`` itself)."""
+    best = max((p for p in LAYERS if name == p or name.startswith(p + ".")), key=len, default=None)
+    return None if best is None else LAYERS[best]
 
 
 MODULES = _modules()
 
 
-@pytest.mark.parametrize("module", sorted(m for m in MODULES if _within(m, LOW)))
-def test_low_layers_never_import_high_ones(module):
-    bad = sorted(m for m in _imports(MODULES[module], top_level_only=False) if _within(m, HIGH))
-    assert not bad, f"{module} imports {bad}"
+def test_every_module_has_a_layer():
+    assert sorted(m for m in MODULES if layer(m) is None) == ["simtest", "simtest.__main__"]
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if layer(m) is not None))
+def test_no_upward_import(module):
+    own = layer(module)
+    bad = sorted(m for m in _imports(MODULES[module], top_level_only=False) if (layer(m) or 0) > own)
+    assert not bad, f"{module} (layer {own}) imports higher layers: {bad}"
 
 
 def test_no_module_level_import_cycle():
@@ -78,3 +101,39 @@ def test_no_module_level_import_cycle():
     for m in sorted(graph):
         if m not in state:
             visit(m)
+
+
+def test_no_private_name_imported_from_another_module():
+    bad = []
+    for m, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("simtest"):
+                bad += [f"{m}: from {node.module} import {a.name}" for a in node.names
+                        if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not bad, bad
+
+
+def test_top_level_holds_only_the_base():
+    top = sorted(p.name for p in (ROOT / "simtest").glob("*.py"))
+    assert len(top) <= MAX_TOP_LEVEL_MODULES, top
+
+
+def test_modules_and_functions_have_a_readable_size():
+    long_files, long_functions = [], []
+    for m, path in MODULES.items():
+        text = path.read_text()
+        if len(text.splitlines()) > MAX_FILE_LINES:
+            long_files.append(f"{path.relative_to(ROOT)} ({len(text.splitlines())} lines)")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long_functions.append(f"{m}.{node.name} ({n} lines)")
+    assert not long_files and not long_functions, (long_files, long_functions)
+
+
+def test_tests_mirror_the_packages():
+    """Every package of simtest/ with tests of its own has them in tests/simtest/<package>/."""
+    packages = {p.name for p in (ROOT / "simtest").iterdir() if (p / "__init__.py").is_file()}
+    folders = {p.name for p in (ROOT / "tests" / "simtest").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders <= packages, sorted(folders - packages)

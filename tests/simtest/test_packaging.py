@@ -40,7 +40,7 @@ def test_mujoco_floor_agrees_with_pyproject_and_the_installed_version():
     import mujoco
 
     import simtest
-    from simtest.gl import version_tuple
+    from simtest.render.gl import version_tuple
 
     assert _pyproject_mujoco_floor() == simtest.MIN_MUJOCO
     assert version_tuple(mujoco.__version__) >= version_tuple(simtest.MIN_MUJOCO)
@@ -54,7 +54,7 @@ def test_mujoco_floor_agrees_with_pyproject_and_the_installed_version():
 def test_older_mujoco_is_refused_with_versions_and_the_upgrade_command():
     import pytest
 
-    from simtest.gl import check_mujoco
+    from simtest.render.gl import check_mujoco
 
     check_mujoco("3.7", installed="3.7.0")
     check_mujoco("3.7", installed="4.0.0")
@@ -81,3 +81,25 @@ def test_import_simtest_checks_the_installed_mujoco(tmp_path):
     assert "pip install -U mujoco" in proc.stderr
     ok = subprocess.run([sys.executable, "-c", "import simtest"], capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
+
+
+def test_old_module_names_still_import_as_the_moved_modules():
+    """Every module of the flat layout imports under its old name as the same module object, with a
+    DeprecationWarning naming the new place."""
+    import importlib
+    import sys
+    import warnings
+
+    import simtest
+
+    for old, new in simtest.MOVED_MODULES.items():
+        sys.modules.pop(old, None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            module = importlib.import_module(old)
+        assert module is importlib.import_module(new), old
+        assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught), old
+    from simtest.render import Renderer
+    from simtest.render.rasterizer import Renderer as R2
+
+    assert Renderer is R2

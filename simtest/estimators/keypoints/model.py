@@ -20,6 +20,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from simtest.estimators.blocks import Residual, conv_bn_relu
 from simtest.estimators.training import init_conv_weights
 
 __all__ = ["NetConfig", "KeypointNet", "cell_centers"]
@@ -56,22 +57,6 @@ class NetConfig:
         return NetConfig(**d)
 
 
-def _conv(cin: int, cout: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, padding=dilation, dilation=dilation, bias=False),
-                         nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
-
-
-class _Residual(nn.Module):
-    def __init__(self, ch: int, dilation: int = 1) -> None:
-        super().__init__()
-        self.a = _conv(ch, ch, dilation=dilation)
-        self.b = nn.Sequential(nn.Conv2d(ch, ch, 3, padding=dilation, dilation=dilation, bias=False),
-                               nn.BatchNorm2d(ch))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return F.relu(x + self.b(self.a(x)))
-
-
 class KeypointNet(nn.Module):
     """Encoder (strides 2..16) and a U-Net-style decoder back to stride 4, with two heads.
 
@@ -90,15 +75,15 @@ class KeypointNet(nn.Module):
         self.cfg = cfg
         w1, w2, w3, w4 = cfg.widths
         d8, d4 = cfg.decoder
-        self.stem = nn.Sequential(_conv(3, w1, 2), _conv(w1, w1))
-        self.s4 = nn.Sequential(_conv(w1, w2, 2), _Residual(w2))
-        self.s8 = nn.Sequential(_conv(w2, w3, 2), _Residual(w3))
-        self.s16 = nn.Sequential(_conv(w3, w4, 2), _Residual(w4, dilation=2))
-        self.up8 = _conv(w4 + w3, d8)
-        self.up4 = nn.Sequential(_conv(d8 + w2, d4), _conv(d4, d4))
+        self.stem = nn.Sequential(conv_bn_relu(3, w1, 2), conv_bn_relu(w1, w1))
+        self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
+        self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
+        self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        self.up8 = conv_bn_relu(w4 + w3, d8)
+        self.up4 = nn.Sequential(conv_bn_relu(d8 + w2, d4), conv_bn_relu(d4, d4))
         J = cfg.num_keypoints
-        self.seg_head = nn.Sequential(_conv(d4, d4), nn.Conv2d(d4, cfg.num_classes + 1, 1))
-        self.kp_head = nn.Sequential(_conv(d4, d4), nn.Conv2d(d4, 3 * J, 1))
+        self.seg_head = nn.Sequential(conv_bn_relu(d4, d4), nn.Conv2d(d4, cfg.num_classes + 1, 1))
+        self.kp_head = nn.Sequential(conv_bn_relu(d4, d4), nn.Conv2d(d4, 3 * J, 1))
         self.register_buffer("mean", torch.tensor(self.MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
 

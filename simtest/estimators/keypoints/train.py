@@ -4,7 +4,7 @@ Every random choice is seeded from ``seed``: weights from a ``torch.Generator``,
 ``e`` from a generator keyed by ``(seed, e)``, corruptions per sample by ``(seed, e, index)``
 (:func:`simtest.data.sample_rng`). After each epoch the full state goes to ``OUT/last.pt`` (atomic write), so
 ``resume=True`` continues after the last finished epoch; with a validation dataset, ADD(-S)-0.1d is measured
-with :func:`simtest.eval.evaluate` (ground-truth masks as targets, no VSD) and the best epoch is kept in
+with :func:`simtest.evaluation.run.evaluate` (ground-truth masks as targets, no VSD) and the best epoch is kept in
 ``OUT/best.pt``. The final weights go to ``OUT/model.pt``. All three load with ``torch.load(...,
 weights_only=True)`` and record the network config, the training settings and the object set (ids, names,
 mesh hashes, keypoints).
@@ -97,7 +97,7 @@ def validate(net, record: dict[str, Any], val: str, split: str, device: str, max
              ) -> dict[str, Any]:
     """ADD(-S)-0.1d (overall and per object) of the network on a validation dataset (GT masks as targets)."""
     from simtest.estimators.keypoints.infer import KeypointEstimator
-    from simtest.eval import evaluate
+    from simtest.evaluation.run import evaluate
 
     est = KeypointEstimator(model=net, objects_record=record, device=device)
     rep = evaluate(val, est, split=split, vsd=False, progress=False, max_images=max_images)

@@ -29,8 +29,11 @@ from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.icp import ICPEstimator
 from simtest.estimators.training import check_device
 
-__all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME"]
+__all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
+           "FORMAT"]
 
+#: ``format`` entry of segmentation checkpoints.
+FORMAT = "simtest-segmentation/1"
 #: File name of the shipped checkpoint (in ``simtest/estimators/weights/``).
 DEFAULT_CHECKPOINT_NAME = "segicp_builtin-small_320x240.pt"
 
@@ -65,7 +68,6 @@ class Segmenter:
             raise ConfigError("segicp needs PyTorch: pip install 'simtest[train]'") from exc
         from simtest.estimators.keypoints.checkpoint import load_checkpoint
         from simtest.estimators.segicp.model import SegNet, SegNetConfig
-        from simtest.estimators.segicp.train import FORMAT
 
         if int(min_region_pixels) < 1:
             raise ConfigError(f"segicp: min_region_pixels must be >= 1, got {min_region_pixels!r}")
@@ -111,7 +113,7 @@ class Segmenter:
         ``flip``, the mean of the image's and its mirror image's (mirrored back)."""
         import torch
 
-        from simtest.estimators.segicp.train import net_input
+        from simtest.estimators.segicp.model import net_input
 
         H, W = rgb.shape[:2]
         scale = self.focal_px / float(K[0, 0]) if self.focal_px > 0 else 1.0

@@ -1,6 +1,6 @@
 """A tiny U-Net for per-class semantic segmentation of RGB (optionally RGB-D) images (torch).
 
-Encoder stages at strides 2, 4, 8 and 16 (the blocks of :mod:`simtest.estimators.keypoints.model`), a decoder
+Encoder stages at strides 2, 4, 8 and 16 (the blocks of :mod:`simtest.estimators.blocks`), a decoder
 with skip connections back to stride 2, and a 1x1 classifier whose logits are upsampled bilinearly to the
 input size. Class 0 is background; class ``c`` (1-based) is the ``c``-th object id of the checkpoint's object
 record (sorted ids).
@@ -18,10 +18,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from simtest.estimators.keypoints.model import _conv, _Residual
+from simtest.estimators.blocks import Residual, conv_bn_relu
 from simtest.estimators.training import init_conv_weights
 
-__all__ = ["SegNetConfig", "SegNet", "depth_channel", "DEPTH_RANGE_M"]
+__all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "DEPTH_RANGE_M"]
 
 #: Half-range (metres) of the relative depth input channel.
 DEPTH_RANGE_M = 0.25
@@ -77,13 +77,13 @@ class SegNet(nn.Module):
         self.cfg = cfg
         w1, w2, w3, w4 = cfg.widths
         cin = 4 if cfg.depth_input else 3
-        self.stem = nn.Sequential(_conv(cin, w1, 2), _conv(w1, w1))
-        self.s4 = nn.Sequential(_conv(w1, w2, 2), _Residual(w2))
-        self.s8 = nn.Sequential(_conv(w2, w3, 2), _Residual(w3))
-        self.s16 = nn.Sequential(_conv(w3, w4, 2), _Residual(w4, dilation=2))
-        self.up8 = _conv(w4 + w3, w3)
-        self.up4 = _conv(w3 + w2, w2)
-        self.up2 = _conv(w2 + w1, w1)
+        self.stem = nn.Sequential(conv_bn_relu(cin, w1, 2), conv_bn_relu(w1, w1))
+        self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
+        self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
+        self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        self.up8 = conv_bn_relu(w4 + w3, w3)
+        self.up4 = conv_bn_relu(w3 + w2, w2)
+        self.up2 = conv_bn_relu(w2 + w1, w1)
         self.head = nn.Conv2d(w1, cfg.num_classes + 1, 1)
         self.register_buffer("mean", torch.tensor(self.MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
@@ -112,3 +112,11 @@ class SegNet(nn.Module):
         u4 = self.up4(torch.cat([self._up(u8, f4), f4], 1))
         u2 = self.up2(torch.cat([self._up(u4, f2), f2], 1))
         return F.interpolate(self.head(u2), size=x.shape[-2:], mode="bilinear", align_corners=False)
+
+
+def net_input(rgb: torch.Tensor, depth: torch.Tensor, depth_input: bool) -> torch.Tensor:
+    """The network input of a batch: RGB (B, 3, H, W) in [0, 1], plus the depth channel (depth (B, 1, H, W) in
+    metres) when asked, padded at the bottom and right to multiples of 16."""
+    x = torch.cat([rgb, depth_channel(depth)], 1) if depth_input else rgb
+    H, W = x.shape[-2:]
+    return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))

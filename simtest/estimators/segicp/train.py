@@ -27,12 +27,12 @@ from typing import Any, Callable
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.estimators.segicp.infer import FORMAT
 from simtest.estimators.training import TrainResult, check_settings, epoch_loader, lr_at, optimizer_step, settings_dict
 
 __all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
-           "FORMAT", "net_input"]
+           "FORMAT"]
 
-FORMAT = "simtest-segmentation/1"
 
 
 @dataclass(frozen=True)
@@ -94,19 +94,6 @@ def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=
     return net
 
 
-def net_input(rgb, depth, depth_input: bool):
-    """The network input of a batch: RGB (B, 3, H, W) in [0, 1], plus the depth channel when asked, padded
-    at the bottom and right to multiples of 16."""
-    import torch
-    from torch.nn import functional as F
-
-    from simtest.estimators.segicp.model import depth_channel
-
-    x = torch.cat([rgb, depth_channel(depth)], 1) if depth_input else rgb
-    H, W = x.shape[-2:]
-    return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))
-
-
 def label_targets(batch: dict[str, Any], size: tuple[int, int]):
     """(B, h, w) int64 class per pixel from a collated batch's visible masks (0 = background), on the padded
     grid ``size``."""
@@ -142,6 +129,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
     """One epoch of optimisation; returns the mean losses."""
     from tqdm import tqdm
 
+    from simtest.estimators.segicp.model import net_input
 
     loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
     sums = {"loss": 0.0, "ce": 0.0, "dice": 0.0}
@@ -164,6 +152,8 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
 def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
     """Mean IoU (object classes present in the validation images) and pixel accuracy on full images."""
     import torch
+
+    from simtest.estimators.segicp.model import net_input
 
     net.eval()
     C = net.cfg.num_classes + 1

@@ -1,0 +1,363 @@
+"""Run a pose estimator over a BOP dataset and score it; or score an existing BOP results CSV.
+
+:func:`evaluate` iterates the images of a split, builds one :class:`~simtest.estimators.base.Observation` per
+image, calls the estimator through :func:`simtest.estimators.guard.call_estimator` (timing it, with a per-image
+time limit; an exception, ``sys.exit``, a timeout or a return value that is not a list is recorded and the run
+goes on), rejects invalid estimates (:func:`~simtest.estimators.guard.check_estimate`: not PoseEstimate-like,
+wrong shapes, NaN / inf, not a rotation, unknown object id), writes the estimates as a BOP results CSV and
+scores them with :func:`score_estimates`. :func:`score_results` scores a results CSV written by any
+estimator, with the same code, so both give the same numbers.
+
+Scoring protocol
+----------------
+* **Targets** are the ground-truth instances with ``visib_fract >= 0.1`` (BOP19's ``visib_gt_min``). With
+  ``targets="gt-masks"`` the estimator is told their object ids (one per instance, as BOP's localisation
+  task); their ground-truth visible masks and boxes only if it declares ``needs_gt_masks`` (such runs are
+  labelled ``NAME (GT masks)``), their poses only if it declares ``needs_gt`` (the ``oracle``). Any other
+  estimator reads no ground truth: no mask file is opened for it.
+* **Matching** (for the per-target errors): per image and object id, estimates in order of decreasing score
+  are each assigned to the not yet assigned target with the nearest translation (``te``); at most one estimate
+  per target. A target left without an estimate is a **miss**: its distances count as infinite, its rotation
+  error as pi. Estimates left over are false positives (counted, not scored by these metrics).
+* **Per-target errors** (``errors.csv``, metres / degrees / pixels): ``add``, ``adi`` (ADD-S),
+  ``add_s_or_add`` (ADD-S for symmetric objects, else ADD), ``re`` (geodesic, degrees), ``re_sym`` (the
+  smallest ``re`` over the object's symmetry set, equal to ``re`` for non-symmetric objects), ``te`` (metres),
+  ``mssd`` (metres), ``mspd`` (pixels of a 640 px wide image), ``vsd`` (mean VSD error over BOP19's taus; only
+  with ``vsd=True``).
+* **Aggregates** (per object and overall, pooled over targets): ADD(-S)-0.1d accuracy; YCB-Video AUC of
+  ADD-S and of ADD(-S) (VOC-style rule, 0 to 0.10 m, :func:`simtest.metrics.auc.ycb_auc`); ADD-S < 2 cm;
+  Acc@pi/6, Acc@pi/18 and median rotation error (``re_sym``; the viewpoint protocol, misses = pi); median
+  translation error; n deg m cm accuracies (``re_sym``, ``te``, inclusive) at (5, 2), (5, 5), (10, 2),
+  (10, 5); BOP19 AR (:func:`simtest.metrics.bop19.evaluate_bop19`: AR_VSD, AR_MSSD, AR_MSPD and their mean;
+  without VSD the AR is the mean of AR_MSSD and AR_MSPD and is labelled so); mean time per image.
+  BOP19 is evaluated image by image; pooled recalls are exact because each recall is a count of matched
+  targets, so the per-image ARs weighted by their target counts add up to the pooled AR.
+* **Per category** (when the dataset's objects fall into categories: more than one, fewer than objects): the
+  same aggregates pooled over the targets of each category's objects, Acc@pi/6 and Acc@pi/18 among them
+  (the compositional / viewpoint protocol, ``e = ||logm(R_p^T R_gt)||_F / sqrt(2)`` over the symmetry set);
+  ``metrics.json`` ``per_category`` and a category table in ``metrics.md``.
+
+Parallel runs
+-------------
+With a ``backend`` (:mod:`simtest.backend`: a local pool or Ray) the unit of work is one scene, its images in
+frame order; each worker process loads the estimator and the objects once. The workers send back their rows
+and the driver writes them in scene and image order, so the files are those of a one-worker run except the
+measured times (``results.csv`` ``time``, ``*_time_per_image_s``) and the ``backend`` / ``workers`` settings.
+
+Outputs (``out_dir``): ``results.csv`` (BOP format, t in mm), ``metrics.json``, ``errors.csv`` (one row per
+target), ``failures.csv`` (image, object, kind, message, exception type, the last frames of the estimator's
+traceback) and ``metrics.md`` (Markdown tables, units in the column headers).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simtest.backend import Backend, RunStats, preflight
+from simtest.errors import ConfigError
+from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, load_estimator,
+                                     needs_gt_init)
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
+from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards
+from simtest.evaluation.tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
+from simtest.io.bop_results import read_bop_results, write_bop_results
+from simtest.io.dataset import image_size, select_images
+from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_dir
+from simtest.metrics.bop19 import ResultRow
+from simtest.metrics.registry import NDEG_MCM, definitions
+from simtest.objects.loaders import load_dataset_objects
+from simtest.evaluation.scoring import aggregate_by_category, has_categories, score_estimates
+from simtest.evaluation.tables import failure_counts, format_table, overall_table
+
+__all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
+           "NDEG_MCM", "format_table", "overall_table", "failure_counts"]
+
+
+#: How targets are given to the estimator.
+TARGET_MODES = ("gt-masks", "none")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Report
+@dataclass
+class EvalReport:
+    """Scores of one evaluation.
+
+    Attributes:
+        overall: Aggregate metrics over all targets (see the module doc; distances in metres, angles in
+            degrees where the key says ``_deg``, fractions in [0, 1]).
+        per_object: ``{obj_id: metrics}`` with the same keys.
+        errors: One dict per target (``errors.csv`` rows).
+        failures: One dict per failure (``failures.csv`` rows): ``scene_id, im_id, obj_id, kind, message,
+            exception_type, traceback`` (the last frames, one line).
+        estimates: The valid estimates, as BOP result rows (metres).
+        object_names: ``{obj_id: name}``.
+        num_images: Images evaluated.
+        paths: Files written (``results``, ``metrics``, ``errors``, ``failures``, ``table``).
+        settings: What was evaluated (dataset, split, estimator, targets, vsd).
+        num_failed_images: Images on which the estimator failed as a whole (raised, exited, timed out,
+            returned no list, or returned only invalid estimates).
+        per_category: ``{category: metrics}`` (the per-object keys plus ``num_objects``) when the dataset's
+            objects fall into categories (:func:`simtest.evaluation.scoring.has_categories`), else empty.
+        tracking: The tracking scores of a sequence evaluation (:mod:`simtest.evaluation.tracking`), else ``None``.
+    """
+
+    overall: dict[str, Any]
+    per_object: dict[int, dict[str, Any]]
+    errors: list[dict[str, Any]]
+    failures: list[dict[str, Any]]
+    estimates: list[ResultRow]
+    object_names: dict[int, str]
+    num_images: int
+    paths: dict[str, Path] = field(default_factory=dict)
+    settings: dict[str, Any] = field(default_factory=dict)
+    num_failed_images: int = 0
+    per_category: dict[str, dict[str, Any]] = field(default_factory=dict)
+    tracking: TrackingReport | None = None
+
+    def all_images_failed(self) -> bool:
+        """Whether the estimator failed on every image (raised, exited, timed out, returned no list, or
+        returned only invalid estimates): a run that measured nothing."""
+        return self.num_images > 0 and self.num_failed_images == self.num_images
+
+    def failure_summary(self) -> str:
+        """One line: how many images failed, by kind, and the first failure's message."""
+        kinds = ", ".join(f"{k} {n}" for k, n in failure_counts(self.failures).items())
+        first = " ".join(self.failures[0]["message"].split()) if self.failures else ""
+        return (f"the estimator failed on {self.num_failed_images} of {self.num_images} images ({kinds}); "
+                f"first: {first}")
+
+    def table(self) -> str:
+        """Markdown tables (per object and overall), ready to paste."""
+        return format_table(self)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"settings": self.settings, "num_images": self.num_images, "overall": jsonable(self.overall),
+                "per_object": {str(k): {"name": self.object_names.get(k, str(k)), **jsonable(v)}
+                               for k, v in sorted(self.per_object.items())},
+                **({"per_category": {k: jsonable(v) for k, v in self.per_category.items()}}
+                   if self.per_category else {}),
+                "num_failures": len(self.failures), "failures_by_kind": failure_counts(self.failures),
+                "definitions": METRIC_DEFINITIONS}
+
+
+#: Definitions written into ``metrics.json`` (from :mod:`simtest.metrics.registry`).
+METRIC_DEFINITIONS = definitions()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Running an estimator
+def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str = "train_pbr",
+             targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
+             progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
+             estimator_options: dict[str, Any] | None = None,
+             timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
+             fail_fast: bool = False, labels: str | Path | None = None, tracking: bool | None = None,
+             backend: Backend | None = None, stats: RunStats | None = None) -> EvalReport:
+    """Run ``estimator`` on every selected image of a BOP dataset and score it.
+
+    Args:
+        dataset_dir: BOP dataset root (with ``models/`` or a manifest naming the object set).
+        estimator: A name (``oracle``, ``icp``, ``umeyama``), ``"module:attr"``, an instance with
+            ``estimate(observation)`` or a callable; see :func:`simtest.estimators.load_estimator`.
+        split: Split folder (``train_pbr``).
+        targets: ``"gt-masks"``: tell the estimator the targets' object ids, and their ground-truth visible
+            masks and boxes if it declares ``needs_gt_masks`` (the run is then labelled ``NAME (GT masks)``);
+            ``"none"``: nothing, the estimator finds objects itself (one that cannot, e.g. ``icp``, fails).
+            Ground-truth poses are passed only to estimators with ``needs_gt = True`` (the ``oracle``), and
+            only with ``"gt-masks"``.
+        scenes: Scene ids to evaluate (default all).
+        max_images: Evaluate only the first N images.
+        progress: Show a tqdm progress bar.
+        out_dir: Write ``results.csv``, ``metrics.json``, ``errors.csv``, ``failures.csv``, ``metrics.md``.
+        vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240.
+        estimator_options: Options for a named estimator (ignored for instances).
+        timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit); an image over the
+            limit is recorded as a ``timeout`` failure and the run goes on with the next image.
+        overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
+            estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
+        fail_fast: Stop at the first fault of the estimator (any failure kind but ``no-estimate``) by raising
+            :class:`~simtest.errors.EstimatorError` with its traceback; nothing is written.
+        labels: Folder of withheld labels (``<labels>/<split>/<scene>/scene_gt.json`` and masks) for a split
+            without them; default ``<dataset>/withheld`` when the manifest says ``"unlabelled": true``
+            (:func:`simtest.io.dataset.labels_root`). Images and depth come from the split either way.
+        tracking: Also score the run as tracking (:mod:`simtest.evaluation.tracking`: per-frame 3D IoU, n deg m cm,
+            errors over time, frames tracked before loss; ``tracking.md``, ``tracking.csv``, ``tracking.png``
+            in ``out_dir``). ``None``: when the dataset's manifest says ``rig = "sequence"``.
+        backend: Where the images run (default: this process). Every worker loads the estimator and the
+            objects once; a unit of work is one scene, its images in frame order (see :func:`scene_shards`).
+            The outputs are the same for every back end and worker count but for the measured times.
+        stats: Filled with the units finished, retried and failed (:class:`simtest.backend.RunStats`).
+
+    Returns:
+        The :class:`EvalReport`.
+
+    Raises:
+        ConfigError: Unknown ``targets`` value or estimator, an estimator needing ground truth with
+            ``targets="none"``, or a negative ``timeout``.
+        EstimatorError: With ``fail_fast``, the estimator's first fault.
+        DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
+            ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
+            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``.
+
+    Estimator faults never end the run: an image where the estimator raises (kind ``exception``), calls
+    ``sys.exit`` (``exit``), exceeds ``timeout`` (``timeout``) or returns something other than a list
+    (``invalid-return``) is recorded in ``failures.csv`` and its targets count as misses; an invalid element of
+    the returned list is recorded as ``invalid-estimate`` and dropped. ``KeyboardInterrupt`` stops the run. An
+    estimator may also expose ``last_failures``: a list of ``{"obj_id", "reason"}`` dicts describing the
+    targets it gave up on in its last call; they are recorded with kind ``no-estimate``.
+    """
+    if targets not in TARGET_MODES:
+        raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
+    root = Path(dataset_dir)
+    preflight(backend or Backend())  # before the output is touched
+    _check_out(out_dir, root, overwrite)
+    est = load_estimator(estimator, **(estimator_options or {}))
+    gt_masks, needs_gt = gt_access(est)
+    gt_init = needs_gt_init(est)
+    if (needs_gt or gt_init) and targets == "none":
+        raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt or needs_gt_init = True); "
+                          "use targets='gt-masks'")
+    gt_masks = gt_masks and targets == "gt-masks"
+    limit = check_timeout(timeout)
+    objects = load_dataset_objects(root)
+    known = set(objects.ids)
+    refs = select_images(root, split, scenes, max_images, known, labels)
+    width, height = image_size(root)
+    backend = backend if backend is not None else Backend()
+    stats = stats if stats is not None else RunStats()
+    run = run_scene_shards(est, estimator, estimator_options, scene_shards(refs), backend, stats, progress,
+                      WorkerSetup(str(root.resolve()), targets, width, height, needs_gt, gt_masks, limit, fail_fast,
+                                   gt_init),
+                      objects)
+    results, scales, failures, times, failed_images = run
+    overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
+                                                       scales=scales, progress=False, _refs=refs)
+    overall["num_images"] = len(refs)
+    overall["num_estimates"] = len(results)
+    overall["num_failures"] = len(failures)
+    overall["num_image_exceptions"] = sum(f["kind"] == "exception" for f in failures)
+    overall["mean_time_per_image_s"] = float(np.mean(times)) if times else float("nan")
+    overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
+    labelled = gt_masks and not needs_gt  # the oracle's name says it
+    settings = {"dataset": str(root), "split": split,
+                "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else "")
+                + (GT_INIT_LABEL if gt_init else ""),
+                "gt_masks": labelled, "gt_init": gt_init, "targets": targets,
+                "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
+                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
+                "labels": None if labels is None else str(labels), "backend": backend.name,
+                "workers": backend.workers}
+    report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
+                        object_names=names, num_images=len(refs), settings=settings,
+                        num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
+    if tracking or (tracking is None and is_sequence_dataset(root)):
+        report.tracking = score_tracking(root, results, refs, objects, label=settings["estimator"])
+    if out_dir is not None:
+        _write_outputs(report, Path(out_dir), write_results=True)
+    return report
+
+
+def _per_category(objects, rows: list[dict[str, Any]], per_object: dict[int, dict[str, Any]]
+                  ) -> dict[str, dict[str, Any]]:
+    """Metrics per object category when the dataset's objects have categories (else ``{}``)."""
+    categories = {e.obj_id: e.category for e in objects.entries}
+    return aggregate_by_category(rows, per_object, categories) if has_categories(categories) else {}
+
+
+def _check_out(out_dir: str | Path | None, dataset_dir: Path, overwrite: bool) -> None:
+    if out_dir is not None:
+        prepare_out_dir(out_dir, overwrite=overwrite, protect=[dataset_dir])
+
+
+def _describe(spec: Any, est: Any) -> str:
+    return spec if isinstance(spec, str) else type(est).__name__
+
+
+def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
+                  scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
+                  progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
+                  labels: str | Path | None = None, tracking: bool | None = None) -> EvalReport:
+    """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
+
+    Every target of the selected images counts (images without rows are misses), so select the same images
+    (``scenes``, ``max_images``) as the run that wrote the file.
+
+    Args:
+        results_csv: BOP results file (``scene_id,im_id,obj_id,score,R,t,time``; t in mm).
+        dataset_dir: BOP dataset root.
+        split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
+        out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
+            or objects) and ``metrics.md``.
+        overwrite, labels, tracking: As in :func:`evaluate`.
+
+    Returns:
+        The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
+    """
+    root = Path(dataset_dir)
+    _check_out(out_dir, root, overwrite)
+    rows = read_bop_results(results_csv)
+    objects = load_dataset_objects(root)
+    refs = select_images(root, split, scenes, max_images, objects.ids, labels)
+    selected = {(r.scene_id, r.im_id) for r in refs}
+    known = set(objects.ids)
+    failures = []
+    for r in rows:
+        if r.obj_id not in known:
+            failures.append({"scene_id": r.scene_id, "im_id": r.im_id, "obj_id": r.obj_id, "kind": "unknown-object",
+                             "message": f"obj_id {r.obj_id} not in the dataset's models {sorted(known)}"})
+    overall, per_object, err_rows, names = score_estimates(root, rows, objects=objects, vsd_enabled=vsd,
+                                                           progress=progress, _refs=refs)
+    used = [r for r in rows if (r.scene_id, r.im_id) in selected]
+    img_times: dict[tuple[int, int], float] = {}
+    for r in used:
+        img_times.setdefault((r.scene_id, r.im_id), r.time)
+    t = [v for v in img_times.values() if v >= 0]
+    overall["num_images"] = len(refs)
+    overall["num_estimates"] = len(used)
+    overall["num_failures"] = len(failures)
+    overall["num_image_exceptions"] = 0
+    overall["mean_time_per_image_s"] = float(np.mean(t)) if t else float("nan")
+    overall["median_time_per_image_s"] = float(np.median(t)) if t else float("nan")
+    settings = {"dataset": str(root), "split": split, "results": str(results_csv),
+                "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
+                "vsd": bool(vsd), "labels": None if labels is None else str(labels)}
+    report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
+                        object_names=names, num_images=len(refs), settings=settings,
+                        per_category=_per_category(objects, err_rows, per_object))
+    if tracking or (tracking is None and is_sequence_dataset(root)):
+        report.tracking = score_tracking(root, used, refs, objects, label=str(results_csv))
+    if out_dir is not None:
+        _write_outputs(report, Path(out_dir), write_results=False)
+    return report
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Output files
+_ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diameter_m", "symmetric", "matched",
+                  "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale"]
+_FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type", "traceback"]
+
+
+def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    if write_results:
+        paths["results"] = write_bop_results(out / "results.csv", report.estimates)
+    paths["metrics"] = out / "metrics.json"
+    paths["errors"] = out / "errors.csv"
+    paths["failures"] = out / "failures.csv"
+    paths["table"] = out / "metrics.md"
+    report.paths = paths
+    atomic_write_text(paths["metrics"], json.dumps(report.to_json(), indent=2) + "\n")
+    atomic_write_text(paths["errors"], csv_text(report.errors, _ERROR_COLUMNS))
+    atomic_write_text(paths["failures"], csv_text(report.failures, _FAILURE_COLUMNS))
+    atomic_write_text(paths["table"], format_table(report))
+    if report.tracking is not None:
+        report.paths.update(write_tracking(report.tracking, out))
