@@ -33,6 +33,8 @@ reasons in the estimator's ``last_failures`` explain a missing estimate in ``Epi
 
 from __future__ import annotations
 
+import logging
+
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -45,11 +47,13 @@ import mujoco
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
 from simtest.estimators.base import Observation, PoseEstimate, gt_access, load_estimator
-from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate
+from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate, log_fault
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
 from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, min_jerk, move_to,
                            set_gripper, tcp_pose)
+
+log = logging.getLogger(__name__)
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
            "pose_errors"]
@@ -425,6 +429,7 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     result.estimate_s = time.perf_counter() - t0
     if fault is not None:
         result.error, result.traceback, result.trace = fault.message, fault.trace_tail, fault.trace
+        log_fault(log, f"episode seed {seed}", fault, "episodes.csv")
         return finish("estimator_timeout" if fault.kind == "timeout" else "estimator_error")
     chosen, why, notes = _pick_estimate(elements, tid, set(u.objects.ids))
     result.warnings = "; ".join(notes)

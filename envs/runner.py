@@ -147,6 +147,10 @@ class GraspRunReport:
         """Whether every episode ended in a fault of the estimator (a run that measured nothing)."""
         return bool(self.rows) and all(r["reason"] in ESTIMATOR_FAULTS for r in self.rows)
 
+    def estimator_faults(self) -> int:
+        """Episodes in which the estimator itself failed (raised, exited, timed out, returned garbage)."""
+        return sum(r["reason"] in ESTIMATOR_FAULTS for r in self.rows)
+
     def failure_summary(self) -> str:
         """One line: how many episodes the estimator failed, by reason, and the first error."""
         bad = [r for r in self.rows if r["reason"] in ESTIMATOR_FAULTS]

@@ -177,61 +177,65 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
                          coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
                          threads=thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).writers)
-    occ_cfg = cfg.occlusion
-    occlusion_log: dict[str, dict] = {}
+    try:
+        occ_cfg = cfg.occlusion
+        occlusion_log: dict[str, dict] = {}
 
-    def finish_view(im_id: int, frame, cam: CameraModel, state, record) -> None:
-        """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer."""
-        anns = annotate(state, frame, cam, objects)
-        writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns], [a.mask_visib for a in anns])
-        if record is not None:
-            from simtest.generators.occlusion import measured_level
+        def finish_view(im_id: int, frame, cam: CameraModel, state, record) -> None:
+            """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer."""
+            anns = annotate(state, frame, cam, objects)
+            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns], [a.mask_visib for a in anns])
+            if record is not None:
+                from simtest.generators.occlusion import measured_level
 
-            occlusion_log[str(im_id)] = record.to_dict(
-                {a.instance: j for j, a in enumerate(anns)},
-                [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
+                occlusion_log[str(im_id)] = record.to_dict(
+                    {a.instance: j for j, a in enumerate(anns)},
+                    [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
 
-    pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
-    with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
-                  profile="fast" if pbr is not None else cfg.render.profile) as renderer, \
-            ViewsBehind(threaded=finish_behind) as behind:
-        for im_id, (cam, arm_q) in enumerate(cameras):
-            if arm_q is not None:
-                scene.set_arm(arm_q)
-            scene.set_camera(cam)
-            record = None
-            if occ_cfg.level is not None:
-                from simtest.generators.annotate import amodal_counts
-                from simtest.generators.occlusion import occlude_view
+        pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
+        with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
+                      profile="fast" if pbr is not None else cfg.render.profile) as renderer, \
+                ViewsBehind(threaded=finish_behind) as behind:
+            for im_id, (cam, arm_q) in enumerate(cameras):
+                if arm_q is not None:
+                    scene.set_arm(arm_q)
+                scene.set_camera(cam)
+                record = None
+                if occ_cfg.level is not None:
+                    from simtest.generators.annotate import amodal_counts
+                    from simtest.generators.occlusion import occlude_view
 
-                level = occ_cfg.level
-                if level == "mixed":
-                    level = ("L0", "L1", "L2", "L3")[int(scene.rng.integers(4))]
-                record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
-                                      amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
-                                      occ_cfg.standing_first)
-            frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
-            if pbr is not None:
-                from simtest.render.pbr import frame_seed
+                    level = occ_cfg.level
+                    if level == "mixed":
+                        level = ("L0", "L1", "L2", "L3")[int(scene.rng.integers(4))]
+                    record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
+                                          amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
+                                          occ_cfg.standing_first)
+                frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
+                if pbr is not None:
+                    from simtest.render.pbr import frame_seed
 
-                rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
-                frame = dataclasses.replace(frame, rgb=rgb)
-            behind.submit(finish_view, im_id, frame, cam, scene.state(), record)
-    if occlusion_log:
-        from simtest.io.files import dump_json_keyed, atomic_write_text
+                    rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
+                    frame = dataclasses.replace(frame, rgb=rgb)
+                behind.submit(finish_view, im_id, frame, cam, scene.state(), record)
+        if occlusion_log:
+            from simtest.io.files import dump_json_keyed, atomic_write_text
 
-        atomic_write_text(writer.dir / "scene_occlusion.json", dump_json_keyed(occlusion_log))
-    report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
-                         settled.at_rest, time.perf_counter() - t0, os.getpid())
-    atomic_write_json(writer.dir / "scene_info.json", {
-        "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
-        "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
-        "spec": scene.spec.to_dict()})
-    if cfg.captions:  # per scene, after every frame: scene_captions.json from the settled poses and image 0
-        from simtest.generators.captions import write_scene_captions
+            atomic_write_text(writer.dir / "scene_occlusion.json", dump_json_keyed(occlusion_log))
+        report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
+                             settled.at_rest, time.perf_counter() - t0, os.getpid())
+        atomic_write_json(writer.dir / "scene_info.json", {
+            "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
+            "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
+            "spec": scene.spec.to_dict()})
+        if cfg.captions:  # per scene, after every frame: scene_captions.json from the settled poses and image 0
+            from simtest.generators.captions import write_scene_captions
 
-        write_scene_captions(writer.dir, scene, objects, cameras[0][0], cfg.scene.table_height)
-    writer.close(labels_dir=withheld_dir(split_dir, scene_id) if cfg.unlabelled else None)
+            write_scene_captions(writer.dir, scene, objects, cameras[0][0], cfg.scene.table_height)
+        writer.close(labels_dir=withheld_dir(split_dir, scene_id) if cfg.unlabelled else None)
+    except BaseException:  # a scene is written whole or not at all: no partial folder is left behind
+        writer.discard()
+        raise
     report.cpu_seconds = time.process_time() - cpu0
     return report
 
@@ -358,14 +362,21 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
 
         bar = tqdm(total=len(todo) * cfg.frames_per_scene, unit="frame", desc="generate", dynamic_ncols=True,
                    smoothing=0.1, file=sys.stderr)
+    failed = True
     try:
         run_scenes(cfg, objects, todo, split_dir, report, bar)
         _write_models(objects, out / "models", split_dir, scenes_done=True, unlabelled=cfg.unlabelled)
+        failed = False
     finally:
         if bar is not None:
             bar.close()
         report.seconds = time.perf_counter() - t0
-        _record_run(out / MANIFEST, cfg, report)
+        try:
+            _record_run(out / MANIFEST, cfg, report)
+        except OSError:
+            if not failed:
+                raise
+            log.debug("the run record could not be written after the run failed", exc_info=True)  # keep the cause
     report.scenes.sort(key=lambda s: s.scene_id)
     return report
 

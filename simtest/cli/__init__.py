@@ -9,14 +9,19 @@ every :class:`SimtestError` and, as a backstop, every ``OSError`` (a path that c
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
 import importlib
-import logging
 import os
+import re
+import shutil
 import sys
+from pathlib import Path
 
 from simtest import __version__
 from simtest.cli.common import configure_logging
 from simtest.errors import SimtestError
+from simtest.io.lock import output_lock
 
 #: Sub-command modules, in the order ``simtest --help`` lists them.
 COMMAND_MODULES = ["objects", "generate", "corrupt", "eval", "grasp", "train", "sweep", "bench", "demo"]
@@ -40,12 +45,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    configure_logging(getattr(args, "verbose", 0))
     if getattr(args, "no_progress", False):
         args.quiet = True
-        logging.getLogger("simtest.cli").warning("--no-progress is deprecated; use --quiet")
+        print(f"simtest {args.command}: --no-progress is deprecated; use --quiet", file=sys.stderr)
+    configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False))
     try:
-        code = int(args.func(args) or 0)
+        folder = getattr(args, "output_folder", None)
+        folder = folder(args) if folder is not None else None
+        with output_lock(folder, f"simtest {args.command}") if folder else contextlib.nullcontext():
+            code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows up here, not at interpreter exit
         return code
     except SimtestError as exc:
@@ -58,7 +66,10 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return 1
     except OSError as exc:  # a path the library did not check first: still one line, no traceback
-        print(f"simtest {args.command}: error: {_os_error_text(exc)}", file=sys.stderr)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            print(f"simtest {args.command}: error: {disk_full_text(exc, args)}", file=sys.stderr)
+        else:
+            print(f"simtest {args.command}: error: {_os_error_text(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"simtest {args.command}: interrupted", file=sys.stderr)
@@ -71,6 +82,36 @@ def _os_error_text(exc: OSError) -> str:
         return str(exc)
     text = f"{str(exc.filename)!r}: {(exc.strerror or str(exc)).lower()}"
     return text if exc.filename2 is None else f"{text} (with {str(exc.filename2)!r})"
+
+
+def _partial_owner(path: Path) -> Path:
+    """``path`` cut at a writer's private partial folder (``.000003.k2j4.partial``), named as what it becomes
+    (``000003``): the scene, shard or cell that was being written."""
+    parts = list(path.parts)
+    for i, part in enumerate(parts):
+        m = re.fullmatch(r"\.(.+?)\.[^.]+\.partial", part)
+        if m:
+            return Path(*parts[:i], m.group(1))
+    return path
+
+
+def disk_full_text(exc: OSError, args: argparse.Namespace) -> str:
+    """``no space left on device while writing WHAT (N MB free); free space and rerun with --resume``: what was
+    being written (the file's scene or shard, else the output folder), the space left there and the next step."""
+    target = Path(exc.filename) if exc.filename else None
+    out = getattr(args, "out", None)
+    where = _partial_owner(target) if target is not None else (Path(out) if out else None)
+    probe = where
+    while probe is not None and not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = ""
+    if probe is not None:
+        with contextlib.suppress(OSError):
+            free = f" ({shutil.disk_usage(probe).free / 1e6:.0f} MB free)"
+    what = "no space left on device" if exc.errno == errno.ENOSPC else "disk quota exceeded"
+    resume = " with --resume" if hasattr(args, "resume") else ""
+    place = f" while writing {where}" if where is not None else ""
+    return f"{what}{place}{free}; free space and rerun{resume}"
 
 
 if __name__ == "__main__":

@@ -4,6 +4,9 @@ logging set-up, and choices read lazily from the library (so ``simtest --help`` 
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Callable
+from typing import Any
 import importlib
 import logging
 from collections.abc import Iterator
@@ -70,10 +73,29 @@ def backend_from_args(args: argparse.Namespace):
                    getattr(args, "ray_address", None))
 
 
-def configure_logging(verbose: int) -> None:
-    """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each."""
-    logging.basicConfig(format="simtest %(levelname)s %(name)s: %(message)s")
+class _BarSafeHandler(logging.StreamHandler):
+    """Log lines to stderr through ``tqdm.write``: a running progress bar is cleared and redrawn below the line
+    instead of having the line glued onto it."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # noqa: BLE001 - logging must never raise
+            self.handleError(record)
+
+
+def configure_logging(verbose: int, quiet: bool = False) -> None:
+    """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each;
+    ``--quiet`` without ``-v``: errors only (a command's own summary lines are printed, not logged)."""
+    if not any(isinstance(h, _BarSafeHandler) for h in logging.getLogger().handlers):
+        handler = _BarSafeHandler()
+        handler.setFormatter(logging.Formatter("simtest %(levelname)s %(name)s: %(message)s"))
+        logging.getLogger().addHandler(handler)
     level = logging.WARNING if verbose <= 0 else logging.INFO if verbose == 1 else logging.DEBUG
+    if quiet and verbose <= 0:
+        level = logging.ERROR
     logging.getLogger("simtest").setLevel(level)
 
 
@@ -95,3 +117,10 @@ class LazyChoices:
 
     def __len__(self) -> int:
         return len(self.names())
+
+
+def locks_output(parser: argparse.ArgumentParser, folder: Callable[[argparse.Namespace], Any] | None = None) -> None:
+    """Declare that the command writes an output folder (``--out`` unless ``folder`` picks another, or returns
+    None when this run writes none): :func:`simtest.cli.main` holds its lock for the whole run
+    (:func:`simtest.io.lock.output_lock`), so a second run on the same folder is refused before any work."""
+    parser.set_defaults(output_folder=folder or (lambda args: args.out))

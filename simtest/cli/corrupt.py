@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from simtest.cli.common import (LazyChoices, add_backend_options, add_no_progress_alias, backend_from_args,
-                                common_parser)
+                                common_parser, locks_output)
 from simtest.errors import ConfigError, DatasetError
 
 
@@ -45,6 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_backend_options(p, "scene")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
+    locks_output(p, lambda args: args.out if args.in_dir else None)
 
 
 def _write_png(path: Path, rgb) -> None:

@@ -12,7 +12,7 @@ import json
 import time
 from pathlib import Path
 
-from simtest.cli.common import common_parser
+from simtest.cli.common import common_parser, locks_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--overwrite", action="store_true", help="discard the contents of a non-empty --out")
     p.add_argument("--fresh", dest="overwrite", action="store_true", help=argparse.SUPPRESS)  # old name
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from simtest.cli.common import (add_backend_options, add_fault_options, add_no_progress_alias, backend_from_args,
-                                common_parser)
+                                common_parser, locks_output)
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -51,6 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_backend_options(p, "scene")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,8 +95,10 @@ def run(args: argparse.Namespace) -> int:
     print()
     for name, path in report.paths.items():
         print(f"{name:<9} {path}")
+    failures = report.paths.get("failures", "failures.csv")
     if report.all_images_failed():
-        print(f"simtest eval: error: {report.failure_summary()}; see {report.paths.get('failures', 'failures.csv')}",
-              file=sys.stderr)
+        print(f"simtest eval: error: {report.failure_summary()}; see {failures}", file=sys.stderr)
         return 1
+    if report.failures:
+        print(f"simtest eval: {report.failure_summary()}; see {failures}", file=sys.stderr)
     return 0

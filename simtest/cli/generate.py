@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import add_backend_options, common_parser
+from simtest.cli.common import add_backend_options, common_parser, locks_output
 from simtest.errors import ConfigError
 
 
@@ -52,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def config_from_args(args: argparse.Namespace):

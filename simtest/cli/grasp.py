@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from simtest.cli.common import LazyChoices, add_backend_options, add_fault_options, common_parser
+from simtest.cli.common import LazyChoices, add_backend_options, add_fault_options, common_parser, locks_output
 from simtest.errors import ConfigError, EstimatorError
 
 
@@ -56,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_fault_options(p, "episode", "an episode over it ends as 'estimator_timeout' and the run goes on",
                       "exit code 1 if the estimator failed in every episode")
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def _targets(text: str | None) -> tuple:
@@ -101,4 +102,6 @@ def run(args: argparse.Namespace) -> int:
     if report.all_estimator_faults():
         print(f"simtest grasp: error: {report.failure_summary()}; see {args.out}/episodes.csv", file=sys.stderr)
         return 1
+    if report.estimator_faults():
+        print(f"simtest grasp: {report.failure_summary()}; see {args.out}/episodes.csv", file=sys.stderr)
     return 0

@@ -7,7 +7,7 @@ import argparse
 import time
 from pathlib import Path
 
-from simtest.cli.common import add_backend_options, backend_from_args, common_parser
+from simtest.cli.common import add_backend_options, backend_from_args, common_parser, locks_output
 from simtest.errors import AssetError
 
 __all__ = ["register", "object_table", "category_table", "entry_table"]
@@ -46,6 +46,7 @@ def register(subparsers) -> None:
     p_exp.add_argument("--out", required=True, help="output folder (the models/ folder itself)")
     p_exp.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     p_exp.set_defaults(func=_cmd_export)
+    locks_output(p_exp)
 
     p_prev = sub.add_parser("preview", parents=[common_parser()],
                             help="render objects from a few views into a PNG (one row per object)")
@@ -64,6 +65,7 @@ def register(subparsers) -> None:
                     "(default ~/.cache/simtest), so the first scenes of a run do not wait for it. On a cluster, "
                     "run it once with a shared $SIMTEST_CACHE (or on every node with a cache per node).")
     common(p_prep)
+    locks_output(p_prep, lambda args: _cache_folder())
     p_prep.add_argument("--workers", type=int, default=1, metavar="N", help="objects prepared at once (processes)")
     add_backend_options(p_prep, "object")
     p_prep.set_defaults(func=_cmd_prepare)
@@ -237,3 +239,10 @@ def _preview_objects(objects, text: str) -> list:
     if not ids:
         raise AssetError(f"obj_id must be an id, comma-separated ids or 'all', got {text!r}")
     return [objects.get(i) for i in ids]
+
+
+def _cache_folder():
+    """The object cache folder that ``objects prepare`` fills (one preparer at a time)."""
+    from simtest.objects.cache import cache_dir
+
+    return cache_dir()

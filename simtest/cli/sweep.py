@@ -7,7 +7,7 @@ import argparse
 import dataclasses
 import sys
 
-from simtest.cli.common import add_backend_options, common_parser
+from simtest.cli.common import add_backend_options, common_parser, locks_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--resume", action="store_true", help="continue the sweep in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from simtest.cli.common import add_no_progress_alias, common_parser
+from simtest.cli.common import add_no_progress_alias, common_parser, locks_output
 from simtest.errors import ConfigError
 
 #: Models this command can train.
@@ -58,6 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--overwrite", action="store_true", help="replace the contents of a non-empty --out")
     add_no_progress_alias(p)
     p.set_defaults(func=run)
+    locks_output(p)
 
 
 def parse_crop(text: str | None) -> tuple[int, int] | None:

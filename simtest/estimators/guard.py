@@ -39,7 +39,7 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 
 __all__ = ["DEFAULT_TIMEOUT_S", "FAILURE_KINDS", "EstimatorFailure", "InvalidEstimate", "call_estimator",
-           "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES"]
+           "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES", "log_fault"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +53,8 @@ ROTATION_TOL = 1e-3
 TRACE_FRAMES = 3
 _EXPECTED = "expected a list of PoseEstimate (obj_id, R 3x3 rotation, t (3,) in metres)"
 _warned_no_timeout = False
+#: Estimator faults logged by this process so far (:func:`log_fault`).
+_faults_logged = 0
 
 
 @dataclass(frozen=True)
@@ -252,3 +254,20 @@ def check_estimate(e: Any, known: set[int] | None = None,
     return PoseEstimate(obj_id=obj_id, R=R, t=t, score=score, scale=scale,
                         target_index=getattr(e, "target_index", None),
                         info=dict(info) if isinstance(info, dict) else {}), None
+
+
+def log_fault(logger: logging.Logger, where: str, fault: EstimatorFailure, record: str) -> None:
+    """Log one estimator fault so that a run with thousands of them stays readable: the first of this process
+    as a warning with its full traceback, every later one as a single line at INFO (shown with ``-v``). The
+    command's summary counts them all and ``record`` (the file that holds every one) is named.
+
+    Args:
+        logger: The caller's logger. where: ``scene 3 image 12``, ``episode 7``. record: ``failures.csv``.
+    """
+    global _faults_logged
+    _faults_logged += 1
+    if _faults_logged == 1:
+        logger.warning("estimator failed on %s (%s): %s%s\n(further failures: one line each with -v; all are in "
+                       "%s)", where, fault.kind, fault.message, "\n" + fault.trace if fault.trace else "", record)
+    else:
+        logger.info("estimator failed on %s (%s): %s", where, fault.kind, " ".join(fault.message.split()))

@@ -17,7 +17,7 @@ from typing import Any
 from simtest.backend import Backend, RunStats, run_units
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.base import Observation, is_file_target, load_estimator, reset_estimator
-from simtest.estimators.guard import call_estimator, check_estimate
+from simtest.estimators.guard import call_estimator, check_estimate, log_fault
 from simtest.io import bop
 from simtest.io.dataset import ImageRef, image_targets
 from simtest.metrics.bop19 import VISIB_GT_MIN, ResultRow
@@ -71,8 +71,7 @@ def estimate_image(est: Any, obs: Observation, ref: ImageRef, known: set[int], t
     out, fault = call_estimator(est, obs, timeout)
     dt = time.perf_counter() - t0
     if fault is not None:
-        log.warning("estimator failed on scene %d image %d (%s): %s%s", ref.scene_id, ref.im_id, fault.kind,
-                    fault.message, "\n" + fault.trace if fault.trace else "")
+        log_fault(log, f"scene {ref.scene_id} image {ref.im_id}", fault, "failures.csv")
         failures.append(_failure(ref, None, fault.kind, fault.message, fault.exception_type, fault.trace_tail))
         if fail_fast:
             _stop(est, failures[-1], fault.trace)

@@ -302,6 +302,12 @@ class SceneWriter:
             "iscrowd": 0, "area": int(np.count_nonzero(mask_visib)), "bbox": bbox, "segmentation": rle,
             "ignore": bool(inst.visib_fract < 0.1), "width": int(w), "height": int(h)})
 
+    def discard(self) -> None:
+        """Drop the unfinished scene: wait for the writes in flight (their errors ignored) and delete its partial
+        folder; the scene's final folder is never touched."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
     def close(self, labels_dir: str | Path | None = None) -> Path:
         """Write the scene JSON files and move the finished scene into place; returns its folder.
 

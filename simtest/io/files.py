@@ -7,6 +7,7 @@ one check every command runs on its output folder before doing any work.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import io
@@ -15,7 +16,7 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +60,19 @@ def write_new_file(path: str | Path, data: bytes) -> None:
     whole (:func:`private_partial_dir`): readers never see the folder before it is complete, so the file needs
     no temporary name and rename of its own (half the CPU time of :func:`atomic_write_bytes` per file). The mode
     follows the umask."""
-    with open(path, "xb") as fh:
+    with _naming(path), open(path, "xb") as fh:
         fh.write(data)
+
+
+@contextlib.contextmanager
+def _naming(path: str | Path) -> Iterator[None]:
+    """An OSError raised without a file name inside the block (``write`` on a full disk) names ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -71,7 +83,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         os.fchmod(fd, file_mode())
-        with os.fdopen(fd, "wb") as fh:
+        with _naming(path), os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)
     except BaseException:
