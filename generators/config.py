@@ -117,8 +117,20 @@ class RenderConfig:
     coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
     # box of each COCO annotation: whole object in the image (BOP toolkit default) or its visible part
     coco_bbox: Literal["amodal", "modal"] = field(default="amodal", metadata=_bounds(choices=("amodal", "modal")))
-    pbr_spp: int = field(default=16, metadata=_bounds(1, 65536))  # path-traced samples per pixel (pbr profile)
+    # path-traced samples per pixel (pbr profile): an integer in [1, 65536], or "auto": 16 at 320x240 and below,
+    # 8 at 640x480 and above, round(16 * sqrt(320 * 240 / pixels)) between (simtest.render.pbr.auto_spp).
+    # Typed `object` because the schema checks one type per field; __post_init__ checks int | "auto".
+    pbr_spp: object = "auto"
     pbr_denoise: bool = True  # denoise pbr images with Open Image Denoise (albedo + normal guides)
+    # Mitsuba variant of the pbr profile: "auto" = cuda (a CUDA device), else llvm (a libLLVM >= 16), else
+    # scalar; an explicit "cuda" / "llvm" that cannot run is an error (simtest.render.llvm.choose_variant)
+    pbr_variant: Literal["auto", "cuda", "llvm", "scalar"] = field(
+        default="auto", metadata=_bounds(choices=("auto", "cuda", "llvm", "scalar")))
+
+    def __post_init__(self) -> None:
+        spp = self.pbr_spp
+        if spp != "auto" and (isinstance(spp, bool) or not isinstance(spp, int) or not 1 <= spp <= 65536):
+            raise ConfigError(f"render.pbr_spp = {spp!r} is invalid; allowed: 'auto' or an integer in [1, 65536]")
 
 
 @dataclass(frozen=True)

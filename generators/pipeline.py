@@ -84,7 +84,7 @@ def _versions(cfg: GenerateConfig) -> dict[str, str]:
     if cfg.render.profile == "pbr":
         from simtest.render.pbr import renderer_versions
 
-        out.update(renderer_versions())
+        out.update(renderer_versions(cfg.render.pbr_variant))  # the variant used (and its libLLVM)
     return out
 
 
@@ -253,10 +253,9 @@ def _pbr_renderer(cfg: GenerateConfig, scene):
     from simtest.render.pbr import PbrRenderer
 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
-    shared = workers_per_machine(cfg.workers, cfg.ray_address)
-    threads = thread_budget(shared).cores if shared > 1 else None  # each worker its share of the cores
+    threads = thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).cores  # this worker's share
     return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
-                       threads=threads)
+                       threads=threads, variant=cfg.render.pbr_variant)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:
@@ -327,7 +326,7 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
         from simtest.render.pbr import require_pbr
 
-        require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height))
+        require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height), cfg.render.pbr_variant)
     preflight(Backend.of(cfg))  # before the output is touched
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()

@@ -17,13 +17,15 @@ read from the compiled model and data every frame, so it is what MuJoCo would dr
 * camera: a ``perspective`` sensor with the exact OpenCV intrinsics (fov from fx, principal point offset from
   cx, cy; OpenCV pixel centres at integer coordinates), box pixel filter.
 
-Mitsuba (variant ``scalar_rgb`` on CPU, ``cuda_ad_rgb`` when a CUDA device is present) and ``pyoidn`` are the
-optional extra ``simtest[pbr]``, imported on first use. A fixed scene, sample count and seed give the same
-image on one machine.
+Mitsuba and ``pyoidn`` are the optional extra ``simtest[pbr]``, imported on first use. The Mitsuba variant is
+``render.pbr_variant`` (:func:`simtest.render.llvm.choose_variant`; ``auto``: ``cuda_ad_rgb`` with a CUDA
+device, else ``llvm_ad_rgb`` with a libLLVM >= 16, else ``scalar_rgb``). A fixed scene, sample count, seed and
+variant give the same image on one machine (on ``llvm_ad_rgb`` also with any thread count).
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 from typing import Any
 
@@ -35,10 +37,12 @@ import mujoco
 from simtest.camera import CameraModel
 from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
+from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
 
-__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "INSTALL_HINT"]
+__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "auto_spp", "INSTALL_HINT",
+           "PBR_VARIANTS"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
@@ -59,56 +63,62 @@ _R_CV_MI = np.diag([-1.0, -1.0, 1.0])
 _SEED_STREAM = 0x50425200
 _G = mujoco.mjtGeom
 _MITSUBA: dict[str, Any] = {}
+_CHOSEN: dict[str, Variant] = {}
 
 
-def _modules() -> tuple[Any, Any]:
-    """``(mitsuba, pyoidn)``, imported once, with the variant chosen; RenderError naming the extra if missing."""
+def _modules(requested: str = "auto") -> tuple[Any, Any, Variant]:
+    """``(mitsuba, pyoidn, the variant for `requested`)``, imported once (libLLVM chosen before the import);
+    RenderError naming the extra if missing."""
     if "mi" not in _MITSUBA:
+        point_drjit_at(find_libllvm())  # before drjit is imported: Dr.Jit reads DRJIT_LIBLLVM_PATH at import
         try:
             mi = importlib.import_module("mitsuba")
             oidn = importlib.import_module("pyoidn")
         except ImportError as exc:
             raise RenderError(f"the 'pbr' render profile needs Mitsuba 3 and Open Image Denoise ({exc}); "
                               f"install them with: {INSTALL_HINT}") from None
-        mi.set_variant(_variant(mi.variants()))
         _MITSUBA["mi"], _MITSUBA["oidn"] = mi, oidn
-    return _MITSUBA["mi"], _MITSUBA["oidn"]
+    mi = _MITSUBA["mi"]
+    if requested not in _CHOSEN:
+        _CHOSEN[requested] = choose_variant(mi, requested)
+    chosen = _CHOSEN[requested]
+    if mi.variant() != chosen.name:
+        mi.set_variant(chosen.name)
+    return mi, _MITSUBA["oidn"], chosen
 
 
-def _variant(available: list[str]) -> str:
-    """``cuda_ad_rgb`` when the wheel has it and a CUDA device answers, else ``scalar_rgb`` (the LLVM variants
-    are avoided: they abort on some CPUs)."""
-    if "cuda_ad_rgb" in available:
-        try:
-            import drjit
-
-            if drjit.has_backend(drjit.JitBackend.CUDA):
-                return "cuda_ad_rgb"
-        except Exception:  # no driver, no device
-            pass
-    if "scalar_rgb" not in available:
-        raise RenderError(f"this Mitsuba build has no 'scalar_rgb' variant (it has {available}); "
-                          f"reinstall with: {INSTALL_HINT}")
-    return "scalar_rgb"
-
-
-def require_pbr(camera: CameraModel) -> None:
-    """Check that the ``pbr`` profile can render ``camera``: the extra is installed and ``fx == fy``.
+def require_pbr(camera: CameraModel, variant: str = "auto") -> None:
+    """Check that the ``pbr`` profile can render ``camera`` with path-tracer ``variant`` (see
+    :func:`choose_variant`): the extra is installed, the variant is available and ``fx == fy``. A fallback of
+    ``auto`` is logged here (once per run).
 
     Raises:
-        RenderError: Naming ``pip install 'simtest[pbr]'`` when Mitsuba or pyoidn is missing, or naming the
-            focal lengths when the pixels are not square.
+        RenderError: Naming ``pip install 'simtest[pbr]'`` when Mitsuba or pyoidn is missing, naming the library
+            to install when an explicit ``cuda`` / ``llvm`` is unavailable, or naming the focal lengths when the
+            pixels are not square.
     """
-    mi, _ = _modules()
+    mi, _, _ = _modules(variant)
     camera_sensor(mi, camera, 1)
 
 
-def renderer_versions() -> dict[str, str]:
-    """Versions of the path tracer and denoiser, and the Mitsuba variant in use (recorded in the manifest)."""
+def renderer_versions(variant: str = "auto") -> dict[str, str]:
+    """Versions of the path tracer and denoiser, the Mitsuba variant ``variant`` resolves to and, on the LLVM
+    variant, the libLLVM file and version loaded (recorded in the manifest)."""
     from importlib.metadata import version
 
-    mi, _ = _modules()
-    return {"mitsuba": mi.__version__, "mitsuba_variant": mi.variant(), "pyoidn": version("pyoidn")}
+    mi, _, chosen = _modules(variant)
+    out = {"mitsuba": mi.__version__, "mitsuba_variant": chosen.name, "pyoidn": version("pyoidn")}
+    if chosen.libllvm is not None:
+        out.update(libllvm=chosen.libllvm, libllvm_version=chosen.libllvm_version)
+    return out
+
+
+def auto_spp(width: int, height: int) -> int:
+    """Samples per pixel of ``render.pbr_spp = "auto"`` for a ``width`` x ``height`` image:
+    ``round(16 * sqrt(320 * 240 / pixels))`` clamped to [8, 16], i.e. 16 at 320x240 and below, 8 at 640x480 and
+    above (the knees of PSNR against cost measured at those sizes: more pixels give the denoiser more to work
+    with, so fewer samples reach the same quality)."""
+    return int(np.clip(round(16.0 * np.sqrt(320 * 240 / max(1, int(width) * int(height)))), 8, 16))
 
 
 def frame_seed(seed: int, scene_id: int, im_id: int) -> int:
@@ -222,21 +232,29 @@ class PbrRenderer:
         model: Compiled model (geoms, materials, textures and lights are read from it).
         camera: Intrinsics and image size (``K``, ``width``, ``height``); its pose is ignored, each
             :meth:`render` reads the camera pose from ``data``.
-        spp: Samples per pixel (>= 1).
+        spp: Samples per pixel (>= 1), or ``"auto"``: :func:`auto_spp` of the image size.
         denoise: Denoise with Open Image Denoise (albedo and normal AOVs as guides).
         geomgroups: Which geom groups (0-5) are drawn, as for :class:`simtest.render.rasterizer.Renderer`.
-        threads: Size of the path tracer's thread pool (process-wide); ``None`` keeps Mitsuba's default (all
-            cores). Several generation workers each take their share of the cores.
+        threads: Size of the path tracer's thread pool (process-wide, ``drjit.set_thread_count``); ``None``
+            keeps Dr.Jit's default (all cores). Several generation workers each take their share of the cores.
+        variant: ``render.pbr_variant``: ``"auto"``, ``"cuda"``, ``"llvm"`` or ``"scalar"``
+            (:func:`simtest.render.llvm.choose_variant`); :attr:`variant` is the Mitsuba variant used.
+
+    Views of one scene whose geometry, materials and lights are unchanged reuse the loaded Mitsuba scene with
+    only the sensor changed (the same bytes as loading it again).
 
     Raises:
-        RenderError: If the ``pbr`` extra is not installed (the message names it), or ``fx != fy``.
+        RenderError: If the ``pbr`` extra is not installed (the message names it), ``spp`` is invalid, an
+            explicit ``variant`` is unavailable, or ``fx != fy``.
     """
 
-    def __init__(self, model: mujoco.MjModel, camera: CameraModel, spp: int = 16, denoise: bool = True,
-                 geomgroups: tuple[int, ...] = (0, 1, 2), threads: int | None = None) -> None:
-        if int(spp) < 1:
-            raise RenderError(f"samples per pixel must be >= 1, got {spp!r}")
-        self._mi, self._oidn = _modules()
+    def __init__(self, model: mujoco.MjModel, camera: CameraModel, spp: int | str = 16, denoise: bool = True,
+                 geomgroups: tuple[int, ...] = (0, 1, 2), threads: int | None = None,
+                 variant: str = "auto") -> None:
+        spp = auto_spp(camera.width, camera.height) if spp == "auto" else spp
+        if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or int(spp) < 1:
+            raise RenderError(f"samples per pixel must be an integer >= 1 or 'auto', got {spp!r}")
+        self._mi, self._oidn, self._variant = _modules(variant)
         if threads is not None:
             import drjit
 
@@ -247,6 +265,7 @@ class PbrRenderer:
         self._groups = frozenset(int(g) for g in geomgroups)
         self._textures: dict[tuple, Any] = {}
         self._aux = None
+        self._loaded: tuple[bytes, Any] | None = None  # (scene key, loaded Mitsuba scene)
 
     @property
     def width(self) -> int:
@@ -256,24 +275,49 @@ class PbrRenderer:
     def height(self) -> int:
         return self.camera.height
 
+    @property
+    def variant(self) -> str:
+        """The Mitsuba variant this renderer path-traces with (``llvm_ad_rgb``, ...)."""
+        return self._variant.name
+
     def render(self, data: mujoco.MjData, camera: int | str, seed: int = 0) -> Frame:
         """Path-trace RGB from fixed camera ``camera`` (id or name) at ``data``'s state (``data.cam_xpos`` /
         ``cam_xmat`` as they are). ``seed`` seeds the sampler (uint32). Returns a Frame with rgb only."""
         mi = self._mi
+        if mi.variant() != self._variant.name:  # another renderer of this process chose another variant
+            mi.set_variant(self._variant.name)
         cid = self._camera_id(camera)
         cam = CameraModel.from_mujoco(data.cam_xpos[cid], data.cam_xmat[cid], self.camera.K, self.width,
                                       self.height)
-        scene = mi.load_dict(self._scene_dict(data, cam))
+        key = self._scene_key(data)
+        if self._loaded is None or self._loaded[0] != key:
+            self._loaded = None  # free the previous scene first
+            self._loaded = (key, mi.load_dict(self._scene_dict(data, cam)))
+        scene = self._loaded[1]
+        sensor = mi.load_dict(camera_sensor(mi, cam, self.spp))
         seed = int(seed) & 0xFFFFFFFF
-        color = np.maximum(_finite(mi.render(scene, seed=seed, spp=self.spp)), 0.0)
+        color = np.maximum(_finite(mi.render(scene, sensor=sensor, seed=seed, spp=self.spp)), 0.0)
         if self.denoise:
             # The guides come from a second, cheaper pass: Mitsuba's aov integrator costs ~2.5x a path sample.
             if self._aux is None:
                 self._aux = mi.load_dict({"type": "aov", "aovs": "albedo:albedo,nn:sh_normal"})
-            aux = _finite(mi.render(scene, integrator=self._aux, seed=seed, spp=min(self.spp, AUX_SPP)))
+            aux = _finite(mi.render(scene, sensor=sensor, integrator=self._aux, seed=seed,
+                                    spp=min(self.spp, AUX_SPP)))
             color = self._oidn.denoise(color, np.ascontiguousarray(np.clip(aux[..., 0:3], 0.0, 1.0)),
                                        np.ascontiguousarray(np.clip(aux[..., 3:6], -1.0, 1.0)), hdr=True)
         return Frame(linear_to_srgb8(color), None, None)
+
+    def _scene_key(self, data: mujoco.MjData) -> bytes:
+        """A digest of everything :meth:`_scene_dict` reads apart from the camera: equal keys, equal scenes."""
+        m = self.model
+        h = hashlib.blake2b(digest_size=16)
+        for a in (data.geom_xpos, data.geom_xmat, data.light_xpos, data.light_xdir, m.geom_rgba, m.geom_group,
+                  m.geom_matid, m.geom_type, m.geom_size, m.geom_dataid, m.mat_rgba, m.mat_specular,
+                  m.mat_shininess, m.mat_reflectance, m.mat_texrepeat, m.mat_texid, m.light_active, m.light_type,
+                  m.light_ambient, m.light_diffuse, m.light_cutoff, m.light_exponent, m.vis.headlight.ambient,
+                  m.stat.center, m.tex_data):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.digest()
 
     def _camera_id(self, camera: int | str) -> int:
         return camera_id(self.model, camera)

@@ -1,9 +1,11 @@
-"""The path-traced ``pbr`` profile: only ``rgb/`` differs from the fast profile, the image is registered with the
-exact masks, a fixed seed repeats its bytes, and a missing extra says what to install."""
+"""The path-traced ``pbr`` profile: only ``rgb/`` differs from the fast profile (on every Mitsuba variant), the
+image is registered with the exact masks, a fixed seed repeats its bytes, and a missing extra says what to
+install."""
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import subprocess
 import sys
@@ -26,12 +28,20 @@ def _digest(root: Path) -> dict[str, str]:
             for p in sorted(root.rglob("*")) if p.is_file() and p.name != "manifest.json"}
 
 
+def _need_pbr() -> None:
+    """Skip without the extra. (Not importorskip: importing mitsuba here would load Dr.Jit before simtest
+    chooses its libLLVM, and so rule out the LLVM variant in this process.)"""
+    for name in ("mitsuba", "pyoidn"):
+        if importlib.util.find_spec(name) is None:
+            pytest.skip(f"{name} is not installed (pip install 'simtest[pbr]')")
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory, small_config):
-    """The same seed made with the fast profile and twice with the pbr profile (4 spp, denoised), with the
-    principal point well off the image centre so a registration error would show."""
-    pytest.importorskip("mitsuba")
-    pytest.importorskip("pyoidn")
+    """The same seed made with the fast profile, twice with the pbr profile (4 spp, denoised, the ``auto``
+    variant: llvm_ad_rgb where a libLLVM >= 16 is installed) and once on the scalar variant, with the principal
+    point well off the image centre so a registration error would show."""
+    _need_pbr()
     cfg = small_config.replace(**{
         "scenes": 1, "frames_per_scene": 2, "camera.width": W, "camera.height": H,
         "camera.cx": (W - 1) / 2 + 6.0, "camera.cy": (H - 1) / 2 - 4.0, "render.pbr_spp": 4})
@@ -39,27 +49,45 @@ def runs(tmp_path_factory, small_config):
     generate(cfg, root / "fast", progress=False)
     generate(cfg.replace(**{"render.profile": "pbr"}), root / "pbr", progress=False)
     generate(cfg.replace(**{"render.profile": "pbr"}), root / "pbr_again", progress=False)
+    generate(cfg.replace(**{"render.profile": "pbr", "render.pbr_variant": "scalar"}), root / "pbr_scalar",
+             progress=False)
     return root
 
 
-def test_pbr_and_fast_differ_only_in_rgb(runs):
-    fast, pbr = _digest(runs / "fast"), _digest(runs / "pbr")
+_RENDERER_KEYS = ("mitsuba", "mitsuba_variant", "pyoidn", "libllvm", "libllvm_version")
+
+
+@pytest.mark.parametrize("name", ["pbr", "pbr_scalar"])
+def test_pbr_and_fast_differ_only_in_rgb(runs, name):
+    fast, pbr = _digest(runs / "fast"), _digest(runs / name)
     assert fast.keys() == pbr.keys() and len(fast) > 10
     rgb = {k for k in fast if "/rgb/" in k}
     assert len(rgb) == 2
     assert {k: v for k, v in fast.items() if k not in rgb} == {k: v for k, v in pbr.items() if k not in rgb}
     assert all(fast[k] != pbr[k] for k in rgb)
     manifests = []
-    for name in ("fast", "pbr"):
-        m = read_json(runs / name / "manifest.json")
+    for run in ("fast", name):
+        m = read_json(runs / run / "manifest.json")
         m.pop("command_line")
         m.pop("runs")  # the log of where and how fast each run went
         m["config"]["render"].pop("profile")
+        m["config"]["render"].pop("pbr_variant")
         for key in ("mitsuba", "mitsuba_variant", "pyoidn"):
-            assert (key in m["versions"]) == (name == "pbr")
+            assert (key in m["versions"]) == (run != "fast")
+        llvm = m["versions"].get("mitsuba_variant") == "llvm_ad_rgb"
+        assert ("libllvm" in m["versions"]) == llvm and ("libllvm_version" in m["versions"]) == llvm
+        for key in _RENDERER_KEYS:
             m["versions"].pop(key, None)
         manifests.append(m)
     assert manifests[0] == manifests[1]
+    assert read_json(runs / "pbr_scalar" / "manifest.json")["versions"]["mitsuba_variant"] == "scalar_rgb"
+
+
+def test_pbr_variants_differ_in_rgb_only_when_the_variant_differs(runs):
+    auto, scalar = _digest(runs / "pbr"), _digest(runs / "pbr_scalar")
+    rgb = {k for k in auto if "/rgb/" in k}
+    same_variant = (read_json(runs / "pbr" / "manifest.json")["versions"]["mitsuba_variant"] == "scalar_rgb")
+    assert all((auto[k] == scalar[k]) == same_variant for k in rgb)
 
 
 def test_pbr_same_seed_same_bytes(runs):
@@ -102,10 +130,16 @@ def test_pbr_object_boundaries_coincide_with_masks(runs):
 
 
 def test_pbr_config_fields_are_validated():
-    with pytest.raises(ConfigError, match="pbr_spp"):
-        GenerateConfig().replace(**{"render.pbr_spp": 0})
+    for bad in (0, 2.5, "many", True):
+        with pytest.raises(ConfigError, match=r"render\.pbr_spp = .* allowed: 'auto' or an integer in \[1, 65536\]"):
+            GenerateConfig().replace(**{"render.pbr_spp": bad})
     with pytest.raises(ConfigError, match="profile"):
         GenerateConfig().replace(**{"render.profile": "raytraced"})
+    with pytest.raises(ConfigError, match=r"pbr_variant = 'gpu' is invalid; allowed: 'auto' \| 'cuda'"):
+        GenerateConfig().replace(**{"render.pbr_variant": "gpu"})
+    render = GenerateConfig().render
+    assert (render.pbr_spp, render.pbr_variant) == ("auto", "auto")
+    assert GenerateConfig().replace(**{"render.pbr_spp": 8}).render.pbr_spp == 8
 
 
 _WITHOUT_MITSUBA = "import sys; sys.modules['mitsuba'] = None\n"
@@ -140,7 +174,7 @@ def test_generate_without_extra_fails_before_writing(tmp_path):
 
 
 def test_bench_profiles_reports_each_profile_and_size():
-    pytest.importorskip("mitsuba")
+    _need_pbr()
     from simtest.benchmarks.generate import bench_profiles
 
     res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
@@ -151,7 +185,7 @@ def test_bench_profiles_reports_each_profile_and_size():
 
 
 def test_pbr_same_bytes_with_1_or_2_workers(tmp_path, small_config):
-    pytest.importorskip("mitsuba")
+    _need_pbr()
     cfg = small_config.replace(**{"scenes": 2, "frames_per_scene": 1, "camera.width": 48, "camera.height": 36,
                                   "render.profile": "pbr", "render.pbr_spp": 2})
     generate(cfg, tmp_path / "w1", progress=False)
