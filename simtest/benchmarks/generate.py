@@ -11,6 +11,9 @@ workers. With 2 workers, throughput is given
 both as frames over the busy time of the slower worker and as frames over the wall time including worker
 start-up (about 1.5 s of imports and object loading per process), each also as a fraction of the ideal
 ``cores / (CPU seconds per frame of one worker)``.
+
+``bench_profiles``: seconds per frame of each render profile at each image size, 1 and 2 workers, and for
+``pbr`` the samples per pixel and the Mitsuba variant (and libLLVM) its manifest recorded.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from pathlib import Path
 
 from simtest.generators.config import GenerateConfig
 
-__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "cpu_seconds", "ThreadCpu"]
+__all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "ProfileRow", "cpu_seconds",
+           "ThreadCpu"]
 
 
 @dataclass
@@ -317,30 +321,88 @@ def _per_frame_by_thread(by_thread: dict[str, float], cpu_s: float, frames: int)
     return out
 
 
+@dataclass(frozen=True)
+class ProfileRow:
+    """One profile at one image size (seconds per annotated frame).
+
+    Attributes:
+        wall: Seconds per frame, 1 worker (its scenes' wall time over their frames).
+        cpu: CPU seconds per frame, 1 worker (all threads of the process).
+        wall_2workers: Seconds per frame of the machine with 2 workers: the busy time of the slower worker over
+            all frames (each worker's first frame, with its start-up of the renderers, included); ``None`` when
+            not measured.
+        spp: Samples per pixel used (``pbr``; ``None`` for the rasterized profiles).
+        variant: What rendered it: the Mitsuba variant and, on ``llvm_ad_rgb``, the libLLVM version and file
+            (from the run's manifest; ``pbr`` only).
+    """
+
+    profile: str
+    width: int
+    height: int
+    wall: float
+    cpu: float
+    wall_2workers: float | None = None
+    spp: int | None = None
+    variant: str | None = None
+
+    @property
+    def speedup_2workers(self) -> float | None:
+        """Frames/s of 2 workers over frames/s of 1."""
+        return None if not self.wall_2workers else self.wall / self.wall_2workers
+
+
 @dataclass
 class ProfileBench:
-    """Seconds per annotated frame of the whole pipeline for each render profile and image size, one worker,
-    the same seed and scenes for every profile. Rows: ``(profile, width, height, wall s/frame, CPU s/frame)``;
-    CPU seconds (all threads of the process) are what a loaded machine changes least."""
+    """Seconds per annotated frame of the whole pipeline for each render profile and image size, 1 worker and
+    (with two or more scenes) 2 workers, the same seed and scenes for every profile (:class:`ProfileRow`); CPU
+    seconds (all threads of the process) are what a loaded machine changes least."""
 
-    rows: list[tuple[str, int, int, float, float]]
+    rows: list[ProfileRow]
     scenes: int
     frames_per_scene: int
-    pbr_spp: int
 
     def table(self) -> str:
-        lines = ["| profile | image size | s/frame (wall) | CPU s/frame |", "|---|---|---|---|"]
-        for profile, w, h, wall, cpu in self.rows:
-            name = f"{profile} ({self.pbr_spp} spp, denoised)" if profile == "pbr" else profile
-            lines.append(f"| {name} | {w}x{h} | {wall:.2f} | {cpu:.2f} |")
+        lines = ["| profile | image size | s/frame (wall) | CPU s/frame | 2 workers: s/frame | 2 workers / 1 worker |",
+                 "|---|---|---|---|---|---|"]
+        for r in self.rows:
+            name = f"{r.profile} ({r.spp} spp, denoised)" if r.profile == "pbr" else r.profile
+            two = ("-", "-") if r.wall_2workers is None else (f"{r.wall_2workers:.2f}", f"{r.speedup_2workers:.2f}")
+            lines.append(f"| {name} | {r.width}x{r.height} | {r.wall:.2f} | {r.cpu:.2f} | {two[0]} | {two[1]} |")
+        variants = sorted({r.variant for r in self.rows if r.variant})
+        if variants:
+            lines += ["", f"pbr path tracer: {'; '.join(variants)}; {self.scenes} scenes x {self.frames_per_scene} "
+                          f"views per measurement"]
         return "\n".join(lines)
 
 
+def _variant_text(manifest: dict) -> str:
+    """``llvm_ad_rgb (libLLVM 19.1.7, /usr/lib/...)`` from a manifest's recorded versions."""
+    v = manifest.get("versions", {})
+    lib = f" (libLLVM {v['libllvm_version']}, {v['libllvm']})" if v.get("libllvm") else ""
+    return f"{v.get('mitsuba_variant', '?')}{lib}"
+
+
+def _two_workers_seconds(cfg: GenerateConfig, out: str) -> float:
+    """Seconds per frame of ``cfg`` made by 2 workers: the slower worker's busy time over all frames."""
+    from simtest.generators.pipeline import generate
+
+    rep = generate(cfg.replace(workers=2), out, progress=False)
+    busy: dict[int, float] = {}
+    for s in rep.scenes:
+        busy[s.worker] = busy.get(s.worker, 0.0) + s.seconds
+    return max(busy.values()) / rep.frames_written
+
+
 def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_per_scene: int = 10,
-                   scenes: int = 2, frames_per_scene: int = 3, objects: str = "builtin", pbr_spp: int = 16,
-                   seed: int = 0) -> ProfileBench:
+                   scenes: int = 2, frames_per_scene: int = 3, objects: str = "builtin",
+                   pbr_spp: int | str = "auto", seed: int = 0, pbr_variant: str = "auto",
+                   two_workers: bool = True) -> ProfileBench:
     """Seconds per frame (sampling, settling, rendering, annotation, writing; object loading and one warm-up
-    frame per profile excluded) of each profile at each ``(width, height)``, measured in one run."""
+    frame per profile excluded) of each profile at each ``(width, height)``, measured in one run, with 1 worker
+    and, when ``two_workers`` and ``scenes >= 2``, with 2. ``pbr_spp`` and ``pbr_variant`` are the
+    ``render.pbr_spp`` / ``render.pbr_variant`` of the pbr runs."""
+    import json
+
     from simtest.generators.pipeline import load_objects, generate
 
     rows = []
@@ -349,7 +411,8 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
             cfg = GenerateConfig().replace(**{
                 "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": w,
                 "camera.height": h, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
-                "render.profile": profile, "render.pbr_spp": pbr_spp, "seed": seed})
+                "render.profile": profile, "render.pbr_spp": pbr_spp, "render.pbr_variant": pbr_variant,
+                "seed": seed})
             load_objects(cfg)
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
                 # warm-up outside the timing: GL context, path tracer and denoiser start-up
@@ -357,5 +420,14 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
                 cpu0 = cpu_seconds()
                 rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
                 cpu = (cpu_seconds() - cpu0) / rep.frames_written
-            rows.append((profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu))
-    return ProfileBench(rows, scenes, frames_per_scene, pbr_spp)
+                two = _two_workers_seconds(cfg, os.path.join(tmp, "w2")) if two_workers and scenes >= 2 else None
+                manifest = json.loads((Path(tmp) / "out" / "manifest.json").read_text())
+                variant = _variant_text(manifest) if profile == "pbr" else None
+            spp = None
+            if profile == "pbr":
+                from simtest.render.pbr import auto_spp
+
+                spp = auto_spp(w, h) if pbr_spp == "auto" else int(pbr_spp)
+            rows.append(ProfileRow(profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu, two,
+                                   spp, variant))
+    return ProfileBench(rows, scenes, frames_per_scene)

@@ -26,9 +26,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="views (frames) per settled scene (default 10; BOP's PBR recipe uses 25)")
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
-    g.add_argument("--profiles", help="instead: seconds per frame of these render profiles, e.g. fast,quality,pbr")
+    g.add_argument("--profiles", help="instead: seconds per frame of these render profiles, 1 and 2 workers, "
+                                      "e.g. fast,quality,pbr")
     g.add_argument("--sizes", help="image sizes for --profiles, e.g. 320x240,640x480 (default --width x --height)")
-    g.add_argument("--pbr-spp", type=int, default=16, help="samples per pixel of the pbr profile (--profiles)")
+    g.add_argument("--pbr-spp", default="auto",
+                   help="samples per pixel of the pbr profile (--profiles): an integer, or auto (default: 16 at "
+                        "320x240, 8 at 640x480, as render.pbr_spp)")
+    g.add_argument("--pbr-variant", default="auto", choices=["auto", "cuda", "llvm", "scalar"],
+                   help="Mitsuba variant of the pbr profile (--profiles; default auto, as render.pbr_variant)")
     g.set_defaults(func=_generate)
     gr = bsub.add_parser("grasp", parents=[common_parser()],
                          help="grasp env steps/s vs raw mj_step; oracle episode wall time; reset ms and RSS")
@@ -108,8 +113,14 @@ def _profiles(args: argparse.Namespace) -> int:
         sizes = [()]
     if any(len(s) != 2 for s in sizes):
         raise ConfigError(f"--sizes: expected WIDTHxHEIGHT[,WIDTHxHEIGHT...], got {args.sizes!r}")
+    spp = args.pbr_spp
+    if spp != "auto":
+        if not spp.isdigit() or not 1 <= int(spp) <= 65536:
+            raise ConfigError(f"--pbr-spp: expected auto or an integer in [1, 65536], got {spp!r}")
+        spp = int(spp)
     print(bench_profiles(profiles, sizes, args.objects_per_scene, args.scenes, args.frames_per_scene,
-                         args.objects, pbr_spp=args.pbr_spp).table())
+                         args.objects, pbr_spp=spp, pbr_variant=args.pbr_variant,
+                         two_workers=not args.no_workers).table())
     return 0
 
 

@@ -177,11 +177,17 @@ def test_bench_profiles_reports_each_profile_and_size():
     _need_pbr()
     from simtest.benchmarks.generate import bench_profiles
 
-    res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
-                         objects="builtin-small", pbr_spp=2)
-    assert [(r[0], r[1], r[2]) for r in res.rows] == [("fast", 48, 36), ("pbr", 48, 36)]
-    assert all(r[3] > 0 and r[4] > 0 for r in res.rows)
-    assert "pbr (2 spp, denoised) | 48x36" in res.table()
+    res = bench_profiles(["fast", "pbr"], [(48, 36)], objects_per_scene=1, scenes=2, frames_per_scene=1,
+                         objects="builtin-small", pbr_spp=2, pbr_variant="scalar")
+    assert [(r.profile, r.width, r.height) for r in res.rows] == [("fast", 48, 36), ("pbr", 48, 36)]
+    assert all(r.wall > 0 and r.cpu > 0 and r.wall_2workers > 0 for r in res.rows)
+    assert [r.spp for r in res.rows] == [None, 2] and [r.variant for r in res.rows] == [None, "scalar_rgb"]
+    table = res.table()
+    assert "| pbr (2 spp, denoised) | 48x36 |" in table and "2 workers / 1 worker" in table
+    assert "pbr path tracer: scalar_rgb; 2 scenes x 1 views" in table
+    one = bench_profiles(["pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
+                         objects="builtin-small", pbr_spp="auto", two_workers=False)
+    assert one.rows[0].spp == 16 and one.rows[0].wall_2workers is None and "| - | - |" in one.table()
 
 
 def test_pbr_same_bytes_with_1_or_2_workers(tmp_path, small_config):
