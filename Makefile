@@ -1,32 +1,48 @@
-# Two entry points: `make demo` (main job on the built-in objects) and `make test`.
-# Each creates or refreshes the virtualenv in .venv itself.
+# Entry points: `make demo` (the main job on the built-in objects; no torch needed) and `make test` (what CI
+# runs). Each creates or refreshes the virtualenv in .venv itself. `make system-packages` (as root) installs the
+# Debian/Ubuntu libraries: headless GL for MuJoCo and libLLVM >= 16 for the path tracer's fast variant.
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
-# The CPU build of torch, when it lies on local disk: then the `train` extra (torch) is installed too.
+BASE := $(VENV)/.installed
+TESTS := $(VENV)/.installed-tests
+# The CPU build of torch, when it lies on local disk (pinned by constraints/ci.txt so pip takes it).
 TORCH_WHEEL := $(wildcard /opt/wheels/torch-2.13.0+cpu-*.whl)
+SYSTEM_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libllvm19
 # The GL backend (EGL, else OSMesa) is chosen by simtest itself; set MUJOCO_GL to override it.
 
-.PHONY: venv demo test clean
+.PHONY: venv demo test clean system-packages
 
-$(STAMP): pyproject.toml
+# simtest with the path tracer (pbr) and Ray: all that `simtest demo` uses. The shipped networks run with
+# ONNX Runtime, so no torch.
+$(BASE): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q --upgrade pip "setuptools>=77" wheel
+	$(PY) -m pip install -q -e ".[pbr,ray]"
+	touch $(BASE)
+
+# The test suite needs the test tools and the train extra too (torch, onnx, onnxscript).
+$(TESTS): $(BASE)
 ifneq ($(TORCH_WHEEL),)
+	@echo "make: installing the dev and train extras, torch from the local CPU wheel $(TORCH_WHEEL)"
 	$(PY) -m pip install -q -e ".[dev,train,pbr,ray]" -c constraints/ci.txt
 else
-	$(PY) -m pip install -q -e ".[dev,pbr,ray]"
+	@echo "make: no local CPU torch wheel in /opt/wheels: installing the train extra with torch from the package index (a large download)"
+	$(PY) -m pip install -q -e ".[dev,train,pbr,ray]"
 endif
-	touch $(STAMP)
+	touch $(TESTS)
 
-venv: $(STAMP)
+venv: $(BASE)
 
-demo: $(STAMP)
+demo: $(BASE)
 	$(VENV)/bin/simtest demo --out demo_out --resume
 
-test: $(STAMP)
+test: $(TESTS)
 	$(PY) -m pytest -q tests
+
+system-packages:
+	apt-get update
+	apt-get install -y --no-install-recommends $(SYSTEM_PACKAGES)
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache

@@ -16,7 +16,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 
-__all__ = ["TrainResult", "epoch_generator", "lr_at", "epoch_loader", "pad16", "optimizer_step", "check_device",
+__all__ = ["TrainResult", "export_beside", "epoch_generator", "lr_at", "epoch_loader", "pad16", "optimizer_step", "check_device",
            "check_settings", "settings_dict", "init_conv_weights"]
 
 
@@ -122,3 +122,23 @@ def init_conv_weights(net, generator) -> None:
         elif isinstance(m, nn.BatchNorm2d):
             nn.init.ones_(m.weight)
             nn.init.zeros_(m.bias)
+
+
+def export_beside(*checkpoints: Path) -> list[Path]:
+    """The ONNX file of each existing checkpoint, written beside it (``model.pt`` -> ``model.onnx``), so the run
+    is evaluated without torch (:mod:`simtest.estimators.onnx_net`). Without the exporter's packages (onnx,
+    onnxscript) the checkpoints stay usable with torch and a warning names the command that converts them."""
+    import logging
+
+    from simtest.estimators.onnx_export import export_checkpoint
+
+    out = []
+    for ckpt in checkpoints:
+        if ckpt is None or not Path(ckpt).is_file():
+            continue
+        try:
+            out.append(export_checkpoint(ckpt))
+        except ConfigError as exc:
+            logging.getLogger(__name__).warning("no ONNX file for %s (%s); convert it later with: simtest export %s",
+                                                ckpt, exc, ckpt)
+    return out

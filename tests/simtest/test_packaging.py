@@ -6,6 +6,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).parents[2]
 MAPPED = {"objects": "simtest.objects", "generators": "simtest.generators", "envs": "simtest.envs"}
+#: Folders of package data only (no __init__.py), listed as packages so that setuptools ships them.
+DATA_PACKAGES = {"simtest.estimators.weights"}
 
 
 def test_every_package_is_listed_in_pyproject():
@@ -20,7 +22,35 @@ def test_every_package_is_listed_in_pyproject():
             parts = init.parent.relative_to(ROOT).parts
             name = ".".join((MAPPED[parts[0]].split(".") if parts[0] in MAPPED else [parts[0]]) + list(parts[1:]))
             found.add(name)
-    assert found == listed
+    assert found | DATA_PACKAGES == listed
+
+
+def test_the_wheel_holds_the_code_and_the_shipped_networks_and_builds_without_warnings(tmp_path):
+    """A real wheel build (setuptools, no isolation: the venv's setuptools): every source module of the packages,
+    the shipped checkpoint and its ONNX file, the dist-info, nothing else; no packaging warning."""
+    import subprocess
+    import sys
+    import zipfile
+
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                           "-w", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    text = proc.stdout + proc.stderr
+    assert "BuildBackendWarning" not in text and "SetuptoolsDeprecationWarning" not in text, text[-3000:]
+    (wheel,) = tmp_path.glob("simtest-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    expected = set()
+    for top, pkg in (("simtest", "simtest"), *MAPPED.items()):
+        for path in (ROOT / top).rglob("*.py"):
+            rel = path.relative_to(ROOT / top)
+            if top == "simtest" and rel.parts[0] in MAPPED:
+                continue
+            expected.add("/".join([*pkg.split("."), *rel.parts]))
+    weights = {f"simtest/estimators/weights/{p.name}" for p in (ROOT / "simtest" / "estimators" / "weights").iterdir()
+               if p.suffix in (".pt", ".onnx")}
+    assert any(w.endswith(".onnx") for w in weights) and any(w.endswith(".pt") for w in weights)
+    code = {n for n in names if ".dist-info/" not in n}
+    assert code == expected | weights, (sorted(code - expected - weights), sorted((expected | weights) - code))
 
 
 def _pyproject_mujoco_floor() -> str:

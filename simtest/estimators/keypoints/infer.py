@@ -23,10 +23,11 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
-from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+from simtest.estimators.keypoints.checkpoint import FORMAT, check_objects, load_checkpoint
 from simtest.estimators.training import check_device
 
-__all__ = ["KeypointEstimator", "fuse_keypoints", "solve_pnp", "mask_cells", "PNP_METHODS", "predict_maps"]
+__all__ = ["KeypointEstimator", "fuse_keypoints", "solve_pnp", "mask_cells", "PNP_METHODS", "predict_maps",
+           "predict_maps_onnx"]
 
 PNP_METHODS = ("epnp", "sqpnp", "ransac")
 #: Fraction of a cell a visible mask must cover for the cell to join the instance (as in training).
@@ -156,6 +157,26 @@ def predict_maps(model: Any, rgb: np.ndarray, device: str = "cpu") -> dict[str, 
             "conf": F.softplus(out["conf_logit"][0]).cpu().numpy().astype(np.float64)}
 
 
+def predict_maps_onnx(net: Any, rgb: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`predict_maps` through an exported network (:class:`~simtest.estimators.onnx_net.OnnxNet`), without
+    torch: the same maps (to float32 rounding)."""
+    from simtest.estimators.onnx_net import softmax, softplus
+
+    cfg = net.meta["net"]
+    H, W = rgb.shape[:2]
+    x = rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0)
+    x = np.pad(x, ((0, 0), (0, (-H) % 16), (0, (-W) % 16)))[None]
+    seg, offsets, conf_logit = net.run(x)
+    h, w = seg.shape[-2:]
+    stride = int(cfg.get("stride", 4))
+    gx = np.arange(w, dtype=np.float32) * stride + (stride - 1) / 2.0
+    gy = np.arange(h, dtype=np.float32) * stride + (stride - 1) / 2.0
+    centers = np.stack(np.meshgrid(gx, gy, indexing="xy"))  # (2, h, w): x, y
+    points = offsets[0] * np.float32(cfg["offset_scale"]) + centers[None]
+    return {"seg": softmax(seg[0], 0), "points": points.astype(np.float64),
+            "conf": softplus(conf_logit[0]).astype(np.float64)}
+
+
 class KeypointEstimator:
     """Confidence-based keypoint pose estimator (registered as ``keypoints``).
 
@@ -170,7 +191,9 @@ class KeypointEstimator:
         use_masks: Group cells with the targets' ground-truth visible masks (the estimator then declares
             ``needs_gt_masks``); False: by the predicted segmentation, reading no ground truth.
         min_cells: Smallest connected component (cells) kept as an instance in segmentation mode.
-        threads: torch CPU threads (None: torch's default).
+        threads: CPU threads of the network (None: torch's default; 1 for ONNX Runtime).
+        runtime: ``auto`` (the checkpoint's ONNX file when it is current, else torch), ``onnx`` or ``torch``
+            (:func:`simtest.estimators.onnx_net.resolve_runtime`); a ``.onnx`` checkpoint runs without torch.
 
     Raises:
         ConfigError: Missing or unreadable checkpoint, bad options; at :meth:`estimate`, an observation whose
@@ -179,32 +202,49 @@ class KeypointEstimator:
 
     def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu", top_n: int = 16,
                  min_conf: float = 0.0, pnp: str = "epnp", use_masks: bool = True, min_cells: int = 3,
-                 threads: int | None = None, *, model: Any = None, objects_record: dict[str, Any] | None = None
-                 ) -> None:
-        try:
-            import torch
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ConfigError("the keypoints estimator needs PyTorch: pip install 'simtest[train]'") from exc
+                 threads: int | None = None, runtime: str = "auto", *, model: Any = None,
+                 objects_record: dict[str, Any] | None = None) -> None:
         if pnp not in PNP_METHODS:
             raise ConfigError(f"keypoints: unknown pnp {pnp!r}; valid: {', '.join(PNP_METHODS)}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
         check_device(device, "keypoints")
-        if threads is not None:
-            torch.set_num_threads(int(threads))
-        from simtest.estimators.keypoints.model import KeypointNet, NetConfig
-
         self.checkpoint = None if checkpoint is None else str(checkpoint)
+        self.net = None
         if model is None:
             if checkpoint is None:
                 raise ConfigError("keypoints: give checkpoint=PATH (a model file from `simtest train keypoints`)")
-            ckpt = load_checkpoint(checkpoint, map_location="cpu")
-            model = KeypointNet(NetConfig.from_dict(ckpt["net"]))
-            model.load_state_dict(ckpt["model"])
-            objects_record = ckpt["objects"]
-        elif objects_record is None:
-            raise ConfigError("keypoints: a model given in memory needs its objects_record")
-        self.model = model.to(device).eval()
+            from simtest.estimators.onnx_net import resolve_runtime
+
+            self.runtime, path = resolve_runtime(Path(checkpoint), runtime, "keypoints")
+            self.checkpoint = str(path)
+        else:
+            self.runtime = "torch"
+            if objects_record is None:
+                raise ConfigError("keypoints: a model given in memory needs its objects_record")
+        if self.runtime == "onnx":
+            from simtest.estimators.onnx_net import OnnxNet
+
+            if device != "cpu":
+                raise ConfigError(f"keypoints: the ONNX runtime runs on the CPU; device={device!r} needs "
+                                  "runtime=torch and a .pt checkpoint")
+            self.net = OnnxNet(path, FORMAT, threads)
+            objects_record, self.stride = self.net.meta["objects"], int(self.net.meta["net"].get("stride", 4))
+            self.model = None
+        else:
+            import torch
+
+            from simtest.estimators.keypoints.model import KeypointNet, NetConfig
+
+            if threads is not None:
+                torch.set_num_threads(int(threads))
+            if model is None:
+                ckpt = load_checkpoint(path, map_location="cpu")
+                model = KeypointNet(NetConfig.from_dict(ckpt["net"]))
+                model.load_state_dict(ckpt["model"])
+                objects_record = ckpt["objects"]
+            self.model = model.to(device).eval()
+            self.stride = int(self.model.cfg.stride)
         self.device = device
         self.record = objects_record
         self.class_ids = [int(i) for i in objects_record["obj_ids"]]
@@ -246,9 +286,10 @@ class KeypointEstimator:
         obs = observation
         self.check_objects(obs.objects)
         self.last_failures = []
-        maps = predict_maps(self.model, obs.rgb, self.device)
+        maps = predict_maps_onnx(self.net, obs.rgb) if self.net is not None else predict_maps(self.model, obs.rgb,
+                                                                                                  self.device)
         h, w = maps["conf"].shape[-2:]
-        stride = self.model.cfg.stride
+        stride = self.stride
         K = np.asarray(obs.K, np.float64)
         out: list[PoseEstimate] = []
         groups: list[tuple[int | None, int, np.ndarray]] = []  # (target index, obj_id, cells)

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from simtest.errors import ConfigError
-from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, lr_at, optimizer_step, pad16,
-                                        settings_dict)
+from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, export_beside, lr_at,
+                                        optimizer_step, pad16, settings_dict)
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model"]
 
@@ -221,5 +221,6 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
         atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
     final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
     save_checkpoint(model_path, checkpoint(final_epoch, False))
+    export_beside(model_path, best_path)
     return TrainResult(model_path=model_path, last_path=last_path, best_path=best_path if best_path.exists() else None,
                        history=history, seconds=time.perf_counter() - t_start)

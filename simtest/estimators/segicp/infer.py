@@ -27,11 +27,14 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.icp import ICPEstimator
+from simtest.estimators.onnx_net import resolve_runtime
 from simtest.estimators.training import check_device
 
 __all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
            "FORMAT"]
 
+#: Half-range (metres) of the relative depth input channel of the network (torch and numpy alike).
+DEPTH_RANGE_M = 0.25
 #: ``format`` entry of segmentation checkpoints.
 FORMAT = "simtest-segmentation/1"
 #: File name of the shipped checkpoint (in ``simtest/estimators/weights/``).
@@ -40,54 +43,85 @@ DEFAULT_CHECKPOINT_NAME = "segicp_builtin-small_320x240.pt"
 
 def default_checkpoint() -> Path:
     """The shipped segmentation checkpoint (``builtin-small`` objects, 320x240 images): package data next to
-    the estimators, so it is found in an editable install and in a wheel alike."""
+    the estimators, so it is found in an editable install and in a wheel alike. Its ONNX file
+    (:func:`~simtest.estimators.onnx_net.onnx_path_for`) lies beside it and is what inference runs."""
     return Path(__file__).resolve().parent.parent / "weights" / DEFAULT_CHECKPOINT_NAME
 
 
+def depth_channel_np(depth: np.ndarray) -> np.ndarray:
+    """numpy twin of :func:`simtest.estimators.segicp.model.depth_channel` for one (H, W) image in metres: the
+    depth relative to the median of the valid depth (torch's median: the lower middle value of an even count),
+    clipped to +-``DEPTH_RANGE_M`` and divided by it, 0 where depth is missing."""
+    out = np.zeros(depth.shape, np.float32)
+    valid = depth > 0
+    v = depth[valid].astype(np.float32)
+    if v.size:
+        k = (v.size - 1) // 2
+        med = np.partition(v, k)[k]
+        rel = np.clip(depth.astype(np.float32) - med, -DEPTH_RANGE_M, DEPTH_RANGE_M) / np.float32(DEPTH_RANGE_M)
+        out[valid] = rel[valid]
+    return out
+
+
 class Segmenter:
-    """The segmentation network of a checkpoint from ``simtest train segmentation``.
+    """The segmentation network of a checkpoint from ``simtest train segmentation``, run by ONNX Runtime (no
+    torch) or by torch.
 
     Args:
-        checkpoint: Checkpoint file (``model.pt``, ``best.pt``, ``last.pt``); None: :func:`default_checkpoint`.
-        device: ``cpu`` or ``cuda``.
+        checkpoint: Checkpoint (``model.pt``, ``best.pt``, ``last.pt``) or its ONNX file (``model.onnx``);
+            None: :func:`default_checkpoint` (through its shipped ONNX file).
+        device: ``cpu`` or ``cuda`` (torch only; ONNX Runtime runs on the CPU).
         min_region_pixels: Smallest connected component (pixels, at the observation's resolution) kept.
-        threads: torch CPU threads (None: torch's default).
+        threads: CPU threads of the network (None: torch's default; 1 for ONNX Runtime, whose outputs do not
+            depend on it).
         erode_px: Each region is eroded by this many pixels before fitting (0: not at all).
         flip: Average the class probabilities of the image and of its mirror image (test-time augmentation:
             +0.4 points ADD(-S)-0.1d on the README's test set with a 28-epoch network, for a second pass).
+        runtime: ``auto``, ``onnx`` or ``torch`` (:func:`simtest.estimators.onnx_net.resolve_runtime`).
 
     Raises:
-        ConfigError: No torch, a missing or unreadable checkpoint, bad options.
+        ConfigError: A missing or unreadable checkpoint, bad options, torch needed but missing.
     """
 
     def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu", min_region_pixels: int = 40,
-                 threads: int | None = None, erode_px: int = 0, flip: bool = True) -> None:
-        try:
-            import torch
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ConfigError("segicp needs PyTorch: pip install 'simtest[train]'") from exc
-        from simtest.estimators.keypoints.checkpoint import load_checkpoint
-        from simtest.estimators.segicp.model import SegNet, SegNetConfig
-
+                 threads: int | None = None, erode_px: int = 0, flip: bool = True, runtime: str = "auto") -> None:
         if int(min_region_pixels) < 1:
             raise ConfigError(f"segicp: min_region_pixels must be >= 1, got {min_region_pixels!r}")
         check_device(device, "segicp")
-        if threads is not None:
-            torch.set_num_threads(int(threads))
         self.shipped = checkpoint is None
         path = default_checkpoint() if checkpoint is None else Path(checkpoint)
         if self.shipped and not path.is_file():
             raise ConfigError(f"segicp: the shipped checkpoint {str(path)!r} is missing; train one with "
                               "`simtest train segmentation` and pass --opt checkpoint=PATH")
-        ckpt = load_checkpoint(path, fmt=FORMAT)
+        self.runtime, path = resolve_runtime(path, runtime, "segicp")
+        if self.runtime == "onnx" and device != "cpu":
+            raise ConfigError(f"segicp: the ONNX runtime runs on the CPU; device={device!r} needs runtime=torch "
+                              "and a .pt checkpoint")
         self.checkpoint = str(path)
-        self.model = SegNet(SegNetConfig.from_dict(ckpt["net"]))
-        self.model.load_state_dict(ckpt["model"])
-        self.model.to(device).eval()
+        if self.runtime == "onnx":
+            from simtest.estimators.onnx_net import OnnxNet
+
+            self.net = OnnxNet(path, FORMAT, threads)
+            meta = self.net.meta
+            self.depth_input = bool(meta["net"].get("depth_input", False))
+            self.record, focal = meta["objects"], meta["focal_px"]
+        else:
+            import torch
+
+            from simtest.estimators.keypoints.checkpoint import load_checkpoint
+            from simtest.estimators.segicp.model import SegNet, SegNetConfig
+
+            if threads is not None:
+                torch.set_num_threads(int(threads))
+            ckpt = load_checkpoint(path, fmt=FORMAT)
+            self.model = SegNet(SegNetConfig.from_dict(ckpt["net"]))
+            self.model.load_state_dict(ckpt["model"])
+            self.model.to(device).eval()
+            self.depth_input = bool(self.model.cfg.depth_input)
+            self.record, focal = ckpt["objects"], ckpt.get("focal_px", 0.0)
         self.device = device
-        self.record = ckpt["objects"]
         self.class_ids = [int(i) for i in self.record["obj_ids"]]
-        self.focal_px = float(ckpt.get("focal_px", 0.0))
+        self.focal_px = float(focal)
         self.min_region_pixels = int(min_region_pixels)
         self.erode_px = int(erode_px)
         self.flip = bool(flip)
@@ -111,10 +145,6 @@ class Segmenter:
     def probabilities(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
         """(C+1, H, W) class probabilities of one image (``rgb`` (H, W, 3) uint8, ``depth`` (H, W) metres); with
         ``flip``, the mean of the image's and its mirror image's (mirrored back)."""
-        import torch
-
-        from simtest.estimators.segicp.model import net_input
-
         H, W = rgb.shape[:2]
         scale = self.focal_px / float(K[0, 0]) if self.focal_px > 0 else 1.0
         if abs(scale - 1.0) > 0.1:
@@ -122,16 +152,36 @@ class Segmenter:
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
             depth = cv2.resize(np.asarray(depth, np.float32), size, interpolation=cv2.INTER_NEAREST)
         h, w = rgb.shape[:2]
+        prob = self._onnx_probabilities(rgb, depth) if self.runtime == "onnx" else self._torch_probabilities(rgb, depth)
+        if (h, w) != (H, W):
+            prob = np.stack([cv2.resize(p, (W, H), interpolation=cv2.INTER_LINEAR) for p in prob])
+        return prob
+
+    def _onnx_probabilities(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        from simtest.estimators.onnx_net import softmax
+
+        h, w = rgb.shape[:2]
+        chans = [rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0)]
+        if self.depth_input:
+            chans.append(depth_channel_np(np.asarray(depth, np.float32))[None])
+        x = np.pad(np.concatenate(chans, 0), ((0, 0), (0, (-h) % 16), (0, (-w) % 16)))
+        x = np.stack([x, x[..., ::-1]]) if self.flip else x[None]  # the image and its mirror image in one batch
+        prob = softmax(self.net.run(x)[0][:, :, :h, :w], axis=1)
+        return np.ascontiguousarray(0.5 * (prob[0] + prob[1][..., ::-1]) if self.flip else prob[0])
+
+    def _torch_probabilities(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        import torch
+
+        from simtest.estimators.segicp.model import net_input
+
+        h, w = rgb.shape[:2]
         x = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).to(torch.float32).div_(255.0)[None]
         d = torch.from_numpy(np.asarray(depth, np.float32))[None, None]
         if self.flip:  # the image and its mirror image in one batch
             x, d = torch.cat([x, x.flip(-1)]), torch.cat([d, d.flip(-1)])
         with torch.inference_mode():
-            prob = self.model(net_input(x, d, self.model.cfg.depth_input).to(self.device))[:, :, :h, :w].softmax(1)
-        prob = (0.5 * (prob[0] + prob[1].flip(-1)) if self.flip else prob[0]).cpu().numpy()
-        if (h, w) != (H, W):
-            prob = np.stack([cv2.resize(p, (W, H), interpolation=cv2.INTER_LINEAR) for p in prob])
-        return prob
+            prob = self.model(net_input(x, d, self.depth_input).to(self.device))[:, :, :h, :w].softmax(1)
+        return (0.5 * (prob[0] + prob[1].flip(-1)) if self.flip else prob[0]).cpu().numpy()
 
     def _erode(self, mask: np.ndarray) -> np.ndarray:
         """``mask`` eroded by ``erode_px`` pixels (the region's rim, where a predicted mask most often bleeds
@@ -190,7 +240,7 @@ class SegICPEstimator(ICPEstimator):
     Args:
         checkpoint: Segmentation checkpoint from ``simtest train segmentation`` (default: the shipped one for
             ``builtin-small``; other object sets need their own).
-        device, min_region_pixels, threads, erode_px, flip: See :class:`Segmenter`.
+        device, min_region_pixels, threads, erode_px, flip, runtime: See :class:`Segmenter`.
         coarse_rotations, refine_top, max_iterations, min_fitness, seed: See
             :class:`~simtest.estimators.icp.ICPEstimator`.
     """
@@ -201,14 +251,15 @@ class SegICPEstimator(ICPEstimator):
 
     def __init__(self, checkpoint: str | None = None, device: str = "cpu", min_region_pixels: int = 40,
                  threads: int | None = None, erode_px: int = 0, flip: bool = True, coarse_rotations: int = 600,
-                 refine_top: int = 4, max_iterations: int = 30, min_fitness: float = 0.5, seed: int = 0) -> None:
+                 refine_top: int = 4, max_iterations: int = 30, min_fitness: float = 0.5, seed: int = 0,
+                 runtime: str = "auto") -> None:
         super().__init__(max_iterations=max_iterations, coarse_rotations=coarse_rotations, refine_top=refine_top,
                          min_fitness=min_fitness, seed=seed)
         self.masks = "segicp"
         self.needs_gt_masks = False
         if int(erode_px) < 0:
             raise ConfigError(f"segicp: erode_px must be >= 0 pixels, got {erode_px!r}")
-        self.segmenter = Segmenter(checkpoint, device, min_region_pixels, threads, int(erode_px), flip)
+        self.segmenter = Segmenter(checkpoint, device, min_region_pixels, threads, int(erode_px), flip, runtime)
 
     def __repr__(self) -> str:
-        return f"SegICPEstimator(checkpoint={self.segmenter.checkpoint!r})"
+        return f"SegICPEstimator(checkpoint={self.segmenter.checkpoint!r}, runtime={self.segmenter.runtime!r})"

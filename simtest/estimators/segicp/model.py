@@ -19,12 +19,11 @@ from torch import nn
 from torch.nn import functional as F
 
 from simtest.estimators.blocks import Residual, conv_bn_relu
+from simtest.estimators.segicp.infer import DEPTH_RANGE_M
 from simtest.estimators.training import init_conv_weights
 
 __all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "DEPTH_RANGE_M"]
 
-#: Half-range (metres) of the relative depth input channel.
-DEPTH_RANGE_M = 0.25
 
 
 @dataclass(frozen=True)

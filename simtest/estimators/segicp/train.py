@@ -28,7 +28,8 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.segicp.infer import FORMAT
-from simtest.estimators.training import TrainResult, check_settings, epoch_loader, lr_at, optimizer_step, settings_dict
+from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, export_beside, lr_at,
+                                        optimizer_step, settings_dict)
 
 __all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
            "FORMAT"]
@@ -265,6 +266,7 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
         atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
     final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
     save_checkpoint(model_path, checkpoint(final_epoch, False))
+    export_beside(model_path, best_path)
     return TrainResult(model_path=model_path, last_path=last_path,
                           best_path=best_path if best_path.exists() else None, history=history,
                           seconds=time.perf_counter() - t_start)

@@ -136,7 +136,7 @@ def test_checkpoint_round_trip_and_resume(trained_run, small_dataset):
         assert ck["train"]["seed"] == 1 and ck["net"]["num_keypoints"] == 8
     assert len(res.history) == 2 and "val_add_s_or_add_01d" in res.history[0]
     ck = load_checkpoint(res.model_path)
-    est = KeypointEstimator(checkpoint=res.model_path)
+    est = KeypointEstimator(checkpoint=res.model_path, runtime="torch")
     sd = est.model.state_dict()
     assert all(torch.equal(sd[k], ck["model"][k]) for k in ck["model"])
     # resuming a finished run for more epochs continues from the saved state
