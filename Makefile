@@ -13,22 +13,23 @@ SYSTEM_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libllvm19
 
 .PHONY: venv demo test clean system-packages
 
+# -qq keeps errors and drops setuptools' notice that every flat-layout editable install prints.
 # simtest with the path tracer (pbr) and Ray: all that `simtest demo` uses. The shipped networks run with
 # ONNX Runtime, so no torch.
 $(BASE): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip "setuptools>=77" wheel
-	$(PY) -m pip install -q -e ".[pbr,ray]"
+	$(PY) -m pip install -qq -e ".[pbr,ray]"
 	touch $(BASE)
 
 # The test suite needs the test tools and the train extra too (torch, onnx, onnxscript).
 $(TESTS): $(BASE)
 ifneq ($(TORCH_WHEEL),)
 	@echo "make: installing the dev and train extras, torch from the local CPU wheel $(TORCH_WHEEL)"
-	$(PY) -m pip install -q -e ".[dev,train,pbr,ray]" -c constraints/ci.txt
+	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray]" -c constraints/ci.txt
 else
 	@echo "make: no local CPU torch wheel in /opt/wheels: installing the train extra with torch from the package index (a large download)"
-	$(PY) -m pip install -q -e ".[dev,train,pbr,ray]"
+	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray]"
 endif
 	touch $(TESTS)
 
