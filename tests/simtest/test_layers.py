@@ -27,7 +27,7 @@ LAYERS = {
     # evaluation and the closed loop
     "simtest.evaluation": 4, "simtest.envs": 4,
     # orchestration: sweeps, benchmarks, the trainers (they drive feeds and evaluation), the command line
-    "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.estimators.keypoints.train": 5,
+    "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.viz": 5, "simtest.estimators.keypoints.train": 5,
     "simtest.estimators.segicp.train": 5, "simtest.cli": 6,
 }
 #: Modules directly under simtest/ (the package face and the base); everything else lives in a package.
