@@ -75,7 +75,8 @@ class SimScene:
         """What annotation reads of the scene now (instance poses, which are active), kept apart from the
         simulation: it stays as it is while the scene moves on (occluders, the arm, the next view)."""
         return SceneState(tuple(self.instance_obj_ids), tuple(self.active), self.geom_instance,
-                          tuple(self.object_pose_world(i) for i in range(len(self.instance_obj_ids))))
+                          tuple(self.object_pose_world(i) for i in range(len(self.instance_obj_ids))),
+                          self.data.geom_xpos.copy(), self.data.geom_xmat.copy())
 
     def set_arm(self, q: np.ndarray) -> None:
         """Put the Panda (if present) at joint configuration ``q`` (rad) and update kinematics."""
@@ -102,12 +103,16 @@ class SceneState:
         active: Instances on the table at that moment.
         geom_instance: (ngeom,) instance index of each geom, -1 for geoms that are not annotated objects.
         poses: ``(R (3x3), t (3,) metres)`` of each instance's model frame in the world.
+        geom_xpos, geom_xmat: World poses of every geom ((ngeom, 3) metres, (ngeom, 9)) at that moment (what
+            the dense channels carry each pixel's surface point with).
     """
 
     instance_obj_ids: tuple[int, ...]
     active: tuple[bool, ...]
     geom_instance: np.ndarray
     poses: tuple[tuple[np.ndarray, np.ndarray], ...]
+    geom_xpos: np.ndarray | None = None
+    geom_xmat: np.ndarray | None = None
 
     def object_pose_world(self, instance: int) -> tuple[np.ndarray, np.ndarray]:
         """(R (3x3), t (3,) metres) of an instance's model frame in the world at that moment."""

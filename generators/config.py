@@ -146,6 +146,15 @@ class OcclusionConfig:
 
 
 @dataclass(frozen=True)
+class AnnotationConfig:
+    """Ground truth beyond BOP's files (default: none, so a plain BOP set stays as small as it is)."""
+
+    #: Dense channels per image: instances, coords, normals, flow, keypoints (:mod:`simtest.generators.dense`).
+    channels: tuple[str, ...] = field(default=(), metadata=_bounds(choices=("instances", "coords", "normals", "flow",
+                                                                           "keypoints")))
+
+
+@dataclass(frozen=True)
 class GenerateConfig:
     """Everything ``simtest generate`` needs. See the module docstring for units."""
 
@@ -172,6 +181,7 @@ class GenerateConfig:
     materials: MaterialConfig = field(default_factory=MaterialConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     occlusion: OcclusionConfig = field(default_factory=OcclusionConfig)
+    annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
     # scene_captions.json per scene: referring expressions per instance (simtest.generators.captions)
     captions: bool = False
     # the split holds only rgb/, depth/ and scene_camera.json; every label goes to <out>/withheld/<split>/

@@ -25,6 +25,7 @@ from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, preflig
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
+from simtest.generators.dense import DenseViews
 from simtest.generators.views_behind import ViewsBehind
 from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
 from simtest.io.dataset import WITHHELD
@@ -182,10 +183,15 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
         occ_cfg = cfg.occlusion
         occlusion_log: dict[str, dict] = {}
 
+        channels = cfg.annotation.channels
+        dense = DenseViews(channels, scene.model, objects, writer) if channels else None
+
         def finish_view(im_id: int, frame, cam: CameraModel, state, record) -> None:
             """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer."""
             anns = annotate(state, frame, cam, objects)
-            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns], [a.mask_visib for a in anns])
+            images, kps = dense.view(im_id, frame, cam, state, anns) if dense is not None else (None, None)
+            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
+                       [a.mask_visib for a in anns], images=images, keypoints=kps)
             if record is not None:
                 from simtest.generators.occlusion import measured_level
 
@@ -351,6 +357,10 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
             "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
     write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
     _write_models(objects, out / "models", split_dir)
+    if "keypoints" in cfg.annotation.channels:
+        from simtest.io.bop_models import write_models_keypoints
+
+        write_models_keypoints(objects, out / "models")
     done = {int(p.name) for p in scene_dirs(split_dir)}
     todo = [i for i in range(cfg.scenes) if i not in done]
     for partial in split_dir.glob(".*.partial"):

@@ -34,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--textures", metavar="DIR",
                    help="folder of png/jpg images for the table, floor, walls and distractors (default: procedural)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
+    p.add_argument("--channels", metavar="NAME,NAME",
+                   help="dense ground truth per image: instances, coords, normals, flow, keypoints (comma-separated; "
+                        "docs/generate.md gives the file formats)")
     p.add_argument("--rgb-format", choices=["jpg", "png"],
                    help="rgb/ image format: jpg (BOP's PBR layout, default) or png (lossless)")
     p.add_argument("--captions", action="store_true", default=None,
@@ -68,6 +71,8 @@ def config_from_args(args: argparse.Namespace):
         "occlusion.level": args.occlusion,
         "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
+        "annotation.channels": None if args.channels is None else [c.strip() for c in args.channels.split(",")
+                                                                    if c.strip() and c.strip() != "none"],
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     if args.width is not None and args.height is None and not args.config:

@@ -157,6 +157,8 @@ class ImageFeed:
 
 # ---------------------------------------------------------------------------------------------------------
 _STACKED = ("rgb", "depth", "K")
+#: Dense channels (same size as the image) stacked like it when a feed reads them.
+_DENSE = ("instances", "coords", "coords_mask", "normals", "flow", "flow_valid")
 _PER_INSTANCE = ("masks", "masks_amodal", "obj_ids", "labels", "R", "t", "R_sym", "t_sym", "boxes", "keypoints_2d",
                  "keypoints_3d", "visib_fract")
 
@@ -178,7 +180,7 @@ def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
     shapes = {tuple(s["rgb"].shape) for s in samples}
     if len(shapes) > 1:
         raise ConfigError(f"cannot batch images of different sizes {sorted(shapes)}; use crop=(H, W)")
-    out: dict[str, Any] = {k: torch.stack([s[k] for s in samples]) for k in _STACKED}
+    out: dict[str, Any] = {k: torch.stack([s[k] for s in samples]) for k in _STACKED + _DENSE if k in samples[0]}
     for k in _PER_INSTANCE:
         if k in samples[0]:
             out[k] = torch.cat([s[k] for s in samples])

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
+from simtest.data.dense import DENSE_KEYS, check_channels, load_channels, masks_to_instances
 from simtest.data.feed import ImageEntry, ImageFeed, check_feed_options, crop_intrinsics, crop_window
 from simtest.io.dataset import select_scene_dirs
 
@@ -130,7 +131,7 @@ class PoseDataset(ImageFeed):
                  objects: Any = None, keypoints: str = "bbox", transform: Callable | None = None, seed: int = 0,
                  min_visib_fract: float = 0.0, crop: tuple[int, int] | None = None, crop_jitter: float = 0.25,
                  symmetry_canonical: bool = True, amodal_masks: bool = False, rgb_dtype: str = "float32",
-                 max_images: int | None = None) -> None:
+                 max_images: int | None = None, channels: Sequence[str] = ()) -> None:
         from simtest.io import bop
 
         if keypoints not in KEYPOINT_TYPES:
@@ -147,6 +148,7 @@ class PoseDataset(ImageFeed):
         self.symmetry_canonical = bool(symmetry_canonical)
         self.amodal_masks = bool(amodal_masks)
         self.rgb_dtype = rgb_dtype
+        self.channels = check_channels(channels)
         # With the dataset's own objects an unknown ground-truth obj_id is an error; with a given object set,
         # instances of other objects are dropped.
         gt_obj_ids = None
@@ -161,6 +163,8 @@ class PoseDataset(ImageFeed):
         self.keypoints_3d: dict[int, np.ndarray] = {
             i: np.asarray(by_id[i].keypoints_bbox if keypoints == "bbox" else by_id[i].keypoints_fps, np.float64)
             for i in self.class_ids}
+        self.bboxes: dict[int, tuple[np.ndarray, np.ndarray]] = {
+            i: (np.asarray(by_id[i].bbox[0], np.float64), np.asarray(by_id[i].size, np.float64)) for i in self.class_ids}
         self.symmetries: dict[int, np.ndarray] = {
             i: (np.asarray(by_id[i].symmetry_transforms(), np.float64) if by_id[i].is_symmetric else np.eye(4)[None])
             for i in self.class_ids}
@@ -216,6 +220,9 @@ class PoseDataset(ImageFeed):
         px = [c if c > 0 else int((out["masks_amodal"] if self.amodal_masks else masks)[k].sum())
               for k, c in enumerate(e.px_count_all)]
         out["px_all"] = np.array([max(1, c) for c in px], np.int64)
+        if self.channels:
+            out.update(load_channels(e.scene_dir, e.im_id, self.channels, masks,
+                                     [self.bboxes[int(o)] for o in out["obj_ids"]]))
         return out
 
     # -----------------------------------------------------------------------------------------------------
@@ -242,6 +249,9 @@ class PoseDataset(ImageFeed):
         if "masks_amodal" in s:
             ma = s["masks_amodal"]
             out["masks_amodal"] = np.stack([cut(m) for m in ma]) if len(ma) else np.zeros((0, ch, cw), bool)
+        for name in self.channels:
+            for key in DENSE_KEYS[name]:
+                out[key] = cut(s[key])
         return out
 
     def _finish(self, s: dict[str, Any], torch: Any) -> dict[str, Any]:
@@ -284,6 +294,17 @@ class PoseDataset(ImageFeed):
         }
         if "masks_amodal" in s:
             out["masks_amodal"] = torch.from_numpy(np.ascontiguousarray(s["masks_amodal"], dtype=bool))
+        if "instances" in self.channels:  # after the transforms: the (possibly occluded) visible masks
+            out["instances"] = torch.from_numpy(masks_to_instances(masks))
+        if "coords" in self.channels:
+            have = s["coords_mask"] & masks.any(0) if len(masks) else np.zeros_like(s["coords_mask"])
+            out["coords"] = torch.from_numpy(np.ascontiguousarray((s["coords"] * have[..., None]).transpose(2, 0, 1)))
+            out["coords_mask"] = torch.from_numpy(have)
+        if "normals" in self.channels:
+            out["normals"] = torch.from_numpy(np.ascontiguousarray(s["normals"].transpose(2, 0, 1)))
+        if "flow" in self.channels:
+            out["flow"] = torch.from_numpy(np.ascontiguousarray(s["flow"].transpose(2, 0, 1)))
+            out["flow_valid"] = torch.from_numpy(s["flow_valid"])
         return out
 
 

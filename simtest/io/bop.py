@@ -29,6 +29,8 @@ from simtest.errors import ConfigError, DatasetError
 from simtest.geometry import Pose
 from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, short_repr, validate_camera_json, validate_scene_camera,
                                    validate_scene_gt, validate_scene_gt_info)
+from simtest.io.coco import coco_annotation, coco_scene
+from simtest.io.dense import write_png16
 from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed, private_partial_dir,
                               write_new_file)
 from simtest.io.png import encode_mask_png
@@ -220,6 +222,9 @@ class SceneWriter:
         self.scene_gt_info: dict[str, list] = {}
         self.coco_images: list[dict] = []
         self.coco_annotations: list[dict] = []
+        self.scene_keypoints: dict[str, list] = {}
+        #: ``{obj_id: (bbox corners, surface keypoints)}`` named in the COCO categories (keypoints channel).
+        self.keypoint_counts: dict[int, tuple[int, int]] | None = None
         # Image encoding (cv2 releases the GIL) and file writes run beside the next frame's rendering.
         from concurrent.futures import ThreadPoolExecutor
 
@@ -241,7 +246,8 @@ class SceneWriter:
             self._pending.pop(0).result()
 
     def add(self, im_id: int, rgb: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
-            instances: list, masks: list[np.ndarray], masks_visib: list[np.ndarray]) -> None:
+            instances: list, masks: list[np.ndarray], masks_visib: list[np.ndarray],
+            images: dict[str, np.ndarray] | None = None, keypoints: list[np.ndarray] | None = None) -> None:
         """Write one image.
 
         Args:
@@ -251,6 +257,8 @@ class SceneWriter:
             camera: Camera of this image (K and ``T_world_cam``).
             instances: Per-instance objects with the :class:`ImageGT` fields.
             masks, masks_visib: (H, W) bool amodal / visible masks, same order as ``instances``.
+            images: Encoded dense channels ``{folder: uint16 image}`` (:mod:`simtest.io.dense`).
+            keypoints: Per instance (J, 3) ``[u, v, visibility]`` (``scene_keypoints.json``, COCO keypoints).
 
         The images are encoded and written by writer threads while the caller goes on: ``rgb``, ``depth_m`` and
         the masks must not be modified afterwards (:meth:`close` waits for every write).
@@ -268,39 +276,31 @@ class SceneWriter:
         # One task per mask folder and image: the writer threads share out fewer, larger pieces of work.
         self._submit(_write_mask_files, [self.dir / "mask" / n for n in names], list(masks))
         self._submit(_write_mask_files, [self.dir / "mask_visib" / n for n in names], list(masks_visib))
-        for inst, m, mv in zip(instances, masks, masks_visib):
+        for k, (inst, m, mv) in enumerate(zip(instances, masks, masks_visib)):
             R9, t_mm = pose_to_bop(inst.T_cam_obj)
             gts.append({"cam_R_m2c": R9, "cam_t_m2c": t_mm, "obj_id": int(inst.obj_id)})
             infos.append({"bbox_obj": list(inst.bbox_obj), "bbox_visib": list(inst.bbox_visib),
                           "px_count_all": int(inst.px_count_all), "px_count_valid": int(inst.px_count_valid),
                           "px_count_visib": int(inst.px_count_visib), "visib_fract": float(inst.visib_fract)})
             if self.coco and mv.any():
-                self._coco_annotation(im_id, inst, m, mv)
+                self.coco_annotations.append(coco_annotation(
+                    len(self.coco_annotations) + 1, im_id, inst, m, mv, self.coco_bbox,
+                    None if keypoints is None else keypoints[k]))
         self.scene_gt[key] = gts
         self.scene_gt_info[key] = infos
+        for folder, image in (images or {}).items():
+            self.add_image(folder, im_id, image)
+        if keypoints is not None:
+            self.scene_keypoints[key] = [{"obj_id": int(i.obj_id), "keypoints": np.round(k, 4).tolist()}
+                                         for i, k in zip(instances, keypoints)]
         if self.coco:
             self.coco_images.append({"id": im_id, "file_name": f"rgb/{im_id:06d}.{self.rgb_format}",
                                      "width": camera.width, "height": camera.height})
 
-    def _coco_annotation(self, im_id: int, inst, mask: np.ndarray, mask_visib: np.ndarray) -> None:
-        """One COCO annotation as the BOP toolkit's ``calc_gt_coco.py`` writes it.
-
-        Ids count from 1 within the scene file (pycocotools' COCOeval reads id 0 as "no match"); the
-        segmentation is the visible mask (compressed RLE); ``ignore`` marks instances less than 10 % visible;
-        the box is COCO's (pixel extent, ``w = xmax - xmin + 1``) of the amodal mask cut to the image, or of the
-        visible mask with ``coco_bbox="modal"``.
-        """
-        from pycocotools import mask as mask_utils
-
-        rle = mask_utils.encode(np.asfortranarray(mask_visib.astype(np.uint8)))
-        box_rle = rle if self.coco_bbox == "modal" else mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
-        bbox = [int(round(float(v))) for v in mask_utils.toBbox(box_rle)]
-        rle["counts"] = rle["counts"].decode("ascii")
-        h, w = mask_visib.shape
-        self.coco_annotations.append({
-            "id": len(self.coco_annotations) + 1, "image_id": im_id, "category_id": int(inst.obj_id),
-            "iscrowd": 0, "area": int(np.count_nonzero(mask_visib)), "bbox": bbox, "segmentation": rle,
-            "ignore": bool(inst.visib_fract < 0.1), "width": int(w), "height": int(h)})
+    def add_image(self, folder: str, im_id: int, image: np.ndarray) -> None:
+        """Write a 16-bit channel image ``folder/{im_id:06d}.png`` (a view's flow is written one view later)."""
+        (self.dir / folder).mkdir(exist_ok=True)
+        self._submit(lambda p, a: write_new_file(p, write_png16(p, a)), self.dir / folder / f"{im_id:06d}.png", image)
 
     def discard(self) -> None:
         """Drop the unfinished scene: wait for the writes in flight (their errors ignored) and delete its partial
@@ -324,10 +324,10 @@ class SceneWriter:
         atomic_write_text(self.dir / "scene_gt_info.json", dump_json_keyed(self.scene_gt_info))
         if self.coco:
             cats = sorted(set(self.coco_categories or ()) | {a["category_id"] for a in self.coco_annotations})
-            atomic_write_json(self.dir / "scene_gt_coco.json", {
-                "info": {"description": f"scene {self.scene_id}"}, "licenses": [], "images": self.coco_images,
-                "annotations": self.coco_annotations,
-                "categories": [{"id": c, "name": str(c), "supercategory": "object"} for c in cats]}, indent=None)
+            atomic_write_json(self.dir / "scene_gt_coco.json", coco_scene(
+                self.scene_id, self.coco_images, self.coco_annotations, cats, self.keypoint_counts), indent=None)
+        if self.scene_keypoints:
+            atomic_write_text(self.dir / "scene_keypoints.json", dump_json_keyed(self.scene_keypoints))
         if labels_dir is not None:
             withhold_labels(self.dir, Path(labels_dir))
         _move_into_place(self.dir, self.final_dir)

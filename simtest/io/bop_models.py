@@ -241,3 +241,23 @@ def read_symmetries(entry: dict, where: str, to_m: float) -> tuple[list[np.ndarr
         offset = _floats(sym.get("offset", [0, 0, 0]), 3, where, f"symmetries_continuous[{i}].offset")
         sym_c.append((tuple(float(a) for a in axis), tuple(float(o) * to_m for o in offset)))
     return sym_d, sym_c
+
+
+#: Model-frame keypoints of every object, beside ``models_info.json`` (the ``keypoints`` channel).
+KEYPOINTS_FILE = "models_keypoints.json"
+
+
+def write_models_keypoints(objects, models_dir: str | Path) -> Path:
+    """``models/models_keypoints.json``: per object id, the keypoint names and model-frame points (mm) that
+    ``scene_keypoints.json`` and the COCO keypoints project: the 8 bbox corners, then the farthest-point surface
+    keypoints."""
+    from simtest.io.files import atomic_write_json
+
+    data = {}
+    for obj in sorted(objects, key=lambda o: int(o.obj_id)):
+        bb, fps = np.asarray(obj.keypoints_bbox, np.float64), np.asarray(obj.keypoints_fps, np.float64)
+        data[str(int(obj.obj_id))] = {"names": [f"bbox_{i}" for i in range(len(bb))] + [f"fps_{i}" for i in range(len(fps))],
+                                      "points_mm": np.round(np.concatenate([bb, fps]) * MM_PER_M, 6).tolist()}
+    path = Path(models_dir) / KEYPOINTS_FILE
+    atomic_write_json(path, data)
+    return path
