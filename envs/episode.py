@@ -147,13 +147,35 @@ class _TableTouch(Exception):
 
 
 class _Recorder:
-    """Collects third-person | wrist frames every ``every`` control periods."""
+    """Collects third-person | wrist frames every ``every`` control periods. Once ``T_world_obj_est`` (4x4,
+    metres) is set, the wrist image shows the target's true frame (thick axes, x red, y green, z blue) and
+    the estimated one (thin axes), projected into the current wrist camera."""
 
     def __init__(self, env, every: int = 2) -> None:
         self.env = env
         self.every = max(1, int(every))
         self.frames: list[np.ndarray] = []
         self._k = 0
+        self.T_world_obj_est: np.ndarray | None = None
+
+    def _draw_frames(self, wrist: np.ndarray) -> None:
+        """The true and estimated target axes on ``wrist`` (the wrist image, possibly resized)."""
+        import cv2
+
+        env = self.env
+        cam = env.camera_model()
+        sx, sy = wrist.shape[1] / cam.width, wrist.shape[0] / cam.height
+        K = np.diag([sx, sy, 1.0]) @ cam.K  # pixel centres stay at integers: c' = s (c + 0.5) - 0.5
+        K[0, 2], K[1, 2] = sx * (cam.K[0, 2] + 0.5) - 0.5, sy * (cam.K[1, 2] + 0.5) - 0.5
+        T_cam_world = cam.T_cam_world.matrix()
+        axes = np.vstack([np.zeros(3), np.eye(3) * 0.5 * float(np.max(env.target_obj.size))])
+        for T, width in ((env.object_poses_world()[0], 3), (self.T_world_obj_est, 1)):
+            p = axes @ (T_cam_world @ T)[:3, :3].T + (T_cam_world @ T)[:3, 3]
+            if (p[:, 2] <= 1e-3).any():
+                continue
+            uv = np.clip(np.round((p @ K.T)[:, :2] / p[:, 2:] * 16), -2 ** 20, 2 ** 20).astype(int)
+            for k, col in enumerate(((230, 30, 30), (30, 200, 30), (40, 90, 255))):
+                cv2.line(wrist, tuple(uv[0]), tuple(uv[k + 1]), col, width, cv2.LINE_AA, 4)
 
     def __call__(self, force: bool = False) -> None:
         self._k += 1
@@ -167,6 +189,9 @@ class _Recorder:
 
             scale = tp.shape[0] / wrist.shape[0]
             wrist = cv2.resize(wrist, (int(round(wrist.shape[1] * scale)), tp.shape[0]))
+        if self.T_world_obj_est is not None:
+            wrist = np.array(wrist)
+            self._draw_frames(wrist)
         self.frames.append(np.concatenate([tp, wrist], axis=1))
 
 
@@ -444,6 +469,8 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
     # 3. Plan from the estimated pose, camera -> base -> world.
     T_world_obj = (Pose.from_matrix(info["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])
                    @ Pose(R_e, t_e))
+    if recorder is not None:
+        recorder.T_world_obj_est = T_world_obj.matrix()
     points = (observed_obstacles(u, obs, obj, T_world_obj) if planner.obstacles == "observed" else None)
     planned = planner.plan(u, obj, T_world_obj, obstacle_points=points)
     if planned.plan is None:

@@ -96,21 +96,22 @@ def _read_mask(ref: ImageRef, gt_id: int, visible: bool) -> np.ndarray | None:
 
 
 def draw_instance_gt(canvas: np.ndarray, K: np.ndarray, gt: bop.ImageGT, obj, colour, scale: int,
-                     visib_mask: np.ndarray | None, amodal_mask: np.ndarray | None, label: str | None) -> None:
+                     visib_mask: np.ndarray | None, amodal_mask: np.ndarray | None, label: str | None,
+                     placed: list | None = None) -> None:
     """Draw one instance's ground truth on ``canvas`` (the camera image enlarged ``scale`` times): visible
-    contour (solid, 2 px), amodal contour (dashed, 1 px), 3D box, axes and ``label`` at the box's top left."""
+    contour (solid, 2 px), amodal contour (dashed, 1 px), axes, 3D box (over the axes) and ``label`` above the
+    top left of its visible box, moved off the label boxes in ``placed`` (appended to)."""
     if amodal_mask is not None:
         draw_mask_contour(canvas, amodal_mask, colour, scale, thickness=1, dash=4 * scale)
     if visib_mask is not None:
         draw_mask_contour(canvas, visib_mask, colour, scale, thickness=2)
     R, t = gt.T_cam_obj.R, gt.T_cam_obj.t
-    corners = box_corner_pixels(K, R, t, obj.keypoints_bbox)
-    draw_box(canvas, corners, colour, scale, thickness=1)
     draw_axes(canvas, K, R, t, axis_length(obj), scale, thickness=2)
+    draw_box(canvas, box_corner_pixels(K, R, t, obj.keypoints_bbox), colour, scale, thickness=1)
     if label:
         x, y, w, h = (gt.bbox_visib if gt.bbox_visib[2] > 0 else gt.bbox_obj)
         org = to_canvas(np.array([[x, y]], dtype=np.float64) - 0.5, scale)[0]
-        draw_label(canvas, label, (org[0], org[1] - 20), colour=colour)
+        draw_label(canvas, label, (org[0], org[1] - 20), colour=colour, avoid=placed)
 
 
 def gt_canvas(ref: ImageRef, objects, scale: int, rgb: np.ndarray | None = None,
@@ -120,14 +121,15 @@ def gt_canvas(ref: ImageRef, objects, scale: int, rgb: np.ndarray | None = None,
     rgb = bop.read_image(ref.scene_dir, ref.im_id) if rgb is None else rgb
     canvas = upscale(rgb, scale)
     K = ref.info["K"]
-    drawn = []
+    drawn: list[int] = []
+    placed: list = []
     for j, g in enumerate(ref.info["gt"]):
         if (only is not None and j not in only) or g.visib_fract <= 0:
             continue
         obj = objects.get(g.obj_id)
         label = f"[{j}] {obj.name} v={g.visib_fract:.2f}" if labels else None
         draw_instance_gt(canvas, K, g, obj, palette(j), scale, _read_mask(ref, j, True), _read_mask(ref, j, False),
-                         label)
+                         label, placed)
         drawn.append(j)
     return canvas, drawn
 

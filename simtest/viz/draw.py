@@ -15,10 +15,11 @@ import cv2
 import numpy as np
 
 from simtest.camera import pinhole_pixels
+from simtest.render.zbuffer import render_depth
 
 __all__ = ["GT_COLOUR", "EST_COLOUR", "AXIS_COLOURS", "BAD_COLOUR", "palette", "project_model_points",
            "box_corner_pixels", "BOX_EDGES", "to_canvas", "draw_box", "draw_axes", "mask_contours",
-           "draw_mask_contour", "draw_label", "mesh_silhouette", "draw_polyline_points"]
+           "draw_mask_contour", "draw_label", "mesh_silhouette", "canvas_intrinsics", "draw_polyline_points"]
 
 #: Colour of ground truth on evaluation pages (RGB): green.
 GT_COLOUR = (40, 220, 60)
@@ -81,14 +82,14 @@ def _segment(img: np.ndarray, a: np.ndarray, b: np.ndarray, colour, thickness: i
 
 
 def draw_box(img: np.ndarray, corners_uv: np.ndarray, colour, scale: float = 1.0, thickness: int = 1) -> None:
-    """The 12 edges of a projected 3D box (corner pixels (8, 2) from :func:`box_corner_pixels`) and a dot on
-    each corner."""
+    """The 12 edges of a projected 3D box (corner pixels (8, 2) from :func:`box_corner_pixels`, antialiased)
+    and a solid dot (not antialiased: the corner pixel has exactly ``colour``) on each corner."""
     pts = to_canvas(corners_uv, scale)
     for i, j in BOX_EDGES:
         _segment(img, pts[i], pts[j], colour, thickness)
     for p in pts:
         if np.all(np.isfinite(p)) and np.all(np.abs(p) < 4 * max(img.shape)):
-            cv2.circle(img, _fixed(p), max(1, thickness) * _ONE, colour, -1, cv2.LINE_AA, _SHIFT)
+            cv2.circle(img, _fixed(p), (max(1, thickness) + 1) * _ONE // 2 + _ONE // 2, colour, -1, cv2.LINE_8, _SHIFT)
 
 
 def draw_axes(img: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, length: float, scale: float = 1.0,
@@ -138,10 +139,15 @@ def draw_mask_contour(img: np.ndarray, mask: np.ndarray, colour, scale: int = 1,
         draw_polyline_points(img, c, colour, thickness, dash)
 
 
+def _overlaps(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+
+
 def draw_label(img: np.ndarray, text: str, org: tuple[float, float], colour=(255, 255, 255), font_scale: float = 0.5,
-               bg=(0, 0, 0), alpha: float = 0.6) -> tuple[int, int, int, int]:
+               bg=(0, 0, 0), alpha: float = 0.6, avoid: list | None = None) -> tuple[int, int, int, int]:
     """``text`` on a translucent box whose top-left corner is at canvas point ``org`` (kept inside the image);
-    returns the box ``(x, y, w, h)``. ``font_scale`` 0.5 (Hershey simplex) is about 12 px high."""
+    returns the box ``(x, y, w, h)``. ``font_scale`` 0.5 (Hershey simplex) is about 12 px high. ``avoid``: boxes
+    of labels already drawn; the box moves down (a few steps) off them, and is appended to the list."""
     font, th = cv2.FONT_HERSHEY_SIMPLEX, 1
     (tw, tht), base = cv2.getTextSize(text, font, font_scale, th)
     pad = 3
@@ -149,27 +155,33 @@ def draw_label(img: np.ndarray, text: str, org: tuple[float, float], colour=(255
     H, W = img.shape[:2]
     x = int(np.clip(org[0], 0, max(0, W - w)))
     y = int(np.clip(org[1], 0, max(0, H - h)))
+    for _ in range(8):
+        if avoid is None or not any(_overlaps((x, y, w, h), b) for b in avoid):
+            break
+        y = int(np.clip(y + h, 0, max(0, H - h)))
+    if avoid is not None:
+        avoid.append((x, y, w, h))
     roi = img[y:y + h, x:x + w]
     roi[:] = (roi * (1.0 - alpha) + np.asarray(bg, dtype=np.float64) * alpha).astype(np.uint8)
     cv2.putText(img, text, (x + pad, y + pad + tht), font, font_scale, colour, th, cv2.LINE_AA)
     return x, y, w, h
 
 
+def canvas_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics of a canvas ``scale`` times larger than the camera image (pixel centres kept at integers:
+    ``f' = s f``, ``c' = s (c + 0.5) - 0.5``)."""
+    K = np.asarray(K, dtype=np.float64)
+    s = float(scale)
+    return np.array([[s * K[0, 0], s * K[0, 1], s * (K[0, 2] + 0.5) - 0.5],
+                     [0.0, s * K[1, 1], s * (K[1, 2] + 0.5) - 0.5], [0.0, 0.0, 1.0]])
+
+
 def mesh_silhouette(K: np.ndarray, R: np.ndarray, t: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                     width: int, height: int, scale: int = 1) -> np.ndarray:
-    """The projected mesh's silhouette (height * scale, width * scale) bool at pose ``(R, t)``: every triangle
-    in front of the camera filled one by one (``cv2.fillConvexPoly``, about 1 us per triangle; one
-    ``fillPoly`` call would apply the even-odd rule to overlapping triangles). Faces with a vertex within 1 mm
-    of the camera plane are left out. Vertices metres, model frame."""
+    """The projected mesh's silhouette (height * scale, width * scale) bool at pose ``(R, t)``: the pixels
+    whose centre a triangle covers (:func:`simtest.render.zbuffer.render_depth`, the rule of simtest's masks,
+    so at the ground-truth pose it equals the amodal mask). Vertices metres, model frame; triangles with a
+    vertex behind the near plane are left out."""
     s = int(scale)
-    uv = project_model_points(K, R, t, vertices)
-    out = np.zeros((height * s, width * s), dtype=np.uint8)
-    tri = uv[np.asarray(faces, dtype=np.int64)]  # (F, 3, 2)
-    ok = np.isfinite(tri).all(axis=(1, 2))
-    tri = to_canvas(tri[ok].reshape(-1, 2), s).reshape(-1, 3, 2)
-    lim = 4.0 * max(out.shape)
-    inside = (np.abs(tri) < lim).all(axis=(1, 2))
-    pts = np.round(tri[inside] * _ONE).astype(np.int32)
-    for p in pts:
-        cv2.fillConvexPoly(out, p, 1, cv2.LINE_8, _SHIFT)
-    return out.astype(bool)
+    depth = render_depth(vertices, faces, R, t, canvas_intrinsics(K, s), int(width) * s, int(height) * s)
+    return depth > 0

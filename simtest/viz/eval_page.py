@@ -30,7 +30,7 @@ from simtest.metrics.bop19 import ResultRow
 from simtest.viz.dataset_page import ImageSelection, select_show_images
 from simtest.viz.draw import (BAD_COLOUR, EST_COLOUR, GT_COLOUR, box_corner_pixels, draw_box, draw_label,
                               draw_mask_contour, mesh_silhouette, to_canvas)
-from simtest.viz.sheet import hstack, legend_strip, text_strip, titled, upscale, upscale_factor, vstack
+from simtest.viz.sheet import BG, hstack, legend_strip, text_strip, titled, upscale, upscale_factor, vstack
 
 __all__ = ["EVAL_FILES", "is_eval_run", "EvalRun", "load_eval_run", "TargetError", "target_errors",
            "worst_targets", "image_index", "target_card", "image_card", "failure_cards", "eval_image_keys", "EVAL_LEGEND",
@@ -181,22 +181,19 @@ def _gt_overlay(canvas, ref: ImageRef, gt_id: int, obj, scale: int) -> np.ndarra
 
 
 def _zoom(canvas: np.ndarray, pts_canvas: np.ndarray, size: int) -> np.ndarray:
-    """A square crop of ``canvas`` around ``pts_canvas`` (with a margin), resized to ``size`` x ``size``."""
+    """A square crop of ``canvas`` around ``pts_canvas`` (with a margin; beyond the image: background),
+    resized to ``size`` x ``size``."""
     pts = pts_canvas[np.isfinite(pts_canvas).all(axis=1)]
     H, W = canvas.shape[:2]
     if not len(pts):
         return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
     lo, hi = np.clip(pts.min(axis=0), 0, [W - 1, H - 1]), np.clip(pts.max(axis=0), 0, [W - 1, H - 1])
     c, half = (lo + hi) / 2, max(24.0, 0.6 * float(np.max(hi - lo)))
-    x0, y0 = int(max(0, c[0] - half)), int(max(0, c[1] - half))
-    x1, y1 = int(min(W, c[0] + half)), int(min(H, c[1] + half))
-    crop = canvas[y0:y1, x0:x1]
-    f = size / max(crop.shape[:2])
-    crop = cv2.resize(crop, (max(1, int(crop.shape[1] * f)), max(1, int(crop.shape[0] * f))),
-                      interpolation=cv2.INTER_LINEAR if f > 1 else cv2.INTER_AREA)
-    out = np.zeros((size, size, 3), dtype=np.uint8)
-    out[:crop.shape[0], :crop.shape[1]] = crop
-    return out
+    x0, y0, n = int(c[0] - half), int(c[1] - half), int(2 * half)
+    pad = np.full((n, n, 3), BG, dtype=np.uint8)
+    sx0, sy0, sx1, sy1 = max(0, x0), max(0, y0), min(W, x0 + n), min(H, y0 + n)
+    pad[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = canvas[sy0:sy1, sx0:sx1]
+    return cv2.resize(pad, (size, size), interpolation=cv2.INTER_LINEAR if size > n else cv2.INTER_AREA)
 
 
 def image_index(run: EvalRun, objects, keys: Sequence[tuple[int, int]]):
@@ -238,7 +235,8 @@ def image_card(run: EvalRun, objects, key: tuple[int, int], index, scale: int | 
     canvas = upscale(rgb, s)
     errs = target_errors(run)
     K = ref.info["K"]
-    lines = []
+    lines: list = []
+    placed: list = []
     for j, g in enumerate(ref.info["gt"]):
         te = errs.get((ref.scene_id, ref.im_id, j))
         if te is None:
@@ -252,7 +250,7 @@ def image_card(run: EvalRun, objects, key: tuple[int, int], index, scale: int | 
         top = top[np.isfinite(top).all(axis=1)]
         if len(top):
             draw_label(canvas, f"[{j}] {obj.name} {'ok' if te.correct else 'wrong' if te.matched else 'miss'}",
-                       (top[:, 0].min(), top[:, 1].min() - 20), colour=col)
+                       (top[:, 0].min(), top[:, 1].min() - 20), colour=col, avoid=placed)
         lines.append((f"[{j}] {obj.name} v={te.visib_fract:.2f}: {te.summary()}", col))
     fps = [i for i in range(len(ests)) if i not in match.values()]
     for i in fps:
