@@ -110,24 +110,32 @@ class MeshTriangles:
     def __init__(self, verts: np.ndarray, faces: np.ndarray) -> None:
         from scipy.spatial import cKDTree
 
-        self.a, self.b, self.c = (verts[faces[:, i]] for i in range(3))
-        n = np.cross(self.b - self.a, self.c - self.a)
+        a, b, c = (verts[faces[:, i]] for i in range(3))
+        n = np.cross(b - a, c - a)
         self.normal = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        self.tree = cKDTree((self.a + self.b + self.c) / 3.0)
-        self.k = int(min(16, len(faces)))
+        # Each triangle as 4 planes: its own (distance |q.n - a.n|) and, for each edge, the in-plane outward
+        # edge normal (q.s - e0.s > 0 outside that edge); the score is the plane distance plus the largest
+        # distance outside an edge, 0 for a point in the triangle.
+        sides = []
+        for e0, e1 in ((a, b), (b, c), (c, a)):
+            side = np.cross(e1 - e0, self.normal)
+            side /= np.maximum(np.linalg.norm(side, axis=1, keepdims=True), 1e-300)
+            sides.append((side, np.einsum("ij,ij->i", e0, side)))
+        self.planes = np.stack([self.normal] + [sd for sd, _ in sides], axis=1)  # (M, 4, 3)
+        self.offsets = np.stack([np.einsum("ij,ij->i", a, self.normal)] + [o for _, o in sides], axis=1)  # (M, 4)
+        self.tree = cKDTree((a + b + c) / 3.0)
+        self.k = int(min(8, len(faces)))
 
     def _score(self, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """(N, k) distance of each point from candidate triangles ``idx`` (plane distance plus how far it lies
-        outside the edges)."""
-        a, b, c, n = self.a[idx], self.b[idx], self.c[idx], self.normal[idx]
-        q = p[:, None, :]
-        d = np.abs(np.einsum("nkj,nkj->nk", q - a, n))
-        out = np.zeros_like(d)
-        for e0, e1 in ((a, b), (b, c), (c, a)):  # signed distance outside each edge, in the triangle's plane
-            side = np.cross(e1 - e0, n)
-            side /= np.maximum(np.linalg.norm(side, axis=-1, keepdims=True), 1e-300)
-            out = np.maximum(out, np.einsum("nkj,nkj->nk", q - e0, side))
-        return d + np.maximum(out, 0.0)
+        """(N, k) distance of each point from candidate triangles ``idx`` (N, k) (plane distance plus how far
+        it lies outside the edges)."""
+        d = np.einsum("nj,nkpj->nkp", p, self.planes[idx]) - self.offsets[idx]
+        return np.abs(d[..., 0]) + np.maximum(d[..., 1:].max(-1), 0.0)
+
+    def _score_all(self, p: np.ndarray) -> np.ndarray:
+        """(N, M) the same against every triangle (matrix products)."""
+        d = np.einsum("nj,mpj->nmp", p, self.planes) - self.offsets[None]
+        return np.abs(d[..., 0]) + np.maximum(d[..., 1:].max(-1), 0.0)
 
     def normals_at(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) unit normals (geom frame) of the triangles holding ``points`` (N, 3) (geom frame)."""
@@ -138,10 +146,11 @@ class MeshTriangles:
         score = self._score(points, idx)
         best = np.argmin(score, axis=1)
         tri = idx[np.arange(len(points)), best]
-        far = score[np.arange(len(points)), best] > 1e-4  # no candidate holds the point: look at every triangle
-        for i in np.flatnonzero(far):
-            all_idx = np.arange(len(self.a))[None]
-            tri[i] = int(np.argmin(self._score(points[i:i + 1], all_idx)[0]))
+        far = np.flatnonzero(score[np.arange(len(points)), best] > 1e-4)  # no candidate holds the point
+        step = max(1, 1_000_000 // (4 * len(self.normal)))
+        for c in range(0, len(far), step):  # those points against every triangle, a chunk at a time
+            rows = far[c:c + step]
+            tri[rows] = np.argmin(self._score_all(points[rows]), axis=1)
         return self.normal[tri]
 
 

@@ -75,6 +75,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     bk.add_argument("--frames-per-scene", type=int, default=25, help="views per scene (default 25)")
     bk.add_argument("--objects", default="builtin", help="object set (default builtin)")
     bk.set_defaults(func=_backend)
+    ch = bsub.add_parser("channels", parents=[common_parser()],
+                         help="milliseconds per frame of each dense ground-truth channel (generate --channels)")
+    ch.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    ch.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    ch.add_argument("--scenes", type=int, default=2, help="scenes (default 2)")
+    ch.add_argument("--frames-per-scene", type=int, default=5, help="sequence views per scene (default 5)")
+    ch.add_argument("--objects", default="builtin", help="object set (default builtin)")
+    ch.set_defaults(func=_channels)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -145,6 +153,18 @@ def _corruptions(args: argparse.Namespace) -> int:
     from simtest.benchmarks.corruptions import run, table
 
     print(table(run(args.width, args.height, args.severity)))
+    return 0
+
+
+def _channels(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.channels import bench_channels
+
+    res = bench_channels(args.width, args.height, args.scenes, args.frames_per_scene, objects=args.objects)
+    print(f"dense channels, {res['width']}x{res['height']}, {res['frames']} frames, objects {args.objects}: "
+          "median ms per frame (computed and PNG-encoded; writing runs on the writer threads)")
+    print("| channel | ms / frame |\n|---|---:|")
+    for name, ms in res["ms_per_frame"].items():
+        print(f"| {name} | {ms:.1f} |")
     return 0
 
 

@@ -216,3 +216,38 @@ def test_a_feed_reads_the_channels_and_nocs_is_one_function_away(seq):
     assert np.all(nocs > -1e-6) and np.all(nocs < 1 + 1e-6)
     with pytest.raises(Exception, match="unknown dense channel 'depthx'"):
         PoseDataset(seq, channels=("depthx",))
+
+
+def test_coords_and_normals_on_a_textured_user_mesh(tmp_path):
+    """A user's textured OBJ (a 6 cm cube with a UV checkerboard): the coords reproject onto their pixels and
+    the normals are the cube's face normals."""
+    from tests.objects.test_appearance import write_textured_cube
+
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    write_textured_cube(lib)
+    out = tmp_path / "ds"
+    generate(_config(**{"objects": str(lib), "rig": "shell", "frames_per_scene": 2, "scene.objects_per_scene": [2, 2],
+                        "annotation.channels": ["coords", "normals", "instances"]}), out, progress=False)
+    d = _scene(out)
+    objects = load_dataset_objects(out)
+    checked = 0
+    for im, K, scale, poses, info in _frames(out):
+        code, inst = dense.read_channel(d, "coords", im), dense.read_channel(d, "instances", im)
+        n = dense.decode_normals(dense.read_channel(d, "normals", im))
+        for k, (R, t, oid) in enumerate(poses):
+            inner = cv2.erode((inst == k + 1).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            v, u = np.nonzero(inner)
+            if not len(u):
+                continue
+            X = dense.decode_coords(code[v, u], *_bbox_m(info, oid))
+            cam = X @ R.T + t
+            assert np.abs(K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2] - u).max() < 0.05
+            half = objects.get(oid).size / 2
+            face = np.argmin(half - np.abs(X - objects.get(oid).bbox[0] - half), axis=1)  # the face each point is on
+            ref = np.zeros_like(X)
+            ref[np.arange(len(X)), face] = np.sign((X - objects.get(oid).bbox[0] - half)[np.arange(len(X)), face])
+            cos = np.einsum("ij,ij->i", n[v, u], ref @ R.T)
+            assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 0.5
+            checked += len(u)
+    assert checked > 100
