@@ -46,6 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="integer upscale of the images (default: small images to at least 480 rows)")
     p.add_argument("--episodes", type=int, default=12, metavar="N",
                    help="grasp run: at most N episodes (default 12)")
+    p.add_argument("--palette", action="store_true",
+                   help="write 256-colour PNGs (a third of the size or less; for documents and reports)")
     p.set_defaults(func=run)
 
 
@@ -60,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(f"show_{Path(args.path).resolve().name or 'out'}.png")
     selection = ImageSelection(split=args.split, scene=args.scene, image=args.image, count=args.images)
     opts = ShowOptions(selection=selection, worst=args.worst, by=args.by, failures=args.failures, data=args.data,
-                       scale=args.scale, episodes=args.episodes)
+                       scale=args.scale, episodes=args.episodes, palette=args.palette)
     result = show(args.path, out, opts)
     what = {"dataset": "image", "eval": "card", "grasp": "episode"}[result.kind]
     where = result.paths[0] if len(result.paths) == 1 else f"{len(result.paths)} files in {out}"

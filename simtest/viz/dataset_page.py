@@ -109,7 +109,7 @@ def draw_instance_gt(canvas: np.ndarray, K: np.ndarray, gt: bop.ImageGT, obj, co
     draw_axes(canvas, K, R, t, axis_length(obj), scale, thickness=2)
     draw_box(canvas, box_corner_pixels(K, R, t, obj.keypoints_bbox), colour, scale, thickness=1)
     if label:
-        x, y, w, h = (gt.bbox_visib if gt.bbox_visib[2] > 0 else gt.bbox_obj)
+        x, y = (gt.bbox_visib if gt.bbox_visib[2] > 0 else gt.bbox_obj)[:2]
         org = to_canvas(np.array([[x, y]], dtype=np.float64) - 0.5, scale)[0]
         draw_label(canvas, label, (org[0], org[1] - 20), colour=colour, avoid=placed)
 

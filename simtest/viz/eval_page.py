@@ -33,7 +33,8 @@ from simtest.viz.draw import (BAD_COLOUR, EST_COLOUR, GT_COLOUR, box_corner_pixe
 from simtest.viz.sheet import BG, hstack, legend_strip, text_strip, titled, upscale, upscale_factor, vstack
 
 __all__ = ["EVAL_FILES", "is_eval_run", "EvalRun", "load_eval_run", "TargetError", "target_errors",
-           "worst_targets", "image_index", "target_card", "image_card", "failure_cards", "eval_image_keys", "EVAL_LEGEND",
+           "worst_targets", "image_index", "target_card", "image_card", "failure_cards", "eval_image_keys",
+           "EVAL_LEGEND",
            "ERROR_COLUMNS"]
 
 #: Files that make a folder an evaluation run.

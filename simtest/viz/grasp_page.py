@@ -72,9 +72,9 @@ def episode_lines(row: dict) -> list[tuple[str, tuple[int, int, int]]]:
     """The episode's outcome and pose error as coloured text lines."""
     ok = row.get("success") in ("True", "1", "true")
     col = GT_COLOUR if ok else BAD_COLOUR
+    outcome = "success" if ok else f"failed: {row.get('reason')}"
     out = [(f"episode {row.get('episode')}  {row.get('target_name')} (obj {row.get('target_obj_id')}): "
-            f"{'success' if ok else 'failed: ' + str(row.get('reason'))}, lifted {_num(row, 'lift_height') * 100:.1f} cm",
-            col)]
+            f"{outcome}, lifted {_num(row, 'lift_height') * 100:.1f} cm", col)]
     if math.isfinite(_num(row, "add_s")):
         out.append((f"estimate: ADD-S {_num(row, 'add_s') * 100:.2f} cm  re {_num(row, 're_deg'):.1f} deg  "
                     f"te {_num(row, 'te') * 100:.2f} cm  MSSD {_num(row, 'mssd') * 100:.2f} cm  "

@@ -32,7 +32,7 @@ class ShowOptions:
     """What to draw. ``selection``: the images (dataset and evaluation pages); ``worst``: the N worst targets
     by ``by``; ``failures``: the images of ``failures.csv``; ``data``: the dataset of an evaluation run (default:
     the one its ``metrics.json`` names); ``scale``: integer upscale (None: small images to >= 480 rows);
-    ``episodes``: at most this many grasp episodes."""
+    ``episodes``: at most this many grasp episodes; ``palette``: 256-colour PNGs."""
 
     selection: ImageSelection = field(default_factory=ImageSelection)
     worst: int | None = None
@@ -41,6 +41,7 @@ class ShowOptions:
     data: str | Path | None = None
     scale: int | None = None
     episodes: int = 12
+    palette: bool = False
 
 
 @dataclass(frozen=True)
@@ -140,10 +141,10 @@ def show(path: str | Path, out: str | Path, opts: ShowOptions | None = None) -> 
         sheet = grid(body, cols)
         if head is not None:
             sheet = vstack([_widen(head, sheet.shape[1]), sheet])
-        paths = [save_png(out, sheet)]
+        paths = [save_png(out, sheet, opts.palette)]
     else:
         out.mkdir(parents=True, exist_ok=True)
-        paths = [save_png(out / f"card_{i:03d}.png", c) for i, c in enumerate(cards)]
+        paths = [save_png(out / f"card_{i:03d}.png", c, opts.palette) for i, c in enumerate(cards)]
     return ShowResult(kind, paths, len(cards) - (kind != "dataset"), ms)
 
 

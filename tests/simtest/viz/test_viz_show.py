@@ -139,3 +139,14 @@ def test_drawing_takes_well_under_a_second_per_image(small_dataset):
         dataset_card(ref, objects)
     ms = (time.perf_counter() - t0) * 1000.0 / len(refs)
     assert math.isfinite(ms) and ms < 1000.0, ms
+
+
+def test_palette_pngs_are_smaller_and_the_same_size(small_dataset, tmp_path):
+    from PIL import Image
+
+    full, small = tmp_path / "full.png", tmp_path / "small.png"
+    assert main(["show", str(small_dataset), "--image", "0", "--out", str(full)]) == 0
+    assert main(["show", str(small_dataset), "--image", "0", "--palette", "--out", str(small)]) == 0
+    with Image.open(small) as im:
+        assert im.mode == "P" and im.size == _png(full).shape[1::-1]
+    assert small.stat().st_size < full.stat().st_size
