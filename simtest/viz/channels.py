@@ -21,13 +21,15 @@ import cv2
 import numpy as np
 
 from simtest.errors import DatasetError
+from simtest.io import dense
 from simtest.viz.draw import palette
 
 __all__ = ["DENSE_CHANNELS", "Colourized", "colourize_depth", "colourize_instances", "colourize_coords",
-           "colourize_normals", "colourize_flow", "decode_kitti_flow", "read_dense_channel", "dense_panels"]
+           "colourize_normals", "colourize_flow", "read_dense_channel", "dense_panels"]
 
-#: Dense channel folders looked for in a scene folder, in the order they are shown.
-DENSE_CHANNELS: tuple[str, ...] = ("instances", "coords", "normals", "flow")
+#: Dense channel folders looked for in a scene folder, in the order they are shown (the files' formats:
+#: :mod:`simtest.io.dense`).
+DENSE_CHANNELS: tuple[str, ...] = dense.CHANNEL_FOLDERS
 
 
 @dataclass(frozen=True)
@@ -82,13 +84,6 @@ def colourize_normals(normals: np.ndarray) -> Colourized:
     return Colourized(out, "normals, camera frame (RGB = x right, y down, z forward)")
 
 
-def decode_kitti_flow(raw_rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """KITTI 16-bit flow (H, W, 3) uint16 in RGB order -> ``(flow (H, W, 2) pixels, valid (H, W) bool)``."""
-    raw = np.asarray(raw_rgb).astype(np.float32)
-    flow = (raw[..., :2] - 2.0 ** 15) / 64.0
-    return flow, raw[..., 2] > 0
-
-
 def colourize_flow(flow: np.ndarray, valid: np.ndarray | None = None) -> Colourized:
     """Optical flow (H, W, 2), pixels, on the usual HSV colour wheel: hue = direction, brightness = length
     relative to the largest valid length (its 99th percentile); invalid pixels black."""
@@ -106,19 +101,19 @@ def colourize_flow(flow: np.ndarray, valid: np.ndarray | None = None) -> Colouri
 
 
 def read_dense_channel(scene_dir: Path, channel: str, im_id: int) -> np.ndarray | None:
-    """The stored array of ``channel`` for image ``im_id`` (as in the module docstring; 3-channel images in
-    RGB order), or None when the scene has no such file.
+    """The stored array of ``channel`` for image ``im_id`` (:func:`simtest.io.dense.read_channel`: 3-channel
+    images in RGB order), or None when the scene has no such file.
 
     Raises:
         DatasetError: The file exists but is not a 16-bit PNG.
     """
-    path = Path(scene_dir) / channel / f"{int(im_id):06d}.png"
-    if not path.is_file():
+    try:
+        raw = dense.read_channel(scene_dir, channel, im_id)
+    except FileNotFoundError:
         return None
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.dtype != np.uint16:
-        raise DatasetError(f"{path}: expected a 16-bit PNG")
-    return raw[..., ::-1].copy() if raw.ndim == 3 else raw
+    if raw.dtype != np.uint16:
+        raise DatasetError(f"{Path(scene_dir) / channel / f'{int(im_id):06d}.png'}: expected a 16-bit PNG")
+    return raw
 
 
 def dense_panels(scene_dir: Path, im_id: int) -> list[tuple[str, Colourized]]:
@@ -136,5 +131,5 @@ def dense_panels(scene_dir: Path, im_id: int) -> list[tuple[str, Colourized]]:
         elif name == "normals":
             out.append((name, colourize_normals(raw)))
         else:
-            out.append((name, colourize_flow(*decode_kitti_flow(raw))))
+            out.append((name, colourize_flow(*dense.decode_flow(raw))))
     return out

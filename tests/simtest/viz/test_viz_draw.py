@@ -10,7 +10,8 @@ import pytest
 from simtest.io import bop
 from simtest.io.dataset import select_images
 from simtest.objects.loaders import load_dataset_objects
-from simtest.viz.channels import colourize_depth, colourize_flow, decode_kitti_flow
+from simtest.io.dense import decode_flow as decode_kitti_flow
+from simtest.viz.channels import colourize_depth, colourize_flow
 from simtest.viz.dataset_page import draw_instance_gt, gt_canvas
 from simtest.viz.draw import box_corner_pixels, draw_box, draw_mask_contour, mesh_silhouette, palette, to_canvas
 
