@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import os
 from typing import Any
 
 import numpy as np
@@ -235,8 +236,9 @@ class PbrRenderer:
         spp: Samples per pixel (>= 1), or ``"auto"``: :func:`auto_spp` of the image size.
         denoise: Denoise with Open Image Denoise (albedo and normal AOVs as guides).
         geomgroups: Which geom groups (0-5) are drawn, as for :class:`simtest.render.rasterizer.Renderer`.
-        threads: Size of the path tracer's thread pool (process-wide, ``drjit.set_thread_count``); ``None``
-            keeps Dr.Jit's default (all cores). Several generation workers each take their share of the cores.
+        threads: Size of the path tracer's thread pool (process-wide, ``drjit.set_thread_count``) and of the
+            denoiser's (``OIDN_NUM_THREADS``, taken at the process's first denoise); ``None`` keeps their
+            defaults (all cores). Several generation workers each take their share of the cores.
         variant: ``render.pbr_variant``: ``"auto"``, ``"cuda"``, ``"llvm"`` or ``"scalar"``
             (:func:`simtest.render.llvm.choose_variant`); :attr:`variant` is the Mitsuba variant used.
 
@@ -259,6 +261,8 @@ class PbrRenderer:
             import drjit
 
             drjit.set_thread_count(max(1, int(threads)))
+            # the denoiser's pool, read when its device is made (first denoise of the process); same bytes
+            os.environ["OIDN_NUM_THREADS"] = str(max(1, int(threads)))
         self.model, self.camera = model, camera
         self.spp, self.denoise = int(spp), bool(denoise)
         camera_sensor(self._mi, camera, self.spp)  # fail early on unsupported intrinsics

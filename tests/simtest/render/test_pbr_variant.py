@@ -1,0 +1,191 @@
+"""The path tracer's variant: libLLVM found and its version read without loading it, LLVM < 16 refused, the
+fallback of ``auto`` logged once, an explicit ``llvm`` that cannot run an error, llvm_ad_rgb's bytes repeat
+across runs and worker counts, and its ground truth is the fast profile's.
+
+What depends on ``DRJIT_LIBLLVM_PATH`` runs in a subprocess: Dr.Jit reads it once, at ``import drjit``."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from simtest.render.llvm import ENV, MIN_MAJOR, find_libllvm, llvm_major
+from simtest.render.pbr import auto_spp
+
+LIBLLVM = find_libllvm({})  # the newest >= 16 in the library folders, DRJIT_LIBLLVM_PATH left aside
+OLD_LLVM = [p for p in ("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1", "/usr/lib/aarch64-linux-gnu/libLLVM-15.so.1",
+                        "/usr/lib/x86_64-linux-gnu/libLLVM-14.so.1") if os.path.exists(p)]
+needs_pbr = pytest.mark.skipif(any(importlib.util.find_spec(m) is None for m in ("mitsuba", "pyoidn")),
+                               reason="mitsuba / pyoidn not installed (pip install 'simtest[pbr]')")
+needs_llvm = pytest.mark.skipif(not LIBLLVM.usable, reason=f"no libLLVM >= {MIN_MAJOR}: {LIBLLVM.how} (e.g. "
+                                                           f"apt-get install libllvm19)")
+needs_old_llvm = pytest.mark.skipif(not OLD_LLVM, reason="no libLLVM 14 / 15 installed to be refused")
+W, H = 48, 36
+
+
+def _generate(out: Path, variant: str, env_path: str | None, workers: int = 1, scenes: int = 2,
+              profile: str = "pbr", timeout: float = 300.0) -> subprocess.CompletedProcess:
+    """``simtest generate`` (pbr, 2 spp, tiny images) in a fresh process with ``DRJIT_LIBLLVM_PATH`` set to
+    ``env_path`` (``None``: unset)."""
+    config = out.parent / f"{out.name}.toml"
+    config.write_text(f'[render]\nprofile = "{profile}"\npbr_spp = 2\npbr_variant = "{variant}"\n')
+    env = {k: v for k, v in os.environ.items() if k not in (ENV, "SIMTEST_PBR_VARIANT_NOTED")}
+    if env_path is not None:
+        env[ENV] = env_path
+    args = ["generate", "--config", str(config), "--scenes", str(scenes), "--frames-per-scene", "2", "--width",
+            str(W), "--height", str(H), "--objects", "builtin-small", "--seed", "5", "--workers", str(workers),
+            "--out", str(out)]
+    code = f"import sys; from simtest.cli import main; sys.exit(main({args!r}))"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def _digest(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha1(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != "manifest.json"}
+
+
+def _versions(root: Path) -> dict:
+    return json.loads((root / "manifest.json").read_text())["versions"]
+
+
+# --- finding libLLVM --------------------------------------------------------------------------------------
+@needs_llvm
+def test_found_library_is_the_newest_usable_and_its_version_comes_from_the_soname():
+    major, how = llvm_major(str(LIBLLVM.path))
+    assert major == LIBLLVM.major >= MIN_MAJOR and how.startswith("soname libLLVM")
+    assert os.path.isfile(str(LIBLLVM.path))
+
+
+@pytest.mark.skipif(not os.path.exists("/usr/lib/llvm-14/lib/libLLVM.so"), reason="no /usr/lib/llvm-14")
+def test_version_of_an_unversioned_file_name_is_read_from_the_elf_file():
+    assert llvm_major("/usr/lib/llvm-14/lib/libLLVM.so") == (14, "soname libLLVM-14.so.1")
+
+
+def test_version_falls_back_to_the_file_name_and_then_gives_up(tmp_path):
+    (tmp_path / "libLLVM-17.so").write_bytes(b"not an ELF file")
+    (tmp_path / "libLLVM.so").write_bytes(b"not an ELF file")
+    assert llvm_major(str(tmp_path / "libLLVM-17.so")) == (17, "file name libLLVM-17.so")
+    major, how = llvm_major(str(tmp_path / "libLLVM.so"))
+    assert major is None and "no LLVM version" in how
+    lib = find_libllvm({}, dirs=(str(tmp_path),))
+    assert lib.usable and lib.major == 17 and lib.path == str(tmp_path / "libLLVM-17.so")
+
+
+def test_missing_or_unusable_env_path_is_refused_with_the_reason(tmp_path):
+    missing = find_libllvm({ENV: str(tmp_path / "libLLVM-19.so")})
+    assert not missing.usable and "does not exist" in missing.how
+    folder = find_libllvm({ENV: str(tmp_path)})
+    assert not folder.usable and "is a folder" in folder.how
+    nothing = find_libllvm({}, dirs=(str(tmp_path),))
+    assert not nothing.usable and nothing.major is None and "found: none" in nothing.how
+
+
+@needs_old_llvm
+def test_old_library_is_refused_by_path_and_by_search():
+    lib = find_libllvm({ENV: OLD_LLVM[0]})
+    assert not lib.usable and lib.major < MIN_MAJOR and f"needs LLVM >= {MIN_MAJOR}" in lib.how
+    old_only = find_libllvm({}, dirs=("/usr/lib/llvm-1[0-5]/lib",))
+    assert not old_only.usable
+
+
+def test_auto_spp_follows_the_measured_knees():
+    assert [auto_spp(w, h) for w, h in ((48, 36), (320, 240), (424, 240), (640, 480), (1280, 960))] == \
+        [16, 16, 14, 8, 8]
+
+
+# --- variant choice, in fresh processes -------------------------------------------------------------------
+@needs_pbr
+@pytest.mark.parametrize("where", ["empty folder", "missing file"])
+def test_auto_falls_back_to_scalar_once_without_libllvm(tmp_path, where):
+    empty = tmp_path / "nolib"
+    empty.mkdir()
+    env_path = str(empty) if where == "empty folder" else str(empty / "libLLVM.so.19.1")
+    out = _generate(tmp_path / "ds", "auto", env_path, workers=2)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.count("path tracing on Mitsuba's scalar_rgb variant") == 1, out.stderr
+    assert "apt-get install libllvm19" in out.stderr and env_path in out.stderr
+    assert _versions(tmp_path / "ds")["mitsuba_variant"] == "scalar_rgb"
+    assert "libllvm" not in _versions(tmp_path / "ds")
+
+
+@needs_pbr
+def test_explicit_llvm_without_libllvm_is_an_error_before_writing(tmp_path):
+    out = _generate(tmp_path / "ds", "llvm", str(tmp_path / "missing.so"))
+    assert out.returncode == 2, out.stderr
+    assert "render.pbr_variant = 'llvm' cannot run" in out.stderr and "does not exist" in out.stderr
+    assert "apt-get install libllvm19" in out.stderr and ENV in out.stderr
+    assert not (tmp_path / "ds").exists()
+
+
+@needs_pbr
+@needs_old_llvm
+def test_too_old_libllvm_is_refused_without_a_crash(tmp_path):
+    explicit = _generate(tmp_path / "llvm", "llvm", OLD_LLVM[0])
+    assert explicit.returncode == 2, explicit.stderr
+    assert f"Mitsuba's LLVM variant needs LLVM >= {MIN_MAJOR}" in explicit.stderr and OLD_LLVM[0] in explicit.stderr
+    auto = _generate(tmp_path / "auto", "auto", OLD_LLVM[0], scenes=1)
+    assert auto.returncode == 0, auto.stderr
+    assert _versions(tmp_path / "auto")["mitsuba_variant"] == "scalar_rgb"
+
+
+@needs_pbr
+@needs_llvm
+def test_llvm_same_bytes_across_runs_and_worker_counts_and_the_fast_ground_truth(tmp_path):
+    one = _generate(tmp_path / "w1", "llvm", None, workers=1)
+    two = _generate(tmp_path / "w2", "auto", None, workers=2)  # auto: the same llvm_ad_rgb
+    assert one.returncode == 0 and two.returncode == 0, one.stderr + two.stderr
+    for run in ("w1", "w2"):
+        v = _versions(tmp_path / run)
+        assert v["mitsuba_variant"] == "llvm_ad_rgb" and v["libllvm"] == LIBLLVM.path
+        assert v["libllvm_version"].split(".")[0] == str(LIBLLVM.major)
+    assert _digest(tmp_path / "w1") == _digest(tmp_path / "w2")
+    assert _generate(tmp_path / "fast", "auto", None, profile="fast").returncode == 0
+    fast, pbr = _digest(tmp_path / "fast"), _digest(tmp_path / "w1")
+    assert fast.keys() == pbr.keys()
+    assert {k: v for k, v in fast.items() if "/rgb/" not in k} == {k: v for k, v in pbr.items() if "/rgb/" not in k}
+
+
+# --- one renderer, many views -----------------------------------------------------------------------------
+def _views_rendered(variant: str, fresh: bool, threads: int | None = None) -> list[str]:
+    from simtest.camera import CameraModel
+    from simtest.generators.config import GenerateConfig
+    from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+    from simtest.render.pbr import PbrRenderer
+
+    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 3,
+                                      "camera.width": W, "camera.height": H, "scene.objects_per_scene": [3, 3],
+                                      "seed": 3})
+    scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
+    camera = CameraModel(cfg.camera.K(), W, H)
+    renderer = PbrRenderer(scene.model, camera, spp=2, variant=variant, threads=threads)
+    out = []
+    for im_id, (cam, _) in enumerate(scene_cameras(cfg, scene)):
+        scene.set_camera(cam)
+        if fresh:
+            renderer = PbrRenderer(scene.model, camera, spp=2, variant=variant, threads=threads)
+        rgb = renderer.render(scene.data, scene.camera_id, seed=11 + im_id).rgb
+        out.append(hashlib.sha1(rgb.tobytes()).hexdigest())
+    return out
+
+
+@needs_pbr
+def test_views_of_one_scene_reuse_the_loaded_scene_with_the_same_bytes():
+    reused = _views_rendered("scalar", fresh=False)
+    assert reused == _views_rendered("scalar", fresh=True) and len(set(reused)) == 3
+
+
+@needs_pbr
+def test_thread_count_follows_the_renderer_argument():
+    import drjit
+
+    _views_rendered("scalar", fresh=False, threads=1)
+    assert drjit.thread_count() == 1
+    _views_rendered("scalar", fresh=False, threads=2)
+    assert drjit.thread_count() == 2
