@@ -5,12 +5,16 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["cache_dir"]
+__all__ = ["cache_dir", "cache_root"]
+
+
+def cache_root() -> Path:
+    """Folder for on-disk caches: ``$SIMTEST_CACHE`` or ``~/.cache/simtest`` (not created here)."""
+    return Path(os.environ.get("SIMTEST_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "simtest"))
 
 
 def cache_dir() -> Path:
-    """Folder for on-disk caches (``$SIMTEST_CACHE`` or ``~/.cache/simtest``), created if missing."""
-    root = os.environ.get("SIMTEST_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "simtest")
-    path = Path(root)
+    """:func:`cache_root`, created if missing."""
+    path = cache_root()
     path.mkdir(parents=True, exist_ok=True)
     return path

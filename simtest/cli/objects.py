@@ -243,6 +243,6 @@ def _preview_objects(objects, text: str) -> list:
 
 def _cache_folder():
     """The object cache folder that ``objects prepare`` fills (one preparer at a time)."""
-    from simtest.objects.cache import cache_dir
+    from simtest.objects.cache import cache_root
 
-    return cache_dir()
+    return cache_root()
