@@ -304,9 +304,8 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     summary["planner_obstacles"] = cfg.planner_obstacles
     summary["wall_s_total"] = time.perf_counter() - t0
     summary["command_line"] = list(command_line) if command_line is not None else None
-    summary["run"] = {"backend": cfg.backend, "ray_address": cfg.ray_address, "workers": cfg.workers,
-                      "retried": stats.retried, "lost_episodes": sorted(f.unit for f in stats.failures),
-                      "startup_s": round(stats.startup_s, 3), "cluster_cpus": stats.cluster_cpus}
+    summary["run"] = {**stats.record(cfg.workers), "backend": cfg.backend, "ray_address": cfg.ray_address,
+                      "retried": stats.retried, "lost_episodes": sorted(f.unit for f in stats.failures)}
     report = GraspRunReport(rows, summary, out, stats)
     if out is not None:
         _write_outputs(report, out)

@@ -472,11 +472,10 @@ def _record_run(manifest: Path, cfg: GenerateConfig, report: GenerateReport) -> 
         return
     data = json.loads(manifest.read_text())
     stats = report.run
-    data.setdefault("runs", []).append({
-        "backend": cfg.backend, "ray_address": cfg.ray_address, "workers": cfg.workers,
+    data.setdefault("runs", []).append({  # where it ran: workers only where they applied (not a joined cluster)
+        **stats.record(cfg.workers), "backend": cfg.backend, "ray_address": cfg.ray_address,
         "scenes_made": report.scenes_done, "scenes_skipped": report.scenes_skipped, "retried": stats.retried,
-        "lost": sorted(f.unit[0] for f in stats.failures), "startup_s": round(stats.startup_s, 3),
-        "cluster_cpus": stats.cluster_cpus, "seconds": round(report.seconds, 3)})
+        "lost": sorted(f.unit[0] for f in stats.failures), "seconds": round(report.seconds, 3)})
     atomic_write_json(manifest, data)
 
 

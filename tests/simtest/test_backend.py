@@ -51,8 +51,35 @@ def test_missing_cluster_is_one_clear_error():
 
     if ray.is_initialized():
         pytest.skip("a Ray instance is already running in this process")
-    with pytest.raises(BackendError, match="cannot start Ray at 127.0.0.1:1"):
+    with pytest.raises(BackendError, match="cannot join Ray at 127.0.0.1:1: nothing accepts connections there"):
         list(run_units(_square_plus, [1], Backend("ray", 1, address="127.0.0.1:1")))
+
+
+def test_a_ray_client_address_without_ray_client_is_refused_before_any_output(tmp_path):
+    """``ray://`` needs Ray Client (``ray[client]``: grpcio); without it the refusal names the extra, and
+    generate writes nothing."""
+    pytest.importorskip("ray")
+    from ray._private.utils import get_ray_client_dependency_error
+
+    from simtest.backend import preflight
+
+    if get_ray_client_dependency_error() is None:
+        pytest.skip("Ray Client is installed here")
+    with pytest.raises(BackendError, match=r"ray://127.0.0.1:1: ray:// addresses need Ray Client.*"
+                                           r"pip install 'ray\[client\]==.*HOST:PORT without ray://"):
+        preflight(Backend("ray", 1, address="ray://127.0.0.1:1"))
+
+
+def test_run_records_say_where_it_ran():
+    joined = RunStats(backend="ray", finished=4, cluster="joined", address="h:6379", nodes=2, cluster_cpus=8,
+                      startup_s=0.91)
+    assert joined.summary() == "ray: 4 units done, 0 retried, 0 failed (joined h:6379 in 0.9 s: 2 nodes, 8 CPUs)"
+    assert joined.record(5) == {"backend": "ray", "ray_address": "h:6379", "cluster": "joined", "nodes": 2,
+                                "cluster_cpus": 8, "startup_s": 0.91}  # no workers: they did not apply
+    started = RunStats(backend="ray", cluster="started", nodes=1, cluster_cpus=2, startup_s=3.0)
+    assert started.record(2)["workers"] == 2 and "local Ray instance started in 3.0 s: 1 node, 2 CPUs" in \
+        started.summary()
+    assert RunStats().record(3) == {"backend": "local", "ray_address": None, "workers": 3}
 
 
 def test_local_in_process_and_pool_agree():
@@ -128,7 +155,7 @@ def test_an_unreachable_cluster_fails_before_any_output_is_written(tmp_path):
     cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 1,
                                       "camera.width": 64, "camera.height": 48, "backend": "ray",
                                       "ray_address": "127.0.0.1:1"})
-    with pytest.raises(BackendError, match="no Ray head node answers there"):
+    with pytest.raises(BackendError, match="nothing accepts connections there"):
         generate(cfg, tmp_path / "data", progress=False)
     assert not (tmp_path / "data").exists()
     generate(cfg.replace(backend="local", ray_address=None), tmp_path / "data", progress=False)
