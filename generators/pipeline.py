@@ -28,6 +28,7 @@ from simtest.generators.config import GenerateConfig
 from simtest.generators.dense import DenseViews
 from simtest.generators.views_behind import ViewsBehind
 from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
+from simtest.io.bop_targets import TARGETS_BOP19, TARGETS_BOP24, write_targets
 from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
 from simtest.rng import child_rng
@@ -299,7 +300,7 @@ def _check_out_dir(out: Path, cfg: GenerateConfig, resume: bool, overwrite: bool
 
 def _is_generated(name: str, cfg: GenerateConfig) -> bool:
     """Whether a top-level entry of a dataset folder is one ``generate`` writes (or its atomic temporary)."""
-    return name in (MANIFEST, "camera.json", "models", cfg.split, WITHHELD) or (
+    return name in (MANIFEST, "camera.json", "models", cfg.split, WITHHELD, TARGETS_BOP19, TARGETS_BOP24) or (
         name.startswith(".") and name.endswith(".tmp"))
 
 
@@ -376,6 +377,8 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     try:
         run_scenes(cfg, objects, todo, split_dir, report, bar)
         _write_models(objects, out / "models", split_dir, scenes_done=True, unlabelled=cfg.unlabelled)
+        write_targets(out, [(int(d.name), withheld_dir(split_dir, int(d.name)) if cfg.unlabelled else d)
+                            for d in scene_dirs(split_dir)])
         failed = False
     finally:
         if bar is not None:
