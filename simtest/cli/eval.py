@@ -30,9 +30,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
                    help="estimator option (repeatable); values parse as int, float, bool (true/false), none, "
                         "a [list] or 'quoted string', else string; e.g. --opt rot_noise_deg=5")
-    p.add_argument("--targets", default="gt-masks", choices=("gt-masks", "none"),
+    p.add_argument("--targets", default=None, choices=("gt-masks", "none"),
                    help="give the estimator the target object ids, plus their ground-truth visible masks if it "
-                        "declares needs_gt_masks (runs labelled 'NAME (GT masks)') (default), or nothing")
+                        "declares needs_gt_masks (runs labelled 'NAME (GT masks)') (default), or nothing; "
+                        "localization only")
+    p.add_argument("--task", default="localization", choices=("localization", "detection"),
+                   help="localization (BOP19, default): the estimator is told which objects each image holds and "
+                        "how many; detection (BOP24): it is told nothing, returns any number of scored estimates "
+                        "(100 kept per image) and is scored by AP_MSSD, AP_MSPD and their mean, plus top-1 "
+                        "classification per category")
     p.add_argument("--split", default="train_pbr", help="split folder (default: train_pbr)")
     p.add_argument("--labels", metavar="DIR",
                    help="withheld labels of an unlabelled split (DIR/SPLIT/SCENE/scene_gt.json); default "
@@ -65,9 +71,11 @@ def run(args: argparse.Namespace) -> int:
             scenes = [int(s) for s in args.scenes.split(",") if s.strip()]
         except ValueError:
             raise ConfigError(f"--scenes must be comma-separated integers, got {args.scenes!r}") from None
+    if args.task == "detection" and args.targets is not None:
+        raise ConfigError("--targets applies to --task localization; the detection task tells the estimator nothing")
     common = dict(split=args.split, scenes=scenes, max_images=args.max_images, vsd=not args.no_vsd,
                   progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite, labels=args.labels,
-                  tracking=True if args.tracking else None)
+                  tracking=True if args.tracking else None, task=args.task)
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")
@@ -77,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         backend, stats = backend_from_args(args), RunStats()
         try:
-            report = evaluate(args.data, args.estimator, targets=args.targets,
+            report = evaluate(args.data, args.estimator, targets=args.targets or "gt-masks",
                               estimator_options=parse_options(args.opt), timeout=args.timeout,
                               fail_fast=args.fail_fast, backend=backend, stats=stats, **common)
         except EstimatorError as exc:

@@ -100,11 +100,12 @@ class Observation:
             :class:`~simtest.objects.ObjectModel` (mesh, vertices, surface samples with normals, symmetries,
             keypoints, diameter; metres, model frame).
         target_obj_ids: Objects to estimate, one entry per instance, as BOP's localisation task names them
-            (``None``: whatever the estimator finds).
+            (``None``: whatever the estimator finds, as always in the detection task).
         masks: Per-target ground-truth visible masks (H, W) bool, same order as ``target_obj_ids``; only for
             estimators declaring ``needs_gt_masks`` (or ``needs_gt``), ``None`` otherwise.
         boxes: Per-target ground-truth visible boxes [x, y, w, h] (pixels); given with ``masks``.
-        gt_poses: Ground-truth ``(R, t)`` per target; only for ``needs_gt`` (the ``oracle``), ``None`` otherwise.
+        gt_poses: Ground-truth ``(R, t)`` per target; only for ``needs_gt`` (the ``oracle``), ``None`` otherwise;
+            in the detection task their object ids are ``gt_obj_ids`` (``needs_targets = False`` oracles).
         scene_id, im_id: Where the image came from (for logging).
         frame_index: Position of the image within its scene (sequence) in this evaluation, from 0; ``-1`` when
             unknown. Frames of a scene come in order; ``reset()`` is called before frame 0.
@@ -129,6 +130,7 @@ class Observation:
     frame_index: int = -1
     track_ids: tuple[int, ...] | None = None
     init_poses: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+    gt_obj_ids: tuple[int, ...] | None = None
 
     def rng(self, seed: int) -> np.random.Generator:
         """An estimator's generator for this image: seeded by ``(seed, scene_id, im_id)``, so results do not

@@ -13,9 +13,23 @@ With zero noise every metric must report a perfect score; with noise the errors 
 
 The random stream is ``np.random.default_rng([seed, scene_id, im_id])``: the same seed gives the same noise
 for an image however the images are ordered or split between runs.
+
+Detection mode (``simtest eval --task detection``; the oracle declares ``needs_targets = False``, so it is
+given ``gt_poses`` with their ``gt_obj_ids`` and no target ids), with options that make the AP path testable:
+
+* ``false_positives``: the mean number (Poisson) of false positives per image: a random object of the set at a
+  random rotation, 2 to 4 of its diameters away from a random target (or 0.6 m ahead without targets);
+* ``duplicates``: the probability that an estimate gets a second one, 20 mm away, at 0.9 times its score;
+* ``random_scores``: scores uniform in [0.5, 1] for the estimates and in [0, 1] for false positives (else 1.0
+  and 0.5).
+
+These draw from a second stream, ``default_rng([seed, scene_id, im_id, 1])``, so the estimates of the targets
+are the same with and without them (the options work in localization runs too).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -52,15 +66,21 @@ class OracleEstimator:
         seed: Seed of the noise (combined with scene and image ids).
         drop_rate: Probability in [0, 1] of giving no estimate for a target.
         rot_noise_mode: ``"halfnormal"`` or ``"fixed"`` (applies to both rotation and translation).
+        false_positives: Mean number of false positives per image (Poisson), >= 0.
+        duplicates: Probability in [0, 1] of a second estimate beside an estimate.
+        random_scores: Random scores instead of constant ones (see the module doc).
 
     Attributes:
         needs_gt: Always True: the evaluation passes ground-truth poses in ``Observation.gt_poses``.
+        needs_targets: False: in the detection task it runs from ``gt_poses`` and ``gt_obj_ids``.
     """
 
     needs_gt = True
+    needs_targets = False
 
     def __init__(self, rot_noise_deg: float = 0.0, trans_noise_mm: float = 0.0, seed: int = 0,
-                 drop_rate: float = 0.0, rot_noise_mode: str = "halfnormal") -> None:
+                 drop_rate: float = 0.0, rot_noise_mode: str = "halfnormal", false_positives: float = 0.0,
+                 duplicates: float = 0.0, random_scores: bool = False) -> None:
         if not rot_noise_deg >= 0:
             raise ConfigError(f"oracle: rot_noise_deg must be >= 0 degrees, got {rot_noise_deg!r}")
         if not trans_noise_mm >= 0:
@@ -69,7 +89,13 @@ class OracleEstimator:
             raise ConfigError(f"oracle: drop_rate must be in [0, 1], got {drop_rate!r}")
         if rot_noise_mode not in _MODES:
             raise ConfigError(f"oracle: rot_noise_mode must be one of {', '.join(_MODES)}, got {rot_noise_mode!r}")
+        if not false_positives >= 0:
+            raise ConfigError(f"oracle: false_positives must be >= 0 per image, got {false_positives!r}")
+        if not 0.0 <= duplicates <= 1.0:
+            raise ConfigError(f"oracle: duplicates must be in [0, 1], got {duplicates!r}")
         check_int_options("oracle", ("seed", seed, 0))
+        self.false_positives, self.duplicates = float(false_positives), float(duplicates)
+        self.random_scores = bool(random_scores)
         self.rot_noise = float(np.radians(rot_noise_deg))
         self.trans_noise = float(trans_noise_mm) / 1000.0  # option given in mm; metres inside
         self.seed = int(seed)
@@ -79,20 +105,22 @@ class OracleEstimator:
     def __repr__(self) -> str:
         return (f"OracleEstimator(rot_noise_deg={np.degrees(self.rot_noise):g}, "
                 f"trans_noise_mm={self.trans_noise * 1000:g}, seed={self.seed}, drop_rate={self.drop_rate:g}, "
-                f"rot_noise_mode={self.mode!r})")
+                f"rot_noise_mode={self.mode!r}, false_positives={self.false_positives:g}, "
+                f"duplicates={self.duplicates:g}, random_scores={self.random_scores})")
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
-        """One estimate per target, from ``observation.gt_poses``.
+        """One estimate per target, from ``observation.gt_poses`` (and the extras of the module doc).
 
         Raises:
-            ConfigError: The observation carries no ground-truth poses or target ids.
+            ConfigError: The observation carries no ground-truth poses or object ids.
         """
-        if observation.gt_poses is None or observation.target_obj_ids is None:
+        ids = observation.target_obj_ids if observation.target_obj_ids is not None else observation.gt_obj_ids
+        if observation.gt_poses is None or ids is None:
             raise ConfigError("oracle: the observation has no gt_poses / target_obj_ids; evaluate with "
                               "targets='gt-masks' (the oracle needs ground-truth targets)")
         rng = observation.rng(self.seed)
         out = []
-        for k, (obj_id, (R_g, t_g)) in enumerate(zip(observation.target_obj_ids, observation.gt_poses)):
+        for k, (obj_id, (R_g, t_g)) in enumerate(zip(ids, observation.gt_poses)):
             # Draw every number whether or not it is used, so options do not shift the stream.
             drop = rng.random() < self.drop_rate
             axis, u_rot = random_unit_vector(rng), rng.normal()
@@ -107,4 +135,29 @@ class OracleEstimator:
             t = np.asarray(t_g, dtype=np.float64) + dt
             out.append(PoseEstimate(obj_id=int(obj_id), R=R, t=t, score=1.0, target_index=k,
                                     info={"rot_noise_rad": float(angle), "trans_noise_m": float(np.linalg.norm(dt))}))
+        if self.false_positives or self.duplicates or self.random_scores:
+            out = self._extras(observation, out)
         return out
+
+    def _extras(self, obs: Observation, out: list[PoseEstimate]) -> list[PoseEstimate]:
+        """``out`` with random scores, duplicates and false positives (see the module doc), from the second
+        stream."""
+        rng = np.random.default_rng([self.seed, max(obs.scene_id, 0), max(obs.im_id, 0), 1])
+        extra: list[PoseEstimate] = []
+        for i, e in enumerate(out):
+            score = float(rng.uniform(0.5, 1.0)) if self.random_scores else e.score
+            out[i] = e = replace(e, score=score)
+            if rng.random() < self.duplicates:
+                extra.append(replace(e, t=e.t + random_unit_vector(rng) * 0.02, score=0.9 * score,
+                                     info={**e.info, "duplicate": True}))
+        ids = list(obs.objects.ids)
+        for _ in range(int(rng.poisson(self.false_positives)) if self.false_positives else 0):
+            obj_id = int(ids[rng.integers(len(ids))])
+            R = axis_angle_matrix(random_unit_vector(rng), float(rng.uniform(0, np.pi)))
+            diameter = float(obs.objects.get(obj_id).diameter)
+            base = (np.asarray(obs.gt_poses[rng.integers(len(obs.gt_poses))][1], np.float64) if obs.gt_poses
+                    else np.array([0.0, 0.0, 0.6]))
+            t = base + random_unit_vector(rng) * diameter * float(rng.uniform(2.0, 4.0))
+            extra.append(PoseEstimate(obj_id=obj_id, R=R, t=t, score=float(rng.random()) if self.random_scores
+                                      else 0.5, info={"false_positive": True}))
+        return out + extra

@@ -26,18 +26,39 @@ from simtest.objects.loaders import load_dataset_objects
 log = logging.getLogger(__name__)
 
 
+def targets_needed(estimator: Any) -> str | None:
+    """Why an (instantiated) estimator cannot run without being told the targets (the detection task, where
+    ``Observation.target_obj_ids`` is ``None``), or ``None`` when it can. An explicit ``needs_targets``
+    attribute decides; without one, ``needs_gt_masks`` (masks and boxes are given per target),
+    ``needs_gt_init`` (first poses per target) or ``needs_gt`` mean it needs them. An oracle that detects
+    declares ``needs_gt = True`` and ``needs_targets = False``: it is given ``gt_poses`` and ``gt_obj_ids``."""
+    explicit = getattr(estimator, "needs_targets", None)
+    if explicit is not None:
+        return "it declares needs_targets = True" if explicit else None
+    for attr in ("needs_gt_masks", "needs_gt_init", "needs_gt"):
+        if getattr(estimator, attr, False):
+            return f"it declares {attr} = True (ground truth given per target) and not needs_targets = False"
+    return None
+
+
 def observation(ref: ImageRef, objects, targets: str, width: int, height: int, needs_gt: bool,
                  gt_masks: bool = False, frame_index: int = -1,
-                 initialised: set[int] | None = None) -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
+                 initialised: set[int] | None = None,
+                 task: str = "localization") -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
     """The estimator's view of one image: ground-truth masks and boxes only with ``gt_masks``, poses only with
     ``needs_gt`` (see the module doc). With ``initialised`` (a ``needs_gt_init`` estimator: the ``gt_id`` of the
     scene's targets already given a pose), the targets' track ids, and the ground-truth pose of each target not
-    in it (then added)."""
+    in it (then added). In the ``"detection"`` task no target id, count, mask or box is given; a ``needs_gt``
+    estimator (an oracle with ``needs_targets = False``) gets ``gt_poses`` and ``gt_obj_ids`` of the targets."""
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"])
     tg = image_targets(ref, VISIB_GT_MIN)
     kw: dict[str, Any] = {}
-    if targets == "gt-masks":
+    if task == "detection":
+        if needs_gt:
+            kw["gt_poses"] = tuple((g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy()) for _, g in tg)
+            kw["gt_obj_ids"] = tuple(g.obj_id for _, g in tg)
+    elif targets == "gt-masks":
         kw["target_obj_ids"] = tuple(g.obj_id for _, g in tg)
         if gt_masks or needs_gt:
             kw["masks"] = tuple(bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) for j, _ in tg)
@@ -108,7 +129,7 @@ def _stop(est: Any, failure: dict[str, Any], trace: str) -> None:
 class WorkerSetup:
     """What a worker needs besides the estimator and the objects: the dataset root, how targets are given,
     the image size (pixels), the time limit (s), ``fail_fast`` and whether the estimator is a tracker given
-    each target's first ground-truth pose (``needs_gt_init``)."""
+    each target's first ground-truth pose (``needs_gt_init``), and the task (``localization`` or ``detection``)."""
 
     root: str
     targets: str
@@ -119,6 +140,7 @@ class WorkerSetup:
     timeout: float | None
     fail_fast: bool
     gt_init: bool = False
+    task: str = "localization"
 
 
 @dataclass(frozen=True)
@@ -176,7 +198,7 @@ def _run_shard(shard: _Shard) -> _ShardResult:
     initialised: set[int] = set()
     for frame, ref in enumerate(shard.refs):
         obs, _ = observation(ref, objects, s.targets, s.width, s.height, s.needs_gt, s.gt_masks, frame,
-                              initialised if s.gt_init else None)
+                              initialised if s.gt_init else None, s.task)
         dt, failed = estimate_image(est, obs, ref, known, s.timeout, out.results, out.scales, out.failures,
                                     s.fail_fast)
         out.times.append(dt)

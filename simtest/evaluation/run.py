@@ -64,7 +64,8 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, load_estimator,
                                      needs_gt_init)
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
-from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards
+from simtest.evaluation.detection import keep_top_per_image, score_detection
+from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards, targets_needed
 from simtest.evaluation.tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
 from simtest.io.bop_results import read_bop_results, write_bop_results
 from simtest.io.dataset import image_size, select_images
@@ -76,11 +77,13 @@ from simtest.evaluation.scoring import aggregate_by_category, has_categories, sc
 from simtest.evaluation.tables import failure_counts, format_table, overall_table
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
-           "NDEG_MCM", "format_table", "overall_table", "failure_counts"]
+           "TASKS", "NDEG_MCM", "format_table", "overall_table", "failure_counts"]
 
 
 #: How targets are given to the estimator.
 TARGET_MODES = ("gt-masks", "none")
+#: What the estimator is asked: BOP19 localization (told the objects and their counts) or BOP24 detection.
+TASKS = ("localization", "detection")
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -106,6 +109,8 @@ class EvalReport:
         per_category: ``{category: metrics}`` (the per-object keys plus ``num_objects``) when the dataset's
             objects fall into categories (:func:`simtest.evaluation.scoring.has_categories`), else empty.
         tracking: The tracking scores of a sequence evaluation (:mod:`simtest.evaluation.tracking`), else ``None``.
+        classification: In the detection task, one row per target of the class-agnostic matching
+            (:func:`simtest.evaluation.detection.classification_rows`; ``classification.csv``), else empty.
     """
 
     overall: dict[str, Any]
@@ -120,6 +125,7 @@ class EvalReport:
     num_failed_images: int = 0
     per_category: dict[str, dict[str, Any]] = field(default_factory=dict)
     tracking: TrackingReport | None = None
+    classification: list[dict[str, Any]] = field(default_factory=list)
 
     def all_images_failed(self) -> bool:
         """Whether the estimator failed on every image (raised, exited, timed out, returned no list, or
@@ -144,7 +150,7 @@ class EvalReport:
                 **({"per_category": {k: jsonable(v) for k, v in self.per_category.items()}}
                    if self.per_category else {}),
                 "num_failures": len(self.failures), "failures_by_kind": failure_counts(self.failures),
-                "definitions": METRIC_DEFINITIONS}
+                "definitions": definitions(self.settings.get("task", "localization"))}
 
 
 #: Definitions written into ``metrics.json`` (from :mod:`simtest.metrics.registry`).
@@ -159,7 +165,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              estimator_options: dict[str, Any] | None = None,
              timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
              fail_fast: bool = False, labels: str | Path | None = None, tracking: bool | None = None,
-             backend: Backend | None = None, stats: RunStats | None = None) -> EvalReport:
+             backend: Backend | None = None, stats: RunStats | None = None,
+             task: str = "localization") -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -194,6 +201,9 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
             objects once; a unit of work is one scene, its images in frame order (see :func:`scene_shards`).
             The outputs are the same for every back end and worker count but for the measured times.
         stats: Filled with the units finished, retried and failed (:class:`simtest.backend.RunStats`).
+        task: ``"localization"`` (BOP19: the estimator is told the targets as ``targets`` says) or
+            ``"detection"`` (BOP24: it is told nothing, ``targets`` is ignored; an estimator that needs the
+            targets is refused; scored by :mod:`simtest.evaluation.detection` as well).
 
     Returns:
         The :class:`EvalReport`.
@@ -215,13 +225,16 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     """
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
+    _check_task(task)
     root = Path(dataset_dir)
     preflight(backend or Backend())  # before the output is touched
     _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
     gt_masks, needs_gt = gt_access(est)
     gt_init = needs_gt_init(est)
-    if (needs_gt or gt_init) and targets == "none":
+    if task == "detection":  # nothing is told about the image: refuse an estimator that needs it
+        targets, gt_masks, gt_init = _refuse_targets(estimator, est)
+    if (needs_gt or gt_init) and targets == "none" and task != "detection":
         raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt or needs_gt_init = True); "
                           "use targets='gt-masks'")
     gt_masks = gt_masks and targets == "gt-masks"
@@ -234,9 +247,11 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     stats = stats if stats is not None else RunStats()
     run = run_scene_shards(est, estimator, estimator_options, scene_shards(refs), backend, stats, progress,
                       WorkerSetup(str(root.resolve()), targets, width, height, needs_gt, gt_masks, limit, fail_fast,
-                                   gt_init),
+                                   gt_init, task),
                       objects)
     results, scales, failures, times, failed_images = run
+    if task == "detection":  # the highest-scored 100 per image, as the BOP toolkit reads them
+        results, scales = _keep_top(results, scales)
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
                                                        scales=scales, progress=False, _refs=refs)
     overall["num_images"] = len(refs)
@@ -253,15 +268,53 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
                 "labels": None if labels is None else str(labels), "backend": backend.name,
-                "workers": backend.workers}
+                "workers": backend.workers, **({"task": task} if task == "detection" else {})}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
+    if task == "detection":
+        _add_detection(report, refs, results, objects, width)
     if tracking or (tracking is None and is_sequence_dataset(root)):
         report.tracking = score_tracking(root, results, refs, objects, label=settings["estimator"])
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
+
+
+def _refuse_targets(spec: Any, est: Any) -> tuple[str, bool, bool]:
+    """``(targets, gt_masks, gt_init)`` of a detection run; :class:`ConfigError` when the estimator cannot run
+    without being told the targets."""
+    why = targets_needed(est)
+    if why is not None:
+        raise ConfigError(f"estimator {spec if isinstance(spec, str) else type(est).__name__!r} cannot run the "
+                          f"detection task, which tells no target ids or counts: {why}")
+    return "none", False, False
+
+
+def _keep_top(results: list[ResultRow], scales: list[float]) -> tuple[list[ResultRow], list[float]]:
+    """The rows (and their scales) among the 100 of highest score of their image, in their order."""
+    kept = {id(r) for r in keep_top_per_image(results)}
+    pairs = [(r, s) for r, s in zip(results, scales, strict=True) if id(r) in kept]
+    return [r for r, _ in pairs], [s for _, s in pairs]
+
+
+def _check_task(task: str) -> None:
+    if task not in TASKS:
+        raise ConfigError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
+
+
+def _add_detection(report: EvalReport, refs, results: list[ResultRow], objects, width: int) -> None:
+    """Add the detection task's scores (BOP24 AP, classification) to ``report``: into ``overall``,
+    ``per_object`` and ``per_category``; the per-target classification rows into ``classification``."""
+    categories = {e.obj_id: e.category for e in objects.entries}
+    det = score_detection(refs, results, {o.obj_id: o for o in objects}, categories, width,
+                          has_categories(categories))
+    report.overall.update(det.overall)
+    for o, m in det.per_object.items():
+        report.per_object.setdefault(o, {}).update(m)
+    for c, m in det.per_category.items():
+        report.per_category.setdefault(c, {}).update(m)
+    report.classification = det.rows
 
 
 def _per_category(objects, rows: list[dict[str, Any]], per_object: dict[int, dict[str, Any]]
@@ -283,7 +336,8 @@ def _describe(spec: Any, est: Any) -> str:
 def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
                   progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
-                  labels: str | Path | None = None, tracking: bool | None = None) -> EvalReport:
+                  labels: str | Path | None = None, tracking: bool | None = None,
+                  task: str = "localization") -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -295,14 +349,19 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         split, scenes, max_images, vsd, progress: As in :func:`evaluate`.
         out_dir: Write ``metrics.json``, ``errors.csv``, ``failures.csv`` (rows referring to unknown images
             or objects) and ``metrics.md``.
-        overwrite, labels, tracking: As in :func:`evaluate`.
+        overwrite, labels, tracking, task: As in :func:`evaluate` (with ``"detection"`` the 100 rows of
+            highest score per image are scored, as the BOP toolkit reads the file).
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
     """
+    _check_task(task)
     root = Path(dataset_dir)
     _check_out(out_dir, root, overwrite)
     rows = read_bop_results(results_csv)
+    if task == "detection":
+        kept = {id(r) for r in keep_top_per_image(rows)}
+        rows = [r for r in rows if id(r) in kept]
     objects = load_dataset_objects(root)
     refs = select_images(root, split, scenes, max_images, objects.ids, labels)
     selected = {(r.scene_id, r.im_id) for r in refs}
@@ -327,10 +386,13 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     overall["median_time_per_image_s"] = float(np.median(t)) if t else float("nan")
     settings = {"dataset": str(root), "split": split, "results": str(results_csv),
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "labels": None if labels is None else str(labels)}
+                "vsd": bool(vsd), "labels": None if labels is None else str(labels),
+                **({"task": task} if task == "detection" else {})}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))
+    if task == "detection":
+        _add_detection(report, refs, used, objects, image_size(root)[0])
     if tracking or (tracking is None and is_sequence_dataset(root)):
         report.tracking = score_tracking(root, used, refs, objects, label=str(results_csv))
     if out_dir is not None:
@@ -342,6 +404,8 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
 # Output files
 _ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diameter_m", "symmetric", "matched",
                   "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale"]
+_CLASSIFICATION_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "category", "matched", "est_obj_id",
+                           "est_category", "classified", "re_sym"]
 _FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type", "traceback"]
 
 
@@ -359,5 +423,8 @@ def _write_outputs(report: EvalReport, out: Path, write_results: bool) -> None:
     atomic_write_text(paths["errors"], csv_text(report.errors, _ERROR_COLUMNS))
     atomic_write_text(paths["failures"], csv_text(report.failures, _FAILURE_COLUMNS))
     atomic_write_text(paths["table"], format_table(report))
+    if report.settings.get("task") == "detection":
+        paths["classification"] = out / "classification.csv"
+        atomic_write_text(paths["classification"], csv_text(report.classification, _CLASSIFICATION_COLUMNS))
     if report.tracking is not None:
         report.paths.update(write_tracking(report.tracking, out))

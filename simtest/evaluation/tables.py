@@ -14,7 +14,8 @@ from simtest.metrics.bop19 import VISIB_GT_MIN
 from simtest.metrics.registry import NDEG_MCM, metric
 
 __all__ = ["format_table", "category_table", "metric_table", "overall_table", "failure_counts", "TABLE_METRICS",
-           "SUMMARY_METRICS", "CATEGORY_METRICS"]
+           "SUMMARY_METRICS", "CATEGORY_METRICS", "DETECTION_TABLE_METRICS", "DETECTION_CATEGORY_METRICS",
+           "DETECTION_SUMMARY_METRICS"]
 
 #: Metric keys of the Markdown table's columns (after the object name), in order. ``ar_vsd`` is dropped when
 #: VSD was not evaluated.
@@ -23,6 +24,16 @@ TABLE_METRICS: tuple[str, ...] = ("num_targets", "add_s_or_add_01d", "auc_adds",
                                   "ar", "ar_vsd", "ar_mssd", "ar_mspd")
 #: Metric keys of the per-category table's columns (after the category name), in order.
 CATEGORY_METRICS: tuple[str, ...] = ("num_objects", *TABLE_METRICS)
+#: The same for the detection task (``settings.task == "detection"``): BOP24 AP and classification first.
+DETECTION_TABLE_METRICS: tuple[str, ...] = ("num_targets", "ap", "ap_mssd", "ap_mspd", "ap_mssd_mm", "cls_acc",
+                                            "cls_acc_pi_6", "cls_acc_pi_18", "cls_median_re_deg",
+                                            "add_s_or_add_01d", "median_te_m")
+DETECTION_CATEGORY_METRICS: tuple[str, ...] = ("num_objects", "num_targets", "cls_acc", "cls_acc_pi_6",
+                                               "cls_acc_pi_18", "cls_median_re_deg", "ap", "ap_mssd", "ap_mspd",
+                                               "ap_mssd_mm")
+DETECTION_SUMMARY_METRICS: tuple[str, ...] = (
+    "ap", "ap_mssd", "ap_mspd", "ap_mssd_mm", "cls_acc", "cls_acc_pi_6", "cls_acc_pi_18", "cls_median_re_deg",
+    "num_targets", "num_estimates", "num_failures", "mean_time_per_image_s")
 #: Metric keys of the terminal summary, in order.
 SUMMARY_METRICS: tuple[str, ...] = (
     "add_s_or_add_01d", "auc_adds", "auc_add_s_or_add", "adds_lt_2cm", "acc_pi_6", "acc_pi_18", "median_re_deg",
@@ -46,11 +57,16 @@ def _vsd_on(report: Any) -> bool:
     return bool(report.settings.get("vsd", True))
 
 
+def _detection(report: Any) -> bool:
+    return report.settings.get("task") == "detection"
+
+
 def format_table(report: Any) -> str:
     """Markdown tables of an :class:`~simtest.evaluation.run.EvalReport`: one row per object and one overall; units in
     the headers (percent, degrees, centimetres)."""
     rows = [(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
-    table = metric_table("Object", TABLE_METRICS, rows + [("**All**", report.overall)], _vsd_on(report))
+    table = metric_table("Object", DETECTION_TABLE_METRICS if _detection(report) else TABLE_METRICS,
+                         rows + [("**All**", report.overall)], _vsd_on(report))
     s = report.settings
     o = report.overall
     title = s.get("estimator") or s.get("results", "")
@@ -59,10 +75,18 @@ def format_table(report: Any) -> str:
               f"{_kinds_text(report.failures)}; "
               f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
-              "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n")
+              "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n"
+              + (_DETECTION_NOTE if _detection(report) else ""))
     text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + table + footer
     per_category = getattr(report, "per_category", None)
     return text + ("\n" + category_table(report) if per_category else "")
+
+
+_DETECTION_NOTE = ("Detection task: no target ids or counts given; at most 100 estimates per image. AP: BOP24 "
+                   "(mean of AP_MSSD and AP_MSPD; COCO-style, 101 recall points, instances with visib_fract < 0.1 "
+                   "ignored), per object, All = mean over objects. Cls: top-1 category of the class-agnostic "
+                   "match (nearest centre within half the diameter); Cls Acc@π/6, Acc@π/18 also need the "
+                   "rotation; ADD(-S) and te by the per-object nearest-translation matching.\n")
 
 
 def category_table(report: Any) -> str:
@@ -71,8 +95,8 @@ def category_table(report: Any) -> str:
     if not getattr(report, "per_category", None):
         return ""
     overall = {**report.overall, "num_objects": sum(m["num_objects"] for m in report.per_category.values())}
-    table = metric_table("Category", CATEGORY_METRICS, [*report.per_category.items(), ("**All**", overall)],
-                         _vsd_on(report))
+    table = metric_table("Category", DETECTION_CATEGORY_METRICS if _detection(report) else CATEGORY_METRICS,
+                         [*report.per_category.items(), ("**All**", overall)], _vsd_on(report))
     return (f"#### Per category ({len(report.per_category)} categories)\n\n" + table +
             "Acc@π/6, Acc@π/18: the viewpoint protocol's rotation accuracy, e = ||logm(R_p^T R_gt)||_F / √2 "
             "(smallest over the object's symmetries; misses count as π).\n")
@@ -82,7 +106,7 @@ def overall_table(report: Any) -> str:
     """A short plain-text summary of the overall scores (for terminals): label, value and unit per line."""
     o = report.overall
     items = []
-    for k in SUMMARY_METRICS:
+    for k in DETECTION_SUMMARY_METRICS if _detection(report) else SUMMARY_METRICS:
         m = metric(k)
         digits = 2 if k in ("median_re_deg", "median_te_m") else None
         text = m.format(o.get(k), digits) if k in o else ""

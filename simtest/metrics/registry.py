@@ -34,6 +34,8 @@ class Metric:
         higher_is_better: Direction (``None`` for counts and timings, which have none).
         digits: Decimals shown.
         sweepable: Whether a sweep may tabulate it (pose-accuracy metrics, not counts).
+        task: ``"detection"`` for the metrics only the detection task computes (BOP24 AP, classification;
+            :mod:`simtest.evaluation.detection`), ``None`` for the others.
     """
 
     key: str
@@ -44,6 +46,7 @@ class Metric:
     higher_is_better: bool | None = True
     digits: int = 1
     sweepable: bool = True
+    task: str | None = None
 
     def shown(self, value: float) -> float:
         """``value`` in display units."""
@@ -128,6 +131,26 @@ METRICS: tuple[Metric, ...] = (
            "its first loss (no estimate, re_sym > 10 deg or te > 5 cm)", sweepable=False),
     Metric("num_tracks", "tracks", "tracking: object instances followed through a sequence", 1.0, "", None,
            sweepable=False),
+    # The detection task (simtest.evaluation.detection, simtest.metrics.bop24): nothing told about the image.
+    Metric("ap", "AP", "BOP24 detection AP: mean of AP_MSSD and AP_MSPD", task="detection"),
+    Metric("ap_mssd", "AP_MSSD", "BOP24: COCO-style AP (101 recall points) of MSSD at 0.05..0.5 x diameter, "
+           "averaged over thresholds, then objects; instances with visib_fract < 0.1 ignored, at most 100 "
+           "estimates per image", task="detection"),
+    Metric("ap_mspd", "AP_MSPD", "BOP24: COCO-style AP of MSPD at 5..50 px (640 px wide image), averaged over "
+           "thresholds, then objects", task="detection"),
+    Metric("ap_mssd_mm", "AP_MSSD(mm)", "BOP24: COCO-style AP of MSSD at 2..20 mm, averaged over thresholds, "
+           "then objects", task="detection"),
+    Metric("num_gt_visible", "GT", "ground-truth instances with visib_fract >= 0.1 counted by the AP", 1.0, "",
+           None, sweepable=False, task="detection"),
+    Metric("cls_acc", "Cls", "top-1 classification accuracy: fraction of targets whose class-agnostic match "
+           "(nearest estimate centre within half the diameter, by decreasing score) has the target's category; "
+           "unmatched targets count as wrong", task="detection"),
+    Metric("cls_acc_pi_6", "Cls Acc@π/6", "fraction of targets classified correctly with re_sym < pi/6",
+           task="detection"),
+    Metric("cls_acc_pi_18", "Cls Acc@π/18", "fraction of targets classified correctly with re_sym < pi/18",
+           task="detection"),
+    Metric("cls_median_re_deg", "Cls MedErr", "median re_sym over targets, 180 deg unless classified correctly",
+           1.0, "deg", False, task="detection"),
 )
 
 _BY_KEY = {m.key: m for m in METRICS}
@@ -150,8 +173,9 @@ def metric_keys(*, sweepable: bool | None = None) -> tuple[str, ...]:
     return tuple(m.key for m in METRICS if sweepable is None or m.sweepable == sweepable)
 
 
-def definitions() -> dict[str, str]:
-    """``{key: definition}`` of every metric plus the protocol notes, as written into ``metrics.json``."""
+def definitions(task: str | None = None) -> dict[str, str]:
+    """``{key: definition}`` plus the protocol notes, as written into ``metrics.json``: of every metric
+    (``task=None``), of those a ``"localization"`` run computes, or of those of a ``"detection"`` run (all)."""
     out = {
         "targets": "ground-truth instances with visib_fract >= 0.1; a target without a matched estimate is a miss "
                    "(distance inf, rotation error pi)",
@@ -160,5 +184,5 @@ def definitions() -> dict[str, str]:
         "units": "distances in metres (keys ending _m), angles in degrees (_deg), time in seconds (_s), other "
                  "accuracies as fractions in [0, 1]",
     }
-    out.update({m.key: m.definition for m in METRICS})
+    out.update({m.key: m.definition for m in METRICS if task != "localization" or m.task is None})
     return out

@@ -86,14 +86,15 @@ class GraspSection:
 @dataclass(frozen=True)
 class SweepConfig:
     """A whole sweep. ``metrics`` lists sweepable keys of :mod:`simtest.metrics.registry` shown in the tables
-    and report; ``timeout`` is the time limit of one estimator call (per image, per grasp episode), seconds
-    (0: none)."""
+    and report (``ap``, ``cls_acc`` ... need ``task = "detection"``: BOP24, estimators told nothing);
+    ``timeout`` is the time limit of one estimator call (per image, per grasp episode), seconds (0: none)."""
 
     estimators: tuple[EstimatorEntry, ...]
     dataset: DatasetSection = field(default_factory=DatasetSection)
     factors: FactorsSection = field(default_factory=FactorsSection)
     grasp: GraspSection = field(default_factory=GraspSection)
     metrics: tuple[str, ...] = ("add_s_or_add_01d", "ar", "acc_pi_6")
+    task: str = field(default="localization", metadata=bounds(choices=("localization", "detection")))
     vsd: bool = False
     seed: int = field(default=0, metadata=bounds(0, 2**63 - 1))
     workers: int = field(default=1, metadata=bounds(1, 64))
@@ -370,7 +371,7 @@ def _run_pose_cell(cfg: SweepConfig, est: EstimatorEntry, data: Path, cdir: Path
     # The cell folder is the sweep's own: a killed cell's leftovers are replaced.
     rep = evaluate(data, est.estimator, split=cfg.dataset.split, max_images=cfg.dataset.max_images,
                    progress=False, out_dir=cdir, vsd=cfg.vsd, estimator_options=dict(est.options),
-                   timeout=cfg.timeout, overwrite=True)
+                   timeout=cfg.timeout, overwrite=True, task=cfg.task)
     label = est.name + (GT_MASKS_LABEL if rep.settings.get("gt_masks") else "")
     cells.finish_cell(cdir, {"kind": "pose", "estimator": est.name, "label": label, "dataset": str(data),
                              "overall": rep.to_json()["overall"], "seconds": time.perf_counter() - t0,
