@@ -13,7 +13,10 @@ Back ends:
 ``ray``
     Ray tasks (the ``ray`` extra, imported lazily). Without an address a local Ray instance is started with
     ``workers`` CPUs and stopped at the end; with ``address`` (``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``)
-    the driver joins that cluster and uses all of its CPUs. Each Ray worker process runs the unit's initialiser
+    the driver joins that cluster and uses all of its CPUs (``ray://`` needs Ray Client, ``ray[client]``; without
+    it the address is refused at once). :func:`preflight` joins and checks the cluster before a command writes
+    anything; a join that fails is one :class:`BackendError` line naming the address, what answered and the fix.
+    Each Ray worker process runs the unit's initialiser
     once (loading objects, creating its own GL context lazily) and keeps it for the units it runs next. A unit
     whose worker or node is lost is submitted again, up to ``retries`` times; the count of retried and failed
     units is in :class:`RunStats`. An exception raised *by the unit's code* is not retried: it is raised in the

@@ -56,7 +56,10 @@ def add_backend_options(parser: argparse.ArgumentParser, unit: str) -> None:
                              f"(Ray tasks, one {unit} each; needs simtest[ray]; see docs/distributed.md)")
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="with --backend ray: join the running cluster at ADDR ('auto' on a cluster node, or "
-                             "HOST:PORT); default: start a local Ray with --workers CPUs")
+                             "HOST:PORT of the head: the --port of `ray start --head`, 6379 by default; "
+                             "ray://HOST:PORT needs ray[client]); it is joined and checked before any output is "
+                             "written; default: start a local Ray with --workers CPUs. A head with token auth "
+                             "needs RAY_AUTH_TOKEN (docs/distributed.md)")
 
 
 def backend_from_args(args: argparse.Namespace):
