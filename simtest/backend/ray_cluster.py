@@ -1,246 +1,21 @@
-"""Where units of work run: in this process, a local pool of worker processes, or a Ray cluster.
-
-A command splits its job into *units* (a scene, an image shard, an episode, a sweep cell), each seeded from the
-run's seed and its own index only, so the result of a unit does not depend on where, when or next to what it
-runs: the same seed gives the same bytes with one worker, a local pool or Ray. :func:`run_units` runs the units
-and yields their results as they finish; the caller accounts them (progress bar, files, tables).
-
-Back ends:
-
-``local``
-    Today's behaviour: ``workers`` processes on this machine (``multiprocessing`` *spawn*: GL contexts do not
-    survive fork), or this process when ``workers`` is 1.
-``ray``
-    Ray tasks (the ``ray`` extra, imported lazily). Without an address a local Ray instance is started with
-    ``workers`` CPUs and stopped at the end; with ``address`` (``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``)
-    the driver joins that cluster and uses all of its CPUs (``ray://`` needs Ray Client, ``ray[client]``; without
-    it the address is refused at once). :func:`preflight` joins and checks the cluster before a command writes
-    anything; a join that fails is one :class:`BackendError` line naming the address, what answered and the fix.
-    Each Ray worker process runs the unit's initialiser
-    once (loading objects, creating its own GL context lazily) and keeps it for the units it runs next. A unit
-    whose worker or node is lost is submitted again, up to ``retries`` times; the count of retried and failed
-    units is in :class:`RunStats`. An exception raised *by the unit's code* is not retried: it is raised in the
-    driver as it would be locally.
-
-Why a home-made wrapper and not ``ray.util.multiprocessing.Pool``: the pool hides retries and lost workers and
-starts one actor per CPU up front; units here are coarse (seconds each), so plain tasks with a bounded number in
-flight are simpler, report what was retried, and let a cluster scale past the driver's own CPU count.
-"""
+"""Units of work on a Ray cluster: joining (or starting) Ray and checking it before any write, one clear line for
+every failed join, retries of units whose worker or node was lost, Ray's own logs kept out of the terminal
+(imported only for ``--backend ray``)."""
 
 from __future__ import annotations
 
 import hashlib
-import multiprocessing as mp
 import os
 import pickle
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from simtest.errors import ConfigError, SimtestError
-
-__all__ = ["BACKENDS", "RUN_FIELDS", "Backend", "RunStats", "UnitFailure", "BackendError", "run_units", "check_backend",
-           "session", "preflight"]
-
-#: Back ends :func:`run_units` knows.
-BACKENDS = ("local", "ray")
-
-#: Config fields that say where and how fast a run goes, not what it makes: a resume may change them.
-RUN_FIELDS = ("workers", "backend", "ray_address")
-
-#: Default number of times a unit whose Ray worker (or node) died is submitted again.
-DEFAULT_RETRIES = 3
-
-
-class BackendError(SimtestError, RuntimeError):
-    """The back end cannot start (missing extra, unreachable cluster) or lost units beyond their retries."""
-
-
-@dataclass(frozen=True)
-class Backend:
-    """Where to run units.
-
-    Attributes:
-        name: ``local`` or ``ray``.
-        workers: Local worker processes, or the CPUs of a Ray instance started here (ignored when joining a
-            cluster: its CPUs are used).
-        address: Ray only: ``None`` starts a local instance; ``auto`` / ``HOST:PORT`` / ``ray://HOST:PORT`` joins
-            a running cluster.
-        retries: Ray only: times a unit whose worker died is submitted again.
-    """
-
-    name: str = "local"
-    workers: int = 1
-    address: str | None = None
-    retries: int = DEFAULT_RETRIES
-
-    def __post_init__(self) -> None:
-        check_backend(self.name, self.address, self.workers)
-
-    @classmethod
-    def of(cls, cfg: Any) -> "Backend":
-        """The back end a run config asks for (its :data:`RUN_FIELDS`: ``backend``, ``workers``,
-        ``ray_address``)."""
-        return cls(cfg.backend, cfg.workers, cfg.ray_address)
-
-    @property
-    def is_ray(self) -> bool:
-        return self.name == "ray"
-
-    def in_process(self, n_units: int) -> bool:
-        """Whether ``n_units`` units run in this process (the local back end with one worker or one unit)."""
-        return not self.is_ray and (self.workers <= 1 or n_units <= 1)
-
-    def describe(self) -> str:
-        if self.is_ray:
-            return f"ray ({self.address})" if self.address else f"ray (local, {self.workers} CPUs)"
-        return f"local ({self.workers} worker{'s' if self.workers != 1 else ''})"
-
-
-def check_backend(name: Any, address: Any = None, workers: Any = 1) -> str:
-    """``name`` if it names a back end and the other settings fit it.
-
-    Raises:
-        ConfigError: Naming the bad value and what is allowed.
-    """
-    if name not in BACKENDS:
-        raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}; got {name!r}")
-    if address is not None:
-        if name != "ray":
-            raise ConfigError(f"ray_address {address!r} needs backend 'ray' (got backend {name!r})")
-        if not isinstance(address, str) or not address.strip():
-            raise ConfigError(f"ray_address must be 'auto', 'HOST:PORT' or 'ray://HOST:PORT'; got {address!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"workers must be an integer >= 1; got {workers!r}")
-    return name
-
-
-@dataclass
-class UnitFailure:
-    """A unit that did not finish because its worker (or node) was lost more than ``retries`` times."""
-
-    unit: Any
-    message: str
-
-
-@dataclass
-class RunStats:
-    """What :func:`run_units` did: units finished, retried (worker lost, submitted again) and failed, and where
-    they ran (for Ray: a cluster joined or an instance started here, its nodes and CPUs)."""
-
-    backend: str = "local"
-    finished: int = 0
-    retried: int = 0
-    failures: list[UnitFailure] = field(default_factory=list)
-    startup_s: float = 0.0  #: seconds to start or join the Ray instance (checks included)
-    cluster_cpus: int = 0
-    nodes: int = 0  #: alive Ray nodes when the run began
-    cluster: str = ""  #: ``joined`` (``--ray-address``), ``started`` (a local instance) or ``existing`` (found)
-    address: str | None = None  #: the address joined
-
-    def summary(self) -> str:
-        """One line for the end of a run, e.g. ``ray: 40 units done, 1 retried, 0 failed (joined
-        10.0.0.1:6379 in 0.9 s: 4 nodes, 64 CPUs)``."""
-        line = f"{self.backend}: {self.finished} units done, {self.retried} retried, {len(self.failures)} failed"
-        if self.backend == "ray":
-            where = {"joined": f"joined {self.address} in {self.startup_s:.1f} s: ",
-                     "started": f"local Ray instance started in {self.startup_s:.1f} s: ",
-                     "existing": "Ray already initialised in this process: "}.get(self.cluster, "")
-            line += f" ({where}{self.nodes} node{'s' if self.nodes != 1 else ''}, {self.cluster_cpus} CPUs)"
-        return line
-
-    def record(self, workers: int) -> dict[str, Any]:
-        """What a run's record (a manifest's ``runs`` entry, a summary's ``run``) says about where it ran:
-        ``backend``, ``ray_address``; ``workers`` only where it applied (local, or a Ray instance started here
-        with that many CPUs: a joined cluster's CPUs are its own); for Ray ``cluster`` (joined / started /
-        existing), ``nodes``, ``cluster_cpus`` and ``startup_s``."""
-        rec: dict[str, Any] = {"backend": self.backend, "ray_address": self.address}
-        if self.backend != "ray" or self.cluster == "started":
-            rec["workers"] = workers
-        if self.backend == "ray":
-            rec.update(cluster=self.cluster, nodes=self.nodes, cluster_cpus=self.cluster_cpus,
-                       startup_s=round(self.startup_s, 3))
-        return rec
-
-
-def run_units(fn: Callable[[Any], Any], units: Sequence[Any], backend: Backend, *,
-              init: Callable[..., None] | None = None, init_args: tuple = (),
-              stats: RunStats | None = None) -> Iterator[Any]:
-    """Run ``fn(unit)`` for every unit and yield the results in the order they finish.
-
-    Args:
-        fn: A module-level function (picklable by reference) that runs one unit; it may read the state the
-            initialiser set up in its process.
-        units: Picklable unit descriptions (small: an index and a folder, say).
-        backend: Where to run them.
-        init: Module-level function run once per worker process before its first unit (not called when the
-            units run in this process: the caller has its state at hand then).
-        init_args: Picklable arguments of ``init``.
-        stats: Filled with the counts of finished, retried and failed units.
-
-    Raises:
-        BackendError: The ``ray`` extra is missing or the cluster cannot be reached; or units were lost beyond
-            their retries (raised after every other unit has finished and been yielded).
-        Exception: Whatever ``fn`` raised, unchanged (the run stops there, as it does locally).
-    """
-    stats = stats if stats is not None else RunStats()
-    stats.backend = backend.name
-    if backend.is_ray:
-        yield from _run_ray(fn, list(units), backend, init, init_args, stats)
-    elif backend.in_process(len(units)):
-        for unit in units:
-            yield fn(unit)
-            stats.finished += 1
-    else:
-        ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-        with ctx.Pool(min(backend.workers, len(units)), initializer=init, initargs=init_args) as pool:
-            for result in pool.imap_unordered(fn, units):
-                stats.finished += 1
-                yield result
-    if stats.failures:
-        lost = ", ".join(repr(f.unit) for f in stats.failures[:10])
-        raise BackendError(f"{len(stats.failures)} unit(s) were lost with their workers more than "
-                           f"{backend.retries} time(s): {lost}; first error: {stats.failures[0].message}")
-
-
-def preflight(backend: Backend) -> None:
-    """Join (or start) the Ray instance ``backend`` asks for and check it, before a command creates or touches
-    its output: the ``ray`` extra (and for ``ray://`` Ray Client) installed, a Ray head answering at
-    ``backend.address`` that lets this driver in, alive nodes with CPUs, the same simtest version on every node.
-    The connection stays up for the command's :func:`run_units` / :func:`session` (which shut it down at their
-    end). Nothing is checked for ``local``.
-
-    Raises:
-        BackendError: One line naming the address, what answered there and the fix.
-    """
-    if backend.is_ray:
-        _connect(backend)
-
-
-@contextmanager
-def session(backend: Backend, stats: RunStats | None = None) -> Iterator[None]:
-    """Keep one Ray instance up across several :func:`run_units` calls (a job in phases: generate, then
-    corrupt, then evaluate), so it starts once; ``stats`` gets its start-up time, nodes and CPUs. A no-op for
-    ``local``; a Ray already initialised in this process by the caller is used and left running."""
-    global _SESSIONS
-    if not backend.is_ray:
-        yield
-        return
-    conn = _connect(backend)
-    if stats is not None:
-        conn.fill(stats)
-    _SESSIONS += 1
-    try:
-        yield
-    finally:
-        _SESSIONS -= 1
-        if _SESSIONS == 0:
-            _release()
-
+from simtest.backend.units import Backend, BackendError, RunStats, UnitFailure
 
 # --- Ray -------------------------------------------------------------------------------------------------
 #: Initialisers already run in this (worker) process, by key.
@@ -336,7 +111,7 @@ def _init_kwargs() -> dict[str, Any]:
             "runtime_env": {"env_vars": env} if env else None}
 
 
-def _connect(backend: Backend) -> _Connection:
+def connect(backend: Backend) -> _Connection:
     """The Ray instance for ``backend``: the one this process holds if it was made for the same settings, else
     a new one (joined at ``backend.address``, or started here with ``backend.workers`` CPUs), checked."""
     global _CONNECTION
@@ -345,7 +120,7 @@ def _connect(backend: Backend) -> _Connection:
     if _CONNECTION is not None:
         if ray.is_initialized() and _CONNECTION.key == key:
             return _CONNECTION
-        _release()  # shut down by its owner, or made for other settings (a command that failed early)
+        release()  # shut down by its owner, or made for other settings (a command that failed early)
     if ray.is_initialized():  # the caller's own (a notebook, a test fixture): used as it is, left running
         if backend.address is not None:
             _check_reachable(backend.address)  # still: an address that cannot answer is a mistake
@@ -370,13 +145,13 @@ def _connect(backend: Backend) -> _Connection:
         if conn.cluster == "joined":
             _check_versions(ray, backend.address)
     except BaseException:
-        _release()
+        release()
         raise
     conn.startup_s = time.perf_counter() - t0
     return conn
 
 
-def _release() -> None:
+def release() -> None:
     """Shut down the Ray connection this process holds, if simtest made it."""
     global _CONNECTION
     conn, _CONNECTION = _CONNECTION, None
@@ -670,9 +445,9 @@ def _lost(exc: BaseException) -> str:
     return "node" if "Node" in name or "node" in str(exc).lower().split("\n", 1)[0] else "worker"
 
 
-def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: RunStats) -> Iterator[Any]:
+def run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: RunStats) -> Iterator[Any]:
     ray = _ray_module()
-    _connect(backend).fill(stats)
+    connect(backend).fill(stats)
     from ray.exceptions import RayTaskError
 
     running: dict[Any, int] = {}
@@ -714,4 +489,20 @@ def _run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: R
             except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel
                 pass
         if _SESSIONS == 0:
-            _release()
+            release()
+
+
+@contextmanager
+def ray_session(backend: Backend, stats: RunStats | None = None) -> Iterator[None]:
+    """:func:`simtest.backend.session` on Ray: one connection across the block's :func:`run_ray` calls."""
+    global _SESSIONS
+    conn = connect(backend)
+    if stats is not None:
+        conn.fill(stats)
+    _SESSIONS += 1
+    try:
+        yield
+    finally:
+        _SESSIONS -= 1
+        if _SESSIONS == 0:
+            release()
