@@ -332,9 +332,11 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     """
     out = Path(out_dir)
     if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
-        from simtest.render.pbr import require_pbr
+        from simtest.render.pbr import require_pbr, resolved_variant
 
         require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height), cfg.render.pbr_variant)
+        # every worker renders with the variant this process resolved (the same bytes with 1 or N workers)
+        cfg = cfg.replace(**{"render.pbr_variant": resolved_variant(cfg.render.pbr_variant)})
     preflight(Backend.of(cfg))  # before the output is touched
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()

@@ -42,8 +42,8 @@ from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libl
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
 
-__all__ = ["PbrRenderer", "require_pbr", "frame_seed", "renderer_versions", "auto_spp", "INSTALL_HINT",
-           "PBR_VARIANTS"]
+__all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "renderer_versions", "auto_spp",
+           "INSTALL_HINT", "PBR_VARIANTS"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
@@ -100,6 +100,14 @@ def require_pbr(camera: CameraModel, variant: str = "auto") -> None:
     """
     mi, _, _ = _modules(variant)
     camera_sensor(mi, camera, 1)
+
+
+def resolved_variant(variant: str = "auto") -> str:
+    """The ``render.pbr_variant`` value (``cuda``, ``llvm`` or ``scalar``) that ``variant`` resolves to in this
+    process. A run pins it for its workers, so every image of a dataset comes from one variant even where a
+    worker would resolve ``auto`` otherwise (another node's libLLVM, a process that imported Dr.Jit first)."""
+    name = _modules(variant)[2].name
+    return next(k for k, v in PBR_VARIANTS.items() if v == name)
 
 
 def renderer_versions(variant: str = "auto") -> dict[str, str]:

@@ -189,3 +189,23 @@ def test_thread_count_follows_the_renderer_argument():
     assert drjit.thread_count() == 1
     _views_rendered("scalar", fresh=False, threads=2)
     assert drjit.thread_count() == 2
+
+
+def test_a_process_that_imported_drjit_first_pins_its_variant_for_the_workers(tmp_path):
+    """Dr.Jit imported before simtest could point it at a libLLVM: ``auto`` resolves to scalar in that process;
+    the spawned workers, which would find the LLVM variant, are told to use the same one, so 1 and 2 workers
+    give the same bytes."""
+    config = tmp_path / "pbr.toml"
+    config.write_text('[render]\nprofile = "pbr"\npbr_spp = 2\n')
+    digests = []
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        args = ["generate", "--quiet", "--config", str(config), "--scenes", "2", "--frames-per-scene", "1", "--width",
+                str(W), "--height", str(H), "--objects", "builtin-small", "--seed", "5", "--workers", str(workers),
+                "--out", str(out)]
+        code = f"import sys, drjit; from simtest.cli import main; sys.exit(main({args!r}))"
+        env = {k: v for k, v in os.environ.items() if k not in (ENV, "SIMTEST_PBR_VARIANT_NOTED")}
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+        assert proc.returncode == 0, proc.stderr
+        digests.append({k: v for k, v in _digest(out).items() if "/rgb/" in k})
+    assert digests[0] and digests[0] == digests[1]
