@@ -38,15 +38,22 @@ sys.exit(code)
 
 
 def test_the_shipped_onnx_file_is_the_export_of_the_shipped_checkpoint(tmp_path):
-    """Export is deterministic, and the shipped ONNX file is current (same bytes as a fresh export)."""
+    """The shipped ONNX file belongs to the shipped checkpoint (its SHA-256 in the metadata) and computes what a
+    fresh export of it computes; an export repeated in one environment gives the same bytes (other exporter
+    versions may lay the graph out differently, so the shipped file is compared by its outputs)."""
+    import hashlib
+
     ckpt = default_checkpoint()
     shipped = onnx_path_for(ckpt)
     assert shipped.is_file() and shipped.stat().st_size < 5_000_000
     fresh = export_checkpoint(ckpt, tmp_path / "seg.onnx")
-    assert fresh.read_bytes() == shipped.read_bytes()
-    net = OnnxNet(shipped, "simtest-segmentation/1")
-    assert net.meta["source_sha256"] == file_sha256(ckpt)
+    again = export_checkpoint(ckpt, tmp_path / "again.onnx")
+    assert hashlib.sha256(fresh.read_bytes()).hexdigest() == hashlib.sha256(again.read_bytes()).hexdigest()
+    net, ref = OnnxNet(shipped, "simtest-segmentation/1"), OnnxNet(fresh, "simtest-segmentation/1")
+    assert net.meta == ref.meta and net.meta["source_sha256"] == file_sha256(ckpt)
     assert net.meta["objects"]["obj_ids"] == [1, 7, 13, 22] and net.meta["focal_px"] > 0
+    x = np.random.default_rng(0).random((2, 4, 240, 320), dtype=np.float32)
+    assert np.abs(net.run(x)[0] - ref.run(x)[0]).max() < 1e-4
 
 
 def test_segicp_onnx_equals_torch_on_real_images(small_dataset, tmp_path):
