@@ -1,0 +1,335 @@
+"""A simulated active-stereo depth camera (RealSense D435-like), rendered from the exact scene geometry.
+
+One view (:meth:`StereoSensor.sense`):
+
+1. Three exact depth renders through the scene's :class:`~simtest.render.rasterizer.Renderer`, each by placing
+   the scene's render camera (``data.cam_xpos`` / ``cam_xmat``, as ``SimScene.set_camera`` does) and restoring
+   the colour camera afterwards: the projector (for its shadow), the left IR camera and the right IR camera
+   (``rgb=True`` too when the albedo comes from the surface colour). The IR cameras and the projector use the
+   IR intrinsics ``K_ir`` (focal ``ir_focal_ratio x width``, principal point of the colour camera): the model
+   camera's focal length (``model.cam_intrinsic``) is scaled for these renders and restored.
+2. Each IR pixel is back-projected to its world point; the point is lit by the projector when its depth seen
+   from the projector matches the projector's own depth map (else it lies in the projector's shadow, the holes
+   beside object edges); the lit intensity samples a seeded dot pattern where the point projects into the
+   projector, times ``cos(incidence) / r^2``. IR = albedo x (pattern + ambient) + Gaussian sensor noise, 8 bit.
+3. ``cv2.StereoSGBM`` matches the rectified pair (both IR cameras share ``K_ir`` and orientation; the right one
+   sits ``baseline`` along the left camera's +x), disparity ``d`` (fixed point / 16) -> ``z = f b / d`` in the
+   left IR frame, 0 where the matcher fails.
+4. The left-IR depth is registered to the colour camera (:func:`register_depth`: each IR pixel's footprint
+   splatted into the colour image, nearest surface kept).
+
+Everything random comes from the ``np.random.Generator`` passed in: the same generator state gives the same
+bytes. The exact depth, masks and poses are not touched (the sensed depth is a new array).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from simtest.camera import CameraModel, intrinsics_matrix, pinhole_pixels, pinhole_points
+from simtest.errors import ConfigError
+from simtest.geometry import Pose
+
+__all__ = ["StereoSensor", "StereoView", "STEREO_PRESETS", "stereo_preset", "register_depth", "dot_pattern"]
+
+
+@dataclass(frozen=True)
+class StereoSensor:
+    """Parameters of an active-stereo depth camera (lengths in metres, image quantities at the render size).
+
+    Attributes:
+        name: Preset name.
+        baseline: Distance between the IR cameras (right = left + baseline along the left camera's x).
+        ir_focal_ratio: IR focal length / image width (D435 at 640x480: ~0.6-0.67, i.e. 380-430 px).
+        left_offset: Left IR camera position in the colour camera frame (OpenCV axes; same orientation).
+        projector_offset: Projector position in the left IR frame (between the cameras on the D435).
+        projector: Whether the dot projector is on (``False``: passive stereo, ambient light only).
+        dot_fraction: Fraction of projector pixels that hold a dot centre.
+        dot_sigma: Dot radius (Gaussian sigma), projector pixels.
+        projector_power: Dot peak intensity on a white surface facing the projector at 1 m.
+        ambient: Ambient IR level (flat illumination), times the albedo.
+        albedo: ``"rgb"`` (luminance of the rendered colour: dark surfaces return little light) or a constant.
+        noise: Sensor noise std (fraction of full scale 1.0).
+        shadow_tolerance: Relative depth tolerance of the projector-visibility test.
+        texture_threshold: Pixels whose left-IR local contrast (std over the matching block, fraction of full
+            scale) is below it are invalid (the D435's texture threshold): SGBM's smoothness term would
+            otherwise fill dark and textureless patches from their neighbours.
+        min_depth: Nearest measurable depth; sets numDisparities (f b / min_depth, rounded up to 16).
+        max_depth: Depths beyond it are dropped.
+        block_size, p1_scale, p2_scale, uniqueness_ratio, speckle_window, speckle_range, disp12_max_diff:
+            ``cv2.StereoSGBM_create`` parameters; P1 = p1_scale x block_size^2, P2 = p2_scale x block_size^2;
+            the speckle window is in pixels at 640 px width and scales with the image area.
+    """
+
+    name: str = "d435-stereo"
+    baseline: float = 0.050
+    ir_focal_ratio: float = 0.65
+    left_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    projector_offset: tuple[float, float, float] = (0.025, 0.0, 0.0)
+    projector: bool = True
+    dot_fraction: float = 0.2
+    dot_sigma: float = 0.7
+    projector_power: float = 0.30
+    ambient: float = 0.10
+    albedo: str | float = "rgb"
+    noise: float = 0.01
+    shadow_tolerance: float = 0.01
+    texture_threshold: float = 0.02
+    min_depth: float = 0.25
+    max_depth: float = 6.0
+    block_size: int = 5
+    p1_scale: int = 8
+    p2_scale: int = 32
+    uniqueness_ratio: int = 10
+    speckle_window: int = 100
+    speckle_range: int = 2
+    disp12_max_diff: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.baseline > 0 or not self.ir_focal_ratio > 0:
+            raise ConfigError(f"stereo baseline and ir_focal_ratio must be > 0, got {self.baseline}, "
+                              f"{self.ir_focal_ratio}")
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ConfigError(f"stereo block_size must be odd and >= 1, got {self.block_size}")
+        if not 0 < self.min_depth < self.max_depth:
+            raise ConfigError(f"stereo needs 0 < min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        if not (self.albedo == "rgb" or isinstance(self.albedo, (int, float))):
+            raise ConfigError(f"stereo albedo must be 'rgb' or a number, got {self.albedo!r}")
+
+    def replace(self, **changes) -> "StereoSensor":
+        return replace(self, **changes)
+
+    # --- geometry --------------------------------------------------------------------------------------
+    def ir_K(self, camera: CameraModel) -> np.ndarray:
+        """The IR cameras' (and projector's) intrinsics at the colour camera's image size."""
+        f = self.ir_focal_ratio * camera.width
+        return intrinsics_matrix(f, f, camera.K[0, 2], camera.K[1, 2])
+
+    def poses(self, camera: CameraModel) -> tuple[Pose, Pose, Pose]:
+        """``T_world`` of the left IR camera, the right IR camera and the projector (OpenCV frames)."""
+        T = camera.T_world_cam
+        R = T.R
+        left = Pose(R, T.t + R @ np.asarray(self.left_offset, dtype=np.float64))
+        right = Pose(R, left.t + R[:, 0] * self.baseline)
+        proj = Pose(R, left.t + R @ np.asarray(self.projector_offset, dtype=np.float64))
+        return left, right, proj
+
+    def num_disparities(self, f_ir: float) -> int:
+        return int(max(16, 16 * np.ceil(f_ir * self.baseline / self.min_depth / 16.0)))
+
+    # --- one view --------------------------------------------------------------------------------------
+    def sense(self, renderer, data, camera_id: int, camera: CameraModel, rng: np.random.Generator) -> np.ndarray:
+        """Sensed depth (H, W) float32 metres in the colour ``camera`` (0 = no measurement); see the module."""
+        return self.sense_view(renderer, data, camera_id, camera, rng).depth
+
+    def sense_view(self, renderer, data, camera_id: int, camera: CameraModel,
+                   rng: np.random.Generator) -> "StereoView":
+        """:meth:`sense` with the intermediate images (IR pair, left-IR depth, exact left-IR depth)."""
+        import cv2
+
+        K_ir = self.ir_K(camera)
+        T_left, T_right, T_proj = self.poses(camera)
+        use_rgb = self.albedo == "rgb"
+        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
+            proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
+            left = at.render(T_left, rgb=use_rgb)
+            right = at.render(T_right, rgb=use_rgb)
+        pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, rng) \
+            if self.projector else None
+        ir = []
+        for frame, T in ((left, T_left), (right, T_right)):
+            ir.append(self._ir_image(frame, T, K_ir, T_proj, proj_depth, pattern, rng))
+        f = float(K_ir[0, 0])
+        bs = self.block_size
+        area = camera.width * camera.height / (640.0 * 480.0)
+        sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=self.num_disparities(f), blockSize=bs,
+                                     P1=self.p1_scale * bs * bs, P2=self.p2_scale * bs * bs,
+                                     disp12MaxDiff=self.disp12_max_diff, uniquenessRatio=self.uniqueness_ratio,
+                                     speckleWindowSize=max(4, int(round(self.speckle_window * area))),
+                                     speckleRange=self.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM)
+        disp = sgbm.compute(ir[0], ir[1]).astype(np.float32) / 16.0
+        depth_ir = np.zeros(disp.shape, dtype=np.float32)
+        ok = disp > 0
+        depth_ir[ok] = f * self.baseline / disp[ok]
+        if self.texture_threshold > 0:
+            img = ir[0].astype(np.float32) / 255.0
+            mean = cv2.boxFilter(img, -1, (bs, bs))
+            var = cv2.boxFilter(img * img, -1, (bs, bs)) - mean * mean
+            depth_ir[np.sqrt(np.maximum(var, 0.0)) < self.texture_threshold] = 0.0
+        depth_ir[(depth_ir < self.min_depth) | (depth_ir > self.max_depth)] = 0.0
+        T_col_ir = camera.T_cam_world @ T_left
+        if np.allclose(T_col_ir.t, 0.0) and np.allclose(K_ir, camera.K):
+            depth = depth_ir.copy()
+        else:
+            depth = register_depth(depth_ir, K_ir, T_col_ir, camera.K, camera.width, camera.height)
+        return StereoView(depth, ir[0], ir[1], depth_ir, left.depth, K_ir)
+
+    def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
+                  rng: np.random.Generator) -> np.ndarray:
+        """The 8-bit IR image of one camera from its exact depth (and colour)."""
+        z = frame.depth.astype(np.float64)
+        h, w = z.shape
+        hit = z > 0
+        if self.albedo == "rgb":
+            rgb = frame.rgb.astype(np.float64) / 255.0
+            albedo = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) ** 2.2  # sRGB-ish -> linear
+        else:
+            albedo = np.full((h, w), float(self.albedo))
+        albedo = np.where(hit, albedo, 0.0)
+        light = np.full((h, w), self.ambient)
+        if pattern is not None:
+            v, u = np.mgrid[0:h, 0:w]
+            p_cam = pinhole_points(K_ir, u, v, z)
+            p_world = T_world_ir.apply(p_cam.reshape(-1, 3))
+            p_proj = T_proj.inverse().apply(p_world).reshape(h, w, 3)
+            zp = p_proj[..., 2]
+            safe = np.where(zp > 1e-6, zp, 1.0)
+            up, vp = pinhole_pixels(K_ir, p_proj, safe)
+            ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
+            inside = hit & (zp > 1e-6) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+            uc, vc = np.clip(ui, 0, w - 1), np.clip(vi, 0, h - 1)
+            # Lit: the projector sees this point (its own depth there matches), else it is in the shadow.
+            lit = inside & (np.abs(proj_depth[vc, uc] - zp) <= self.shadow_tolerance * zp + 1e-3)
+            # cos(incidence) from the surface normal of the back-projected points
+            dx = np.gradient(p_cam, axis=1)
+            dy = np.gradient(p_cam, axis=0)
+            n = np.cross(dx, dy)
+            n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
+            to_proj = (T_proj.t - T_world_ir.t) @ T_world_ir.R - p_cam  # projector minus point, IR frame
+            r = np.linalg.norm(to_proj, axis=-1) + 1e-9
+            cos = np.abs(np.sum(n * to_proj, axis=-1)) / r
+            dots = _bilinear(pattern, up, vp)
+            light = light + np.where(lit, self.projector_power * dots * cos / r ** 2, 0.0)
+        ir = albedo * light + rng.normal(0.0, self.noise, size=(h, w))
+        return np.clip(np.rint(ir * 255.0), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class StereoView:
+    """One sensed view: ``depth`` in the colour camera (metres, 0 = none), the 8-bit IR pair, the matched depth
+    in the left IR frame, the exact left-IR depth, and the IR intrinsics."""
+
+    depth: np.ndarray
+    ir_left: np.ndarray
+    ir_right: np.ndarray
+    depth_ir: np.ndarray
+    exact_ir: np.ndarray
+    K_ir: np.ndarray
+
+
+class _RenderAt:
+    """Renders the scene's render camera at other poses and the IR focal length; restores it on exit."""
+
+    def __init__(self, renderer, data, camera_id: int, camera: CameraModel, K_ir: np.ndarray) -> None:
+        self.renderer, self.data, self.cid, self.camera = renderer, data, int(camera_id), camera
+        self.model = renderer.model
+        self.scale = float(K_ir[0, 0]) / float(camera.K[0, 0]), float(K_ir[1, 1]) / float(camera.K[1, 1])
+
+    def __enter__(self) -> "_RenderAt":
+        self.pos = self.data.cam_xpos[self.cid].copy()
+        self.mat = self.data.cam_xmat[self.cid].copy()
+        self.intr = self.model.cam_intrinsic[self.cid].copy()
+        if not np.any(self.model.cam_sensorsize[self.cid] > 0):
+            raise ConfigError("the stereo sensor needs a camera given by focal_pixel/sensor_size "
+                              "(simtest.camera.mujoco_camera_intrinsics)")
+        self.model.cam_intrinsic[self.cid, 0] = self.intr[0] * self.scale[0]
+        self.model.cam_intrinsic[self.cid, 1] = self.intr[1] * self.scale[1]
+        return self
+
+    def render(self, T_world: Pose, rgb: bool):
+        pos, R_mj = self.camera.with_pose(T_world).mujoco_pose()
+        self.data.cam_xpos[self.cid] = pos
+        self.data.cam_xmat[self.cid] = R_mj.reshape(-1)
+        return self.renderer.render(self.data, self.cid, rgb=rgb, depth=True, seg=False)
+
+    def __exit__(self, *exc) -> None:
+        self.model.cam_intrinsic[self.cid] = self.intr
+        self.data.cam_xpos[self.cid] = self.pos
+        self.data.cam_xmat[self.cid] = self.mat
+
+
+def dot_pattern(width: int, height: int, fraction: float, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """A seeded pseudo-random dot pattern (H, W) in [0, 1]: ``fraction x W x H`` Gaussian dots of std
+    ``sigma`` pixels at sub-pixel positions, peak 1."""
+    n = int(round(fraction * width * height))
+    xs = rng.uniform(-0.5, width - 0.5, n)
+    ys = rng.uniform(-0.5, height - 0.5, n)
+    out = np.zeros((height, width), dtype=np.float64)
+    r = int(np.ceil(3 * sigma))
+    xi, yi = np.rint(xs).astype(np.int64), np.rint(ys).astype(np.int64)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            u, v = xi + dx, yi + dy
+            ok = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+            g = np.exp(-((u - xs) ** 2 + (v - ys) ** 2) / (2 * sigma ** 2))
+            np.maximum.at(out, (v[ok], u[ok]), g[ok])
+    return out
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    h, w = img.shape
+    u = np.clip(u, 0, w - 1.000001)
+    v = np.clip(v, 0, h - 1.000001)
+    u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
+            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
+
+
+def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst: np.ndarray, width: int,
+                   height: int) -> np.ndarray:
+    """Depth-to-colour alignment: a depth image (metres, 0 = none) of a source camera seen by a destination
+    camera (``T_dst_src`` maps source-frame points into it; ``width`` x ``height`` pixels, ``K_dst``).
+
+    Each source pixel's footprint (its corners at its depth) is splatted into the destination image and the
+    nearest surface kept (z-buffer); destination pixels no source pixel covers stay 0.
+    """
+    d = np.asarray(depth, dtype=np.float64)
+    v, u = np.nonzero(d > 0)
+    z = d[v, u]
+    out = np.full(height * width, np.inf)
+    if z.size:
+        corners = []
+        for du, dv in ((-0.5, -0.5), (0.5, 0.5)):
+            p = T_dst_src.apply(pinhole_points(K_src, u + du, v + dv, z))
+            zz = np.where(p[:, 2] > 1e-6, p[:, 2], np.nan)
+            corners.append(pinhole_pixels(K_dst, p, zz))
+        zc = T_dst_src.apply(pinhole_points(K_src, u.astype(np.float64), v.astype(np.float64), z))[:, 2]
+        (ua, va), (ub, vb) = corners
+        good = np.isfinite(ua) & np.isfinite(ub) & np.isfinite(va) & np.isfinite(vb) & (zc > 0)
+        lo_u = np.ceil(np.minimum(ua, ub)[good] - 1e-9).astype(np.int64)
+        hi_u = np.floor(np.maximum(ua, ub)[good] - 1e-9).astype(np.int64)
+        lo_v = np.ceil(np.minimum(va, vb)[good] - 1e-9).astype(np.int64)
+        hi_v = np.floor(np.maximum(va, vb)[good] - 1e-9).astype(np.int64)
+        # A footprint smaller than a pixel still lands on the pixel of its centre.
+        hi_u, hi_v = np.maximum(hi_u, lo_u), np.maximum(hi_v, lo_v)
+        zg = zc[good]
+        span = int(min(8, max(1, (hi_u - lo_u).max(initial=0) + 1, (hi_v - lo_v).max(initial=0) + 1)))
+        for oy in range(span):
+            for ox in range(span):
+                uu, vv = lo_u + ox, lo_v + oy
+                ok = (uu <= hi_u) & (vv <= hi_v) & (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
+                np.minimum.at(out, vv[ok] * width + uu[ok], zg[ok])
+    out[~np.isfinite(out)] = 0.0
+    return out.reshape(height, width).astype(np.float32)
+
+
+#: The presets: an active D435-like sensor and the same rig without its projector.
+STEREO_PRESETS: dict[str, StereoSensor] = {
+    "d435-stereo": StereoSensor(),
+    "passive-stereo": StereoSensor(name="passive-stereo", projector=False, ambient=0.6),
+}
+
+
+def stereo_preset(name: str) -> StereoSensor:
+    """The preset ``name`` (:data:`STEREO_PRESETS`).
+
+    Raises:
+        ConfigError: Unknown name (the message lists the presets).
+    """
+    try:
+        return STEREO_PRESETS[name]
+    except KeyError:
+        raise ConfigError(f"unknown stereo preset {name!r}; known: {sorted(STEREO_PRESETS)}") from None

@@ -1,0 +1,170 @@
+"""The simulated active-stereo sensor on real MuJoCo renders: projector shadows beside edges, error growing as
+z^2, dark and textureless surfaces losing depth, exact ground truth untouched, seeded bytes, and the
+depth-to-colour registration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simtest.camera import CameraModel, intrinsics_matrix, look_at_pose
+from simtest.errors import ConfigError
+from simtest.generators.builder import SceneBuilder
+from simtest.generators.config import GenerateConfig
+from simtest.generators.scene_spec import DistractorSpec, LightSpec, SceneSpec, SurfaceSpec
+from simtest.geometry import Pose
+from simtest.objects import load_object_set
+from simtest.render.rasterizer import Renderer
+from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor, register_depth, stereo_preset
+
+W, H = 212, 120
+FLAT = SurfaceSpec("flat", (0.7, 0.7, 0.7), (0.7, 0.7, 0.7), 1.0, 0.0)
+CHECKER = SurfaceSpec("checker", (0.9, 0.9, 0.9), (0.2, 0.2, 0.2), 40.0, 0.3)
+BRIGHT, DARK = (0.9, 0.9, 0.9, 1.0), (0.02, 0.02, 0.02, 1.0)
+
+
+@pytest.fixture(scope="module")
+def make_scene():
+    cfg = GenerateConfig().replace(**{"camera.width": W, "camera.height": H})
+    builder = SceneBuilder(load_object_set("builtin"), cfg)
+    tz = cfg.scene.table_height
+
+    def make(table, boxes):
+        """A table (``table`` surface) with boxes ``(half sizes, centre, rgba)`` on it, one overhead light."""
+        ds = tuple(DistractorSpec("box", s, p, (1.0, 0.0, 0.0, 0.0), c) for s, p, c in boxes)
+        light = LightSpec((0.0, 0.0, tz + 2.0), (0.0, 0.0, -1.0), (0.5, 0.5, 0.5), 0.0)
+        return builder.build(SceneSpec(0, 0, (), ds, (light,), 0.6, table, FLAT, FLAT, ()))
+
+    return make, cfg.camera.K(), tz
+
+
+def _camera(K, eye, target) -> CameraModel:
+    return CameraModel(K, W, H, look_at_pose(np.asarray(eye, float), np.asarray(target, float)))
+
+
+def _sense(sim, cam, preset="d435-stereo", seed=0):
+    sim.set_camera(cam)
+    with Renderer(sim.model, W, H) as r:
+        exact = r.render(sim.data, sim.camera_id)
+        view = stereo_preset(preset).sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(seed))
+        after = r.render(sim.data, sim.camera_id)
+    return exact, view, after
+
+
+def test_projector_shadow_holes_lie_on_the_side_away_from_the_projector(make_scene):
+    make, K, tz = make_scene
+    sim = make(FLAT, [((0.03, 0.03, 0.08), (0.0, 0.0, tz + 0.08), BRIGHT)])
+    exact, view, _ = _sense(sim, _camera(K, (0.0, -0.45, tz + 0.45), (0.0, 0.0, tz + 0.06)))
+    box = exact.seg == exact.seg[H // 2, W // 2]
+    invalid = view.depth == 0
+    left = right = rows = 0
+    for row in range(H):
+        cols = np.nonzero(box[row])[0]
+        if cols.size < 3:
+            continue
+        a, b = cols.min(), cols.max()
+        left += int(invalid[row, max(0, a - 6):a].sum())
+        right += int(invalid[row, b + 1:b + 7].sum())
+        rows += 1
+    assert rows > 20
+    # The projector sits at +x of the left camera: its shadow (and the right camera's occlusion) is on the left.
+    assert left > 3 * max(right, 1) and left > rows, (left, right, rows)
+
+
+def _robust_error(exact, view) -> float:
+    ok = (view.depth > 0) & (exact.depth > 0)
+    ok[:, : W // 4] = ok[:, -W // 8:] = False  # SGBM's unmatched left band, the image border
+    ok[: H // 6] = ok[-H // 6:] = False
+    assert ok.sum() > 0.1 * ok.size
+    return float(1.4826 * np.median(np.abs(view.depth - exact.depth)[ok]))
+
+
+def test_error_grows_with_the_square_of_the_distance(make_scene):
+    make, K, tz = make_scene
+    sim = make(CHECKER, [])
+    direction = np.array([0.0, -0.5, np.sqrt(0.75)])
+    z1, z2 = 0.5, 0.8
+    e1, e2 = (_robust_error(*_sense(sim, _camera(K, np.array([0.0, 0.0, tz]) + z * direction, (0.0, 0.0, tz)))[:2])
+              for z in (z1, z2))
+    expected = (z2 / z1) ** 2
+    assert expected / 2 < e2 / e1 < expected * 2, (e1, e2)
+    # and the size: z^2 / (f b) x a sub-pixel accuracy between 0.05 and 0.5 px
+    f_ir = STEREO_PRESETS["d435-stereo"].ir_focal_ratio * W
+    assert 0.05 * z1 ** 2 / (f_ir * 0.05) < e1 < 0.5 * z1 ** 2 / (f_ir * 0.05)
+
+
+def _geom_mask(exact, cam, point) -> np.ndarray:
+    """The pixels of the geom seen at world ``point``."""
+    uv, _ = cam.project_world(np.asarray([point], float))
+    u, v = np.rint(uv[0]).astype(int)
+    return exact.seg == exact.seg[v, u]
+
+
+def _valid_fraction(exact, view, cam, point) -> float:
+    return float((view.depth[_geom_mask(exact, cam, point)] > 0).mean())
+
+
+def test_dark_and_textureless_patches_lose_depth(make_scene):
+    make, K, tz = make_scene
+    cam = _camera(K, (0.0, -0.3, tz + 0.55), (0.0, 0.0, tz))
+    patch = (0.04, 0.04, 0.01)
+    sim = make(FLAT, [(patch, (-0.06, 0.0, tz + 0.01), BRIGHT), (patch, (0.06, 0.0, tz + 0.01), DARK)])
+    exact, view, _ = _sense(sim, cam)
+    bright = _valid_fraction(exact, view, cam, (-0.06, 0.0, tz + 0.02))
+    dark = _valid_fraction(exact, view, cam, (0.06, 0.0, tz + 0.02))
+    assert bright > 0.9 and dark < bright - 0.3, (bright, dark)
+    # Passive stereo: the same bright matte patch, now textureless, loses depth; the checker table keeps it.
+    sim = make(CHECKER, [(patch, (-0.06, 0.0, tz + 0.01), BRIGHT)])
+    exact, view, _ = _sense(sim, cam, "passive-stereo")
+    flat = _valid_fraction(exact, view, cam, (-0.06, 0.0, tz + 0.02))
+    table = _geom_mask(exact, cam, (0.06, 0.0, tz))
+    table[:, : W // 3] = False
+    textured = float((view.depth[table] > 0).mean())
+    assert flat < bright - 0.3 and textured > flat + 0.2, (flat, textured, bright)
+
+
+def test_exact_render_unchanged_and_seeded_bytes(make_scene):
+    make, K, tz = make_scene
+    sim = make(FLAT, [((0.03, 0.03, 0.05), (0.0, 0.0, tz + 0.05), BRIGHT)])
+    cam = _camera(K, (0.0, -0.4, tz + 0.5), (0.0, 0.0, tz))
+    intr = sim.model.cam_intrinsic.copy()
+    exact, a, after = _sense(sim, cam, seed=3)
+    for x, y in ((exact.rgb, after.rgb), (exact.depth, after.depth), (exact.seg, after.seg)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(sim.model.cam_intrinsic, intr)
+    _, b, _ = _sense(sim, cam, seed=3)
+    _, c, _ = _sense(sim, cam, seed=4)
+    assert a.depth.dtype == np.float32 and a.depth.shape == (H, W)
+    assert a.depth.tobytes() == b.depth.tobytes() and a.ir_left.tobytes() == b.ir_left.tobytes()
+    assert a.depth.tobytes() != c.depth.tobytes()
+    assert 0.5 < (a.depth > 0).mean() < 1.0
+
+
+def test_register_depth_with_an_offset_and_other_intrinsics():
+    K_src, K_dst = intrinsics_matrix(80.0, 80.0, 49.5, 39.5), intrinsics_matrix(120.0, 120.0, 49.5, 39.5)
+    depth = np.full((80, 100), 1.0, dtype=np.float32)
+    depth[30:50, 40:60] = 0.6  # a nearer square in front of the wall
+    T = Pose(np.eye(3), np.array([-0.02, 0.0, 0.0]))  # destination 2 cm to the +x of the source
+    out = register_depth(depth, K_src, T, K_dst, 100, 80)
+    assert set(np.unique(out)) <= {0.0, np.float32(0.6), np.float32(1.0)}
+    assert (out > 0).mean() > 0.97  # the wider source covers the destination: no holes from the splat
+    # The square lands where the pinhole model puts it: its centre shifted by f * dx / z.
+    rows, cols = np.nonzero(out == np.float32(0.6))
+    centre_src = (49.5 - K_src[0, 2]) * 0.6 / 80.0  # x of the square's centre, source frame
+    u_expected = 120.0 * (centre_src - 0.02) / 0.6 + K_dst[0, 2]
+    assert abs(cols.mean() - u_expected) < 1.0 and abs(rows.mean() - 39.5) < 1.0
+    # identity pose and intrinsics: the same image
+    same = register_depth(depth, K_src, Pose.identity(), K_src, 100, 80)
+    assert np.array_equal(same, depth)
+
+
+def test_presets_and_config_errors():
+    assert set(STEREO_PRESETS) == {"d435-stereo", "passive-stereo"}
+    d435 = STEREO_PRESETS["d435-stereo"]
+    assert d435.baseline == 0.05 and 380 <= d435.ir_focal_ratio * 640 <= 430 and d435.projector
+    assert not STEREO_PRESETS["passive-stereo"].projector
+    assert d435.num_disparities(d435.ir_focal_ratio * 640) % 16 == 0
+    with pytest.raises(ConfigError, match="known"):
+        stereo_preset("kinect")
+    with pytest.raises(ConfigError, match="block_size"):
+        StereoSensor(block_size=4)
