@@ -25,6 +25,7 @@ bytes. The exact depth, masks and poses are not touched (the sensed depth is a n
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -48,6 +49,8 @@ class StereoSensor:
         projector: Whether the dot projector is on (``False``: passive stereo, ambient light only).
         dot_fraction: Fraction of projector pixels that hold a dot centre.
         dot_sigma: Dot radius (Gaussian sigma), projector pixels.
+        pattern_seed: Seed of the dot pattern: the pattern is part of the device, the same in every view (the
+            view's generator only draws the sensor noise).
         projector_power: Dot peak intensity on a white surface facing the projector at 1 m.
         ambient: Ambient IR level (flat illumination), times the albedo.
         albedo: ``"rgb"`` (luminance of the rendered colour: dark surfaces return little light) or a constant.
@@ -71,7 +74,8 @@ class StereoSensor:
     projector: bool = True
     dot_fraction: float = 0.2
     dot_sigma: float = 0.7
-    projector_power: float = 0.30
+    pattern_seed: int = 435
+    projector_power: float = 0.60
     ambient: float = 0.10
     albedo: str | float = "rgb"
     noise: float = 0.01
@@ -136,7 +140,7 @@ class StereoSensor:
             proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
             left = at.render(T_left, rgb=use_rgb)
             right = at.render(T_right, rgb=use_rgb)
-        pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, rng) \
+        pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
         ir = []
         for frame, T in ((left, T_left), (right, T_right)):
@@ -168,41 +172,45 @@ class StereoSensor:
 
     def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
                   rng: np.random.Generator) -> np.ndarray:
-        """The 8-bit IR image of one camera from its exact depth (and colour)."""
-        z = frame.depth.astype(np.float64)
+        """The 8-bit IR image of one camera from its exact depth (and colour), float32 throughout."""
+        import cv2
+
+        z = frame.depth.astype(np.float32)
         h, w = z.shape
         hit = z > 0
         if self.albedo == "rgb":
-            rgb = frame.rgb.astype(np.float64) / 255.0
-            albedo = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) ** 2.2  # sRGB-ish -> linear
+            rgb = frame.rgb.astype(np.float32)
+            albedo = (0.299 / 255) * rgb[..., 0] + (0.587 / 255) * rgb[..., 1] + (0.114 / 255) * rgb[..., 2]
         else:
-            albedo = np.full((h, w), float(self.albedo))
-        albedo = np.where(hit, albedo, 0.0)
-        light = np.full((h, w), self.ambient)
+            albedo = np.full((h, w), float(self.albedo), dtype=np.float32)
+        albedo[~hit] = 0.0
+        light = np.full((h, w), self.ambient, dtype=np.float32)
         if pattern is not None:
-            v, u = np.mgrid[0:h, 0:w]
-            p_cam = pinhole_points(K_ir, u, v, z)
-            p_world = T_world_ir.apply(p_cam.reshape(-1, 3))
-            p_proj = T_proj.inverse().apply(p_world).reshape(h, w, 3)
-            zp = p_proj[..., 2]
-            safe = np.where(zp > 1e-6, zp, 1.0)
-            up, vp = pinhole_pixels(K_ir, p_proj, safe)
-            ui, vi = np.rint(up).astype(np.int64), np.rint(vp).astype(np.int64)
-            inside = hit & (zp > 1e-6) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-            uc, vc = np.clip(ui, 0, w - 1), np.clip(vi, 0, h - 1)
-            # Lit: the projector sees this point (its own depth there matches), else it is in the shadow.
-            lit = inside & (np.abs(proj_depth[vc, uc] - zp) <= self.shadow_tolerance * zp + 1e-3)
+            fx, fy, cx, cy = (np.float32(K_ir[0, 0]), np.float32(K_ir[1, 1]), np.float32(K_ir[0, 2]),
+                              np.float32(K_ir[1, 2]))
+            u = np.arange(w, dtype=np.float32)[None, :]
+            v = np.arange(h, dtype=np.float32)[:, None]
+            x, y = (u - cx) / fx * z, (v - cy) / fy * z
+            # The projector's frame is the IR frame shifted by o (same orientation by construction of poses()).
+            o = (T_world_ir.R.T @ (T_proj.t - T_world_ir.t)).astype(np.float32)
+            xp, yp, zp = x - o[0], y - o[1], z - o[2]
+            front = hit & (zp > 1e-4)
+            safe = np.where(front, zp, np.float32(1.0))
+            up, vp = fx * xp / safe + cx, fy * yp / safe + cy
+            # Lit: the projector sees this point (its own depth there matches), else it is in the projector's shadow.
+            seen = cv2.remap(proj_depth.astype(np.float32), up, vp, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=0.0)
+            lit = front & (np.abs(seen - zp) <= self.shadow_tolerance * zp + 1e-3)
             # cos(incidence) from the surface normal of the back-projected points
-            dx = np.gradient(p_cam, axis=1)
-            dy = np.gradient(p_cam, axis=0)
-            n = np.cross(dx, dy)
-            n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
-            to_proj = (T_proj.t - T_world_ir.t) @ T_world_ir.R - p_cam  # projector minus point, IR frame
-            r = np.linalg.norm(to_proj, axis=-1) + 1e-9
-            cos = np.abs(np.sum(n * to_proj, axis=-1)) / r
-            dots = _bilinear(pattern, up, vp)
-            light = light + np.where(lit, self.projector_power * dots * cos / r ** 2, 0.0)
-        ir = albedo * light + rng.normal(0.0, self.noise, size=(h, w))
+            gx = [np.gradient(c, axis=1) for c in (x, y, z)]
+            gy = [np.gradient(c, axis=0) for c in (x, y, z)]
+            n = (gx[1] * gy[2] - gx[2] * gy[1], gx[2] * gy[0] - gx[0] * gy[2], gx[0] * gy[1] - gx[1] * gy[0])
+            nn = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2) + np.float32(1e-12)
+            r2 = xp ** 2 + yp ** 2 + zp ** 2 + np.float32(1e-12)
+            cos = np.abs(n[0] * xp + n[1] * yp + n[2] * zp) / (nn * np.sqrt(r2))
+            dots = cv2.remap(pattern, up, vp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            light += np.where(lit, np.float32(self.projector_power) * dots * cos / r2, np.float32(0.0))
+        ir = albedo * light + rng.normal(0.0, self.noise, size=(h, w)).astype(np.float32)
         return np.clip(np.rint(ir * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -250,32 +258,37 @@ class _RenderAt:
         self.data.cam_xmat[self.cid] = self.mat
 
 
-def dot_pattern(width: int, height: int, fraction: float, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    """A seeded pseudo-random dot pattern (H, W) in [0, 1]: ``fraction x W x H`` Gaussian dots of std
-    ``sigma`` pixels at sub-pixel positions, peak 1."""
+def dot_pattern(width: int, height: int, fraction: float, sigma: float, seed: int) -> np.ndarray:
+    """The projector's pseudo-random dot pattern (H, W) in [0, 1], fixed by ``seed`` (a property of the device,
+    like the D435's diffractive element): ``fraction x W x H`` Gaussian dots of std ``sigma`` pixels at
+    sub-pixel positions, peak 1 (overlaps add, clipped at 1). Cached per arguments; read-only."""
+    return _dot_pattern(int(width), int(height), float(fraction), float(sigma), int(seed))
+
+
+@lru_cache(maxsize=8)
+def _dot_pattern(width: int, height: int, fraction: float, sigma: float, seed: int) -> np.ndarray:
+    import cv2
+
+    rng = np.random.default_rng(seed)
     n = int(round(fraction * width * height))
     xs = rng.uniform(-0.5, width - 0.5, n)
     ys = rng.uniform(-0.5, height - 0.5, n)
-    out = np.zeros((height, width), dtype=np.float64)
-    r = int(np.ceil(3 * sigma))
-    xi, yi = np.rint(xs).astype(np.int64), np.rint(ys).astype(np.int64)
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            u, v = xi + dx, yi + dy
-            ok = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-            g = np.exp(-((u - xs) ** 2 + (v - ys) ** 2) / (2 * sigma ** 2))
-            np.maximum.at(out, (v[ok], u[ok]), g[ok])
+    x0, y0 = np.floor(xs).astype(np.int64), np.floor(ys).astype(np.int64)
+    a, b = xs - x0, ys - y0
+    grid = np.zeros((height + 2, width + 2), dtype=np.float64)  # one pixel of margin on each side
+    for dx, dy, wgt in ((0, 0, (1 - a) * (1 - b)), (1, 0, a * (1 - b)), (0, 1, (1 - a) * b), (1, 1, a * b)):
+        np.add.at(grid, (y0 + dy + 1, x0 + dx + 1), wgt)
+    blurred = cv2.GaussianBlur(grid, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
+    out = np.clip(blurred[1:-1, 1:-1] * (2 * np.pi * sigma ** 2), 0.0, 1.0).astype(np.float32)
+    out.setflags(write=False)
     return out
 
 
-def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    h, w = img.shape
-    u = np.clip(u, 0, w - 1.000001)
-    v = np.clip(v, 0, h - 1.000001)
-    u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    a, b = u - u0, v - v0
-    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
-            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
+def _transform(T: Pose, p: np.ndarray) -> np.ndarray:
+    """``T.apply`` for many points, column by column (numpy's matmul with a 3-wide inner axis is slow)."""
+    R, t = T.R, T.t
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    return np.stack([R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3)], axis=-1)
 
 
 def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst: np.ndarray, width: int,
@@ -293,10 +306,10 @@ def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst:
     if z.size:
         corners = []
         for du, dv in ((-0.5, -0.5), (0.5, 0.5)):
-            p = T_dst_src.apply(pinhole_points(K_src, u + du, v + dv, z))
+            p = _transform(T_dst_src, pinhole_points(K_src, u + du, v + dv, z))
             zz = np.where(p[:, 2] > 1e-6, p[:, 2], np.nan)
             corners.append(pinhole_pixels(K_dst, p, zz))
-        zc = T_dst_src.apply(pinhole_points(K_src, u.astype(np.float64), v.astype(np.float64), z))[:, 2]
+        zc = _transform(T_dst_src, pinhole_points(K_src, u.astype(np.float64), v.astype(np.float64), z))[:, 2]
         (ua, va), (ub, vb) = corners
         good = np.isfinite(ua) & np.isfinite(ub) & np.isfinite(va) & np.isfinite(vb) & (zc > 0)
         lo_u = np.ceil(np.minimum(ua, ub)[good] - 1e-9).astype(np.int64)

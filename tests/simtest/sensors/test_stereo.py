@@ -51,10 +51,8 @@ def _sense(sim, cam, preset="d435-stereo", seed=0):
     return exact, view, after
 
 
-def test_projector_shadow_holes_lie_on_the_side_away_from_the_projector(make_scene):
-    make, K, tz = make_scene
-    sim = make(FLAT, [((0.03, 0.03, 0.08), (0.0, 0.0, tz + 0.08), BRIGHT)])
-    exact, view, _ = _sense(sim, _camera(K, (0.0, -0.45, tz + 0.45), (0.0, 0.0, tz + 0.06)))
+def _side_holes(exact, view, band: int = 10) -> tuple[int, int, int]:
+    """Invalid pixels in ``band`` columns left and right of the centre object's silhouette, and its rows."""
     box = exact.seg == exact.seg[H // 2, W // 2]
     invalid = view.depth == 0
     left = right = rows = 0
@@ -63,12 +61,27 @@ def test_projector_shadow_holes_lie_on_the_side_away_from_the_projector(make_sce
         if cols.size < 3:
             continue
         a, b = cols.min(), cols.max()
-        left += int(invalid[row, max(0, a - 6):a].sum())
-        right += int(invalid[row, b + 1:b + 7].sum())
+        left += int(invalid[row, max(0, a - band):a].sum())
+        right += int(invalid[row, b + 1:b + 1 + band].sum())
         rows += 1
-    assert rows > 20
+    return left, right, rows
+
+
+def test_projector_shadow_holes_lie_on_the_side_away_from_the_projector(make_scene):
+    make, K, tz = make_scene
+    sim = make(FLAT, [((0.03, 0.03, 0.1), (0.0, 0.0, tz + 0.1), BRIGHT)])
+    cam = _camera(K, (0.0, -0.2, tz + 0.55), (0.0, 0.0, tz))
+    exact, view, _ = _sense(sim, cam)
+    left, right, rows = _side_holes(exact, view)
+    assert rows > 30
     # The projector sits at +x of the left camera: its shadow (and the right camera's occlusion) is on the left.
-    assert left > 3 * max(right, 1) and left > rows, (left, right, rows)
+    assert left > 2 * rows and left > 5 * max(right, 1), (left, right, rows)
+    # A projector moved to the other side of the left camera casts its shadow on the right.
+    sensor = STEREO_PRESETS["d435-stereo"].replace(projector_offset=(-0.04, 0.0, 0.0))
+    with Renderer(sim.model, W, H) as r:
+        moved = sensor.sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(0))
+    _, right_moved, _ = _side_holes(exact, moved)
+    assert right_moved > right + rows // 3, (right, right_moved, rows)
 
 
 def _robust_error(exact, view) -> float:

@@ -1,0 +1,54 @@
+"""Cost of the simulated active-stereo sensor (:mod:`simtest.sensors.stereo`) against the frame it senses.
+
+One generated scene (the default config at ``width`` x ``height``, scene 0, settled), each of its views rendered
+with the ``fast`` profile (RGB, depth, segmentation: what ``generate`` renders per view) and sensed by a stereo
+preset; best of ``repeat`` runs per view, milliseconds, averaged over the views.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["run", "table"]
+
+
+def _best_ms(fn, repeat: int) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return 1000.0 * best
+
+
+def run(width: int = 640, height: int = 480, preset: str = "d435-stereo", repeat: int = 3,
+        views: int = 3) -> dict[str, float]:
+    """``{"frame_ms", "stereo_ms", "ratio", "valid"}``: the fast profile's frame, the sensor's view, their ratio and
+    the sensed depth's valid fraction (of the pixels with exact depth)."""
+    from simtest.generators.config import GenerateConfig
+    from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+    from simtest.render.rasterizer import Renderer
+    from simtest.sensors.stereo import stereo_preset
+
+    cfg = GenerateConfig().replace(**{"camera.width": width, "camera.height": height, "scenes": 1})
+    scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
+    sensor = stereo_preset(preset)
+    frame_ms, stereo_ms, valid = [], [], []
+    with Renderer(scene.model, width, height, profile="fast") as renderer:
+        for cam, _ in scene_cameras(cfg, scene)[:views]:
+            scene.set_camera(cam)
+            frame_ms.append(_best_ms(lambda: renderer.render(scene.data, scene.camera_id), repeat))
+            stereo_ms.append(_best_ms(lambda: sensor.sense(renderer, scene.data, scene.camera_id, cam,
+                                                           np.random.default_rng(0)), repeat))
+            exact = renderer.render(scene.data, scene.camera_id, rgb=False, seg=False).depth
+            depth = sensor.sense(renderer, scene.data, scene.camera_id, cam, np.random.default_rng(0))
+            valid.append(float((depth[exact > 0] > 0).mean()))
+    f, s = float(np.mean(frame_ms)), float(np.mean(stereo_ms))
+    return {"frame_ms": f, "stereo_ms": s, "ratio": s / f, "valid": float(np.mean(valid))}
+
+
+def table(result: dict[str, float]) -> str:
+    return (f"fast frame {result['frame_ms']:.1f} ms, stereo {result['stereo_ms']:.1f} ms "
+            f"({result['ratio']:.1f}x), valid {100 * result['valid']:.0f}%")

@@ -1,0 +1,10 @@
+"""The stereo cost benchmark runs on a small generated scene and reports sane numbers."""
+
+from simtest.benchmarks.stereo import run, table
+
+
+def test_stereo_benchmark_small():
+    result = run(160, 120, repeat=1, views=1)
+    assert set(result) == {"frame_ms", "stereo_ms", "ratio", "valid"}
+    assert result["stereo_ms"] > 0 and result["frame_ms"] > 0 and 0.3 < result["valid"] <= 1.0
+    assert "stereo" in table(result)
