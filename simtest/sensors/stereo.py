@@ -152,7 +152,7 @@ class StereoSensor:
                                      P1=self.p1_scale * bs * bs, P2=self.p2_scale * bs * bs,
                                      disp12MaxDiff=self.disp12_max_diff, uniquenessRatio=self.uniqueness_ratio,
                                      speckleWindowSize=max(4, int(round(self.speckle_window * area))),
-                                     speckleRange=self.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM)
+                                     speckleRange=self.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
         disp = sgbm.compute(ir[0], ir[1]).astype(np.float32) / 16.0
         depth_ir = np.zeros(disp.shape, dtype=np.float32)
         ok = disp > 0
@@ -164,10 +164,7 @@ class StereoSensor:
             depth_ir[np.sqrt(np.maximum(var, 0.0)) < self.texture_threshold] = 0.0
         depth_ir[(depth_ir < self.min_depth) | (depth_ir > self.max_depth)] = 0.0
         T_col_ir = camera.T_cam_world @ T_left
-        if np.allclose(T_col_ir.t, 0.0) and np.allclose(K_ir, camera.K):
-            depth = depth_ir.copy()
-        else:
-            depth = register_depth(depth_ir, K_ir, T_col_ir, camera.K, camera.width, camera.height)
+        depth = register_depth(depth_ir, K_ir, T_col_ir, camera.K, camera.width, camera.height)
         return StereoView(depth, ir[0], ir[1], depth_ir, left.depth, K_ir)
 
     def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
@@ -210,7 +207,7 @@ class StereoSensor:
             cos = np.abs(n[0] * xp + n[1] * yp + n[2] * zp) / (nn * np.sqrt(r2))
             dots = cv2.remap(pattern, up, vp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
             light += np.where(lit, np.float32(self.projector_power) * dots * cos / r2, np.float32(0.0))
-        ir = albedo * light + rng.normal(0.0, self.noise, size=(h, w)).astype(np.float32)
+        ir = albedo * light + np.float32(self.noise) * rng.standard_normal((h, w), dtype=np.float32)
         return np.clip(np.rint(ir * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -291,14 +288,31 @@ def _transform(T: Pose, p: np.ndarray) -> np.ndarray:
     return np.stack([R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3)], axis=-1)
 
 
+def _rescale_depth(depth: np.ndarray, K_src: np.ndarray, K_dst: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Registration between cameras with one centre and orientation: no parallax, so each destination pixel
+    takes the source pixel its ray passes through (nearest), the same depth."""
+    import cv2
+
+    if np.array_equal(K_src, K_dst) and depth.shape == (height, width):
+        return np.asarray(depth, dtype=np.float32).copy()
+    u = (np.arange(width, dtype=np.float64) - K_dst[0, 2]) / K_dst[0, 0] * K_src[0, 0] + K_src[0, 2]
+    v = (np.arange(height, dtype=np.float64) - K_dst[1, 2]) / K_dst[1, 1] * K_src[1, 1] + K_src[1, 2]
+    mu, mv = np.meshgrid(u.astype(np.float32), v.astype(np.float32))
+    return cv2.remap(np.asarray(depth, dtype=np.float32), mu, mv, cv2.INTER_NEAREST,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+
 def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst: np.ndarray, width: int,
                    height: int) -> np.ndarray:
     """Depth-to-colour alignment: a depth image (metres, 0 = none) of a source camera seen by a destination
     camera (``T_dst_src`` maps source-frame points into it; ``width`` x ``height`` pixels, ``K_dst``).
 
     Each source pixel's footprint (its corners at its depth) is splatted into the destination image and the
-    nearest surface kept (z-buffer); destination pixels no source pixel covers stay 0.
+    nearest surface kept (z-buffer); destination pixels no source pixel covers stay 0. Cameras with one centre
+    and orientation (no parallax) take the exact shortcut: each destination ray's source pixel.
     """
+    if np.allclose(T_dst_src.t, 0.0, atol=1e-9) and np.allclose(T_dst_src.R, np.eye(3), atol=1e-9):
+        return _rescale_depth(depth, K_src, K_dst, width, height)
     d = np.asarray(depth, dtype=np.float64)
     v, u = np.nonzero(d > 0)
     z = d[v, u]

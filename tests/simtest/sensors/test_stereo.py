@@ -169,6 +169,11 @@ def test_register_depth_with_an_offset_and_other_intrinsics():
     # identity pose and intrinsics: the same image
     same = register_depth(depth, K_src, Pose.identity(), K_src, 100, 80)
     assert np.array_equal(same, depth)
+    # one centre, other intrinsics (the preset's IR -> colour): the shortcut agrees with the splat
+    shortcut = register_depth(depth, K_src, Pose.identity(), K_dst, 100, 80)
+    tiny = Pose(np.eye(3), np.array([1e-6, 0.0, 0.0]))
+    splat = register_depth(depth, K_src, tiny, K_dst, 100, 80)
+    assert (shortcut != splat).mean() < 0.02
 
 
 def test_presets_and_config_errors():
