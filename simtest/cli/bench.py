@@ -34,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "320x240, 8 at 640x480, as render.pbr_spp)")
     g.add_argument("--pbr-variant", default="auto", choices=["auto", "cuda", "llvm", "scalar"],
                    help="Mitsuba variant of the pbr profile (--profiles; default auto, as render.pbr_variant)")
+    g.add_argument("--channels", action="store_true",
+                   help="also the milliseconds per frame of each dense ground-truth channel (generate --channels) "
+                        "at --width x --height, as `simtest bench channels`")
     g.set_defaults(func=_generate)
     gr = bsub.add_parser("grasp", parents=[common_parser()],
                          help="grasp env steps/s vs raw mj_step; oracle episode wall time; reset ms and RSS")
@@ -99,11 +102,16 @@ def _generate(args: argparse.Namespace) -> int:
     from simtest.benchmarks.generate import bench_generate
 
     if args.profiles:
-        return _profiles(args)
-    res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
-                         args.objects, two_workers=not args.no_workers)
-    print(res.table())
-    return 0
+        code = _profiles(args)
+    else:
+        res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
+                             args.objects, two_workers=not args.no_workers)
+        print(res.table())
+        code = 0
+    if args.channels:
+        print()
+        _print_channels(args.width, args.height, 2, min(args.frames_per_scene, 5), args.objects)
+    return code
 
 
 def _profiles(args: argparse.Namespace) -> int:
@@ -157,15 +165,20 @@ def _corruptions(args: argparse.Namespace) -> int:
 
 
 def _channels(args: argparse.Namespace) -> int:
+    _print_channels(args.width, args.height, args.scenes, args.frames_per_scene, args.objects)
+    return 0
+
+
+def _print_channels(width: int, height: int, scenes: int, views: int, objects: str) -> None:
     from simtest.benchmarks.channels import bench_channels
 
-    res = bench_channels(args.width, args.height, args.scenes, args.frames_per_scene, objects=args.objects)
-    print(f"dense channels, {res['width']}x{res['height']}, {res['frames']} frames, objects {args.objects}: "
-          "median ms per frame (computed and PNG-encoded; writing runs on the writer threads)")
+    res = bench_channels(width, height, scenes, views, objects=objects)
+    print(f"dense channels, {res['width']}x{res['height']}, {res['frames']} frames, objects {objects}: "
+          "median ms per frame (computed and PNG-encoded; writing runs on the writer threads; annotation is what "
+          "every frame pays anyway)")
     print("| channel | ms / frame |\n|---|---:|")
     for name, ms in res["ms_per_frame"].items():
         print(f"| {name} | {ms:.1f} |")
-    return 0
 
 
 def _objects(args: argparse.Namespace) -> int:
