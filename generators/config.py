@@ -126,6 +126,10 @@ class RenderConfig:
     # scalar; an explicit "cuda" / "llvm" that cannot run is an error (simtest.render.llvm.choose_variant)
     pbr_variant: Literal["auto", "cuda", "llvm", "scalar"] = field(
         default="auto", metadata=_bounds(choices=("auto", "cuda", "llvm", "scalar")))
+    # depth/ from a simulated depth sensor (simtest.sensors.stereo presets) instead of the exact render; the exact
+    # depth then goes to depth_exact/ (same encoding); masks, poses and every other label stay exact
+    depth_sensor: Literal["none", "d435-stereo", "passive-stereo"] = field(
+        default="none", metadata=_bounds(choices=("none", "d435-stereo", "passive-stereo")))
 
     def __post_init__(self) -> None:
         spp = self.pbr_spp

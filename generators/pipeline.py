@@ -27,7 +27,7 @@ from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig
 from simtest.generators.dense import DenseViews
 from simtest.generators.views_behind import ViewsBehind
-from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
+from simtest.io.bop import SceneWriter, encode_depth, scene_dirs, write_camera_json
 from simtest.io.bop_targets import TARGETS_BOP19, TARGETS_BOP24, write_targets
 from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
@@ -187,12 +187,15 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
         channels = cfg.annotation.channels
         dense = DenseViews(channels, scene.model, objects, writer) if channels else None
 
-        def finish_view(im_id: int, frame, cam: CameraModel, state, record) -> None:
-            """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer."""
+        def finish_view(im_id: int, frame, cam: CameraModel, state, record, sensed=None) -> None:
+            """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer
+            (``sensed``: a depth sensor's image for depth/, the exact one then goes to depth_exact/)."""
             anns = annotate(state, frame, cam, objects)
             images, kps = dense.view(im_id, frame, cam, state, anns) if dense is not None else (None, None)
-            writer.add(im_id, frame.rgb, frame.depth, cam, anns, [a.mask for a in anns],
+            writer.add(im_id, frame.rgb, frame.depth if sensed is None else sensed, cam, anns, [a.mask for a in anns],
                        [a.mask_visib for a in anns], images=images, keypoints=kps)
+            if sensed is not None:
+                writer.add_image("depth_exact", im_id, encode_depth(frame.depth, writer.depth_scale))
             if record is not None:
                 from simtest.generators.occlusion import measured_level
 
@@ -200,6 +203,11 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
                     {a.instance: j for j, a in enumerate(anns)},
                     [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
 
+        sensor = None
+        if cfg.render.depth_sensor != "none":
+            from simtest.sensors.stereo import sensor_rng, stereo_preset
+
+            sensor = stereo_preset(cfg.render.depth_sensor)
         pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
         with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
                       profile="fast" if pbr is not None else cfg.render.profile) as renderer, \
@@ -225,7 +233,11 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
 
                     rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
                     frame = dataclasses.replace(frame, rgb=rgb)
-                behind.submit(finish_view, im_id, frame, cam, scene.state(), record)
+                sensed = None
+                if sensor is not None:  # renders through the same renderer, restores the camera; frame stays exact
+                    sensed = sensor.sense(renderer, scene.data, scene.camera_id, cam,
+                                          sensor_rng(cfg.seed, scene_id, im_id))
+                behind.submit(finish_view, im_id, frame, cam, scene.state(), record, sensed)
         if occlusion_log:
             from simtest.io.files import dump_json_keyed, atomic_write_text
 

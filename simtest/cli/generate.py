@@ -27,6 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--height", type=int, help="image height (pixels)")
     p.add_argument("--profile", choices=["fast", "quality", "pbr"],
                    help="render profile (quality: shadows, MSAA; pbr: path-traced RGB, needs simtest[pbr])")
+    p.add_argument("--depth-sensor", choices=["none", "d435-stereo", "passive-stereo"],
+                   help="depth/ from a simulated active/passive stereo sensor; the exact depth goes to depth_exact/")
     p.add_argument("--occlusion", choices=["L0", "L1", "L2", "L3", "mixed"],
                    help="physical occluders so a target per image lands in this level's band")
     p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
@@ -65,7 +67,7 @@ def config_from_args(args: argparse.Namespace):
     overrides = {
         "objects": args.objects, "units": args.units, "scale": args.scale, "scenes": args.scenes,
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
-        "camera.height": args.height, "render.profile": args.profile, "render.coco": args.coco,
+        "camera.height": args.height, "render.profile": args.profile, "render.depth_sensor": args.depth_sensor, "render.coco": args.coco,
         "render.rgb_format": args.rgb_format, "captions": args.captions, "unlabelled": args.unlabelled,
         "workers": args.workers, "backend": args.backend, "ray_address": args.ray_address, "seed": args.seed,
         "occlusion.level": args.occlusion,

@@ -32,8 +32,19 @@ import numpy as np
 from simtest.camera import CameraModel, intrinsics_matrix, pinhole_pixels, pinhole_points
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
+from simtest.rng import child_rng
 
-__all__ = ["StereoSensor", "StereoView", "STEREO_PRESETS", "stereo_preset", "register_depth", "dot_pattern"]
+__all__ = ["sensor_rng", "StereoSensor", "StereoView", "STEREO_PRESETS", "stereo_preset", "register_depth", "dot_pattern"]
+
+
+#: First key of the sensors' seed stream below a run's seed (apart from the scenes' own streams).
+_SENSOR_STREAM = 0x5E45
+
+
+def sensor_rng(seed: int | None, scene_id: int, im_id: int) -> np.random.Generator:
+    """The sensor noise generator of view ``im_id`` of scene ``scene_id``: a stream of its own below the run's
+    seed, so a sensor draws nothing from the scene's generator (every other file stays the same)."""
+    return child_rng(seed, _SENSOR_STREAM, scene_id, im_id)
 
 
 @dataclass(frozen=True)
