@@ -65,6 +65,8 @@ class StereoSensor:
         projector_power: Dot peak intensity on a white surface facing the projector at 1 m.
         ambient: Ambient IR level (flat illumination), times the albedo.
         albedo: ``"rgb"`` (luminance of the rendered colour: dark surfaces return little light) or a constant.
+        mirror: Scale each geom's albedo by ``1 - reflectance`` of its material: light a mirror-like surface
+            reflects specularly does not come back to the cameras (a MuJoCo mirror, ``reflectance`` 1, is black).
         noise: Sensor noise std (fraction of full scale 1.0).
         shadow_tolerance: Relative depth tolerance of the projector-visibility test.
         texture_threshold: Pixels whose left-IR local contrast (std over the matching block, fraction of full
@@ -89,6 +91,7 @@ class StereoSensor:
     projector_power: float = 0.60
     ambient: float = 0.10
     albedo: str | float = "rgb"
+    mirror: bool = True
     noise: float = 0.01
     shadow_tolerance: float = 0.01
     texture_threshold: float = 0.02
@@ -149,13 +152,14 @@ class StereoSensor:
         use_rgb = self.albedo == "rgb"
         with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
             proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
-            left = at.render(T_left, rgb=use_rgb)
-            right = at.render(T_right, rgb=use_rgb)
+            left = at.render(T_left, rgb=use_rgb, seg=self.mirror)
+            right = at.render(T_right, rgb=use_rgb, seg=self.mirror)
+        diffuse = _diffuse_fraction(renderer.model) if self.mirror else None
         pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
         ir = []
         for frame, T in ((left, T_left), (right, T_right)):
-            ir.append(self._ir_image(frame, T, K_ir, T_proj, proj_depth, pattern, rng))
+            ir.append(self._ir_image(frame, T, K_ir, T_proj, proj_depth, pattern, rng, diffuse))
         f = float(K_ir[0, 0])
         bs = self.block_size
         area = camera.width * camera.height / (640.0 * 480.0)
@@ -179,7 +183,7 @@ class StereoSensor:
         return StereoView(depth, ir[0], ir[1], depth_ir, left.depth, K_ir)
 
     def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
-                  rng: np.random.Generator) -> np.ndarray:
+                  rng: np.random.Generator, diffuse: np.ndarray | None = None) -> np.ndarray:
         """The 8-bit IR image of one camera from its exact depth (and colour), float32 throughout."""
         import cv2
 
@@ -191,6 +195,8 @@ class StereoSensor:
             albedo = (0.299 / 255) * rgb[..., 0] + (0.587 / 255) * rgb[..., 1] + (0.114 / 255) * rgb[..., 2]
         else:
             albedo = np.full((h, w), float(self.albedo), dtype=np.float32)
+        if diffuse is not None:
+            albedo *= diffuse[np.where(frame.seg >= 0, frame.seg, len(diffuse) - 1)]
         albedo[~hit] = 0.0
         light = np.full((h, w), self.ambient, dtype=np.float32)
         if pattern is not None:
@@ -254,16 +260,26 @@ class _RenderAt:
         self.model.cam_intrinsic[self.cid, 1] = self.intr[1] * self.scale[1]
         return self
 
-    def render(self, T_world: Pose, rgb: bool):
+    def render(self, T_world: Pose, rgb: bool, seg: bool = False):
         pos, R_mj = self.camera.with_pose(T_world).mujoco_pose()
         self.data.cam_xpos[self.cid] = pos
         self.data.cam_xmat[self.cid] = R_mj.reshape(-1)
-        return self.renderer.render(self.data, self.cid, rgb=rgb, depth=True, seg=False)
+        return self.renderer.render(self.data, self.cid, rgb=rgb, depth=True, seg=seg)
 
     def __exit__(self, *exc) -> None:
         self.model.cam_intrinsic[self.cid] = self.intr
         self.data.cam_xpos[self.cid] = self.pos
         self.data.cam_xmat[self.cid] = self.mat
+
+
+def _diffuse_fraction(model) -> np.ndarray:
+    """(ngeom + 1,) float32: ``1 - reflectance`` of each geom's material (1 without one), and 1 for the
+    background (the last entry, for seg = -1)."""
+    matid = np.asarray(model.geom_matid)
+    refl = np.zeros(matid.shape, dtype=np.float32)
+    has = matid >= 0
+    refl[has] = np.asarray(model.mat_reflectance, dtype=np.float32)[matid[has]]
+    return np.append(np.clip(1.0 - refl, 0.0, 1.0), np.float32(1.0)).astype(np.float32)
 
 
 def dot_pattern(width: int, height: int, fraction: float, sigma: float, seed: int) -> np.ndarray:

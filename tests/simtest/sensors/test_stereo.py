@@ -1,5 +1,5 @@
 """The simulated active-stereo sensor on real MuJoCo renders: projector shadows beside edges, error growing as
-z^2, dark and textureless surfaces losing depth, exact ground truth untouched, seeded bytes, and the
+z^2, dark, mirror-like and textureless surfaces losing depth, exact ground truth untouched, seeded bytes, and the
 depth-to-colour registration."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from simtest.camera import CameraModel, intrinsics_matrix, look_at_pose
 from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder
 from simtest.generators.config import GenerateConfig
-from simtest.generators.scene_spec import DistractorSpec, LightSpec, SceneSpec, SurfaceSpec
+from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
 from simtest.geometry import Pose
 from simtest.objects import load_object_set
 from simtest.render.rasterizer import Renderer
@@ -29,11 +29,12 @@ def make_scene():
     builder = SceneBuilder(load_object_set("builtin"), cfg)
     tz = cfg.scene.table_height
 
-    def make(table, boxes):
-        """A table (``table`` surface) with boxes ``(half sizes, centre, rgba)`` on it, one overhead light."""
+    def make(table, boxes, objects=()):
+        """A table (``table`` surface) with boxes ``(half sizes, centre, rgba)`` and ``objects``
+        (``ObjectPlacement``) on it, one overhead light."""
         ds = tuple(DistractorSpec("box", s, p, (1.0, 0.0, 0.0, 0.0), c) for s, p, c in boxes)
         light = LightSpec((0.0, 0.0, tz + 2.0), (0.0, 0.0, -1.0), (0.5, 0.5, 0.5), 0.0)
-        return builder.build(SceneSpec(0, 0, (), ds, (light,), 0.6, table, FLAT, FLAT, ()))
+        return builder.build(SceneSpec(0, 0, tuple(objects), ds, (light,), 0.6, table, FLAT, FLAT, ()))
 
     return make, cfg.camera.K(), tz
 
@@ -186,3 +187,21 @@ def test_presets_and_config_errors():
         stereo_preset("kinect")
     with pytest.raises(ConfigError, match="block_size"):
         StereoSensor(block_size=4)
+
+
+def test_mirror_like_object_loses_depth(make_scene):
+    make, K, tz = make_scene
+    # box_0 (0.2 m tall) twice: a matte one and a MuJoCo mirror (reflectance 1)
+    matte = ObjectPlacement(13, (-0.08, 0.0, tz + 0.1), (1.0, 0.0, 0.0, 0.0), BRIGHT, 0.0, 0.0, 0.0)
+    mirror = ObjectPlacement(13, (0.08, 0.0, tz + 0.1), (1.0, 0.0, 0.0, 0.0), BRIGHT, 0.5, 0.5, 1.0)
+    sim = make(FLAT, [], (matte, mirror))
+    cam = _camera(K, (0.0, -0.2, tz + 0.75), (0.0, 0.0, tz))
+    exact, view, _ = _sense(sim, cam)
+    on_matte = _valid_fraction(exact, view, cam, (-0.08, 0.0, tz + 0.2))
+    on_mirror = _valid_fraction(exact, view, cam, (0.08, 0.0, tz + 0.2))
+    assert on_matte > 0.9 and on_mirror < on_matte - 0.3, (on_matte, on_mirror)
+    # without the reflectance term the mirror is as good as the matte box
+    plain = STEREO_PRESETS["d435-stereo"].replace(mirror=False)
+    with Renderer(sim.model, W, H) as r:
+        v2 = plain.sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(0))
+    assert _valid_fraction(exact, v2, cam, (0.08, 0.0, tz + 0.2)) > 0.9
