@@ -86,6 +86,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     ch.add_argument("--frames-per-scene", type=int, default=5, help="sequence views per scene (default 5)")
     ch.add_argument("--objects", default="builtin", help="object set (default builtin)")
     ch.set_defaults(func=_channels)
+    st = bsub.add_parser("stereo", parents=[common_parser()],
+                         help="milliseconds per view of a simulated stereo depth sensor against the fast profile's "
+                              "frame (generate --depth-sensor)")
+    st.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    st.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    st.add_argument("--preset", default="d435-stereo", help="sensor preset (default d435-stereo)")
+    st.add_argument("--views", type=int, default=3, help="views of one generated scene (default 3)")
+    st.set_defaults(func=_stereo)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -166,6 +174,14 @@ def _corruptions(args: argparse.Namespace) -> int:
 
 def _channels(args: argparse.Namespace) -> int:
     _print_channels(args.width, args.height, args.scenes, args.frames_per_scene, args.objects)
+    return 0
+
+
+def _stereo(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.stereo import run, table
+
+    print(f"{args.preset}, {args.width}x{args.height}, {args.views} views (best of 3 per view): "
+          f"{table(run(args.width, args.height, args.preset, views=args.views))}")
     return 0
 
 

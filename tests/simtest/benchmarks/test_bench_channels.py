@@ -15,3 +15,9 @@ def test_every_channel_gets_a_cost(capsys):
                  "--objects", "builtin-small"]) == 0
     out = capsys.readouterr().out
     assert "| normals |" in out and "| flow |" in out
+
+
+def test_bench_stereo_reports_the_sensor_against_the_fast_frame(capsys):
+    assert main(["bench", "stereo", "--width", "80", "--height", "60", "--views", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "d435-stereo, 80x60" in out and "fast frame" in out and "valid" in out
