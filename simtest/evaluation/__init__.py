@@ -7,4 +7,5 @@
 | :mod:`~simtest.evaluation.scoring` | matching of estimates to targets, per-target errors, aggregates |
 | :mod:`~simtest.evaluation.tracking` | tracking scores and outputs of a sequence evaluation |
 | :mod:`~simtest.evaluation.tables` | evaluation tables laid out from the metric registry |
+| :mod:`~simtest.evaluation.detection` | the BOP24 6D detection task (estimators told no targets) and the classification table |
 """
