@@ -81,7 +81,7 @@ def detection_groups(refs: Sequence[ImageRef], estimates: Iterable[ResultRow], m
                     R_g, t_g = g.T_cam_obj.R, g.T_cam_obj.t
                     if np.linalg.norm(e.t - t_g) < obj.diameter:  # the toolkit's sphere test
                         d = mssd(e.R, e.t, R_g, t_g, obj.vertices, syms[obj_id])
-                        err["mssd"][i, j], err["mssd_mm"][i, j] = d / obj.diameter, d * 1000.0
+                        err["mssd"][i, j], err["mssd_mm"][i, j] = d / obj.diameter, d  # metres
                     err["mspd"][i, j] = mspd(e.R, e.t, R_g, t_g, K, obj.vertices, syms[obj_id]) \
                         * MSPD_REFERENCE_WIDTH / width
             out.append(ObjectErrors(ref.scene_id, ref.im_id, obj_id, np.array([e.score for e in oe], float),

@@ -43,11 +43,12 @@ __all__ = ["MAX_ESTIMATES_PER_IMAGE", "VISIB_GT_MIN", "THRESHOLDS", "ERROR_KINDS
 MAX_ESTIMATES_PER_IMAGE = 100
 #: Ground-truth instances less visible than this are ignored (their matched estimates too).
 VISIB_GT_MIN = 0.1
-#: Thresholds of correctness per error kind: MSSD as a fraction of the diameter, MSSD in mm, MSPD in px
-#: (640 px wide image). ``np.arange`` as the toolkit writes them, so the floats are the same.
+#: Thresholds of correctness per error kind: MSSD as a fraction of the diameter, MSSD in metres (the toolkit's
+#: 2, 4, ..., 20 mm; the kind keeps the toolkit's name), MSPD in px (640 px wide image). ``np.arange`` as the
+#: toolkit writes them, so the floats are the same.
 THRESHOLDS: dict[str, tuple[float, ...]] = {
     "mssd": tuple(float(t) for t in np.arange(0.05, 0.51, 0.05)),
-    "mssd_mm": tuple(float(t) for t in range(2, 21, 2)),
+    "mssd_mm": tuple(0.002 * k for k in range(1, 11)),
     "mspd": tuple(float(t) for t in np.arange(5, 51, 5)),
 }
 #: The error kinds, in the order of ``THRESHOLDS``.
@@ -65,7 +66,7 @@ class ObjectErrors:
         scores: ``(n_est,)`` confidences, in decreasing order (the order of the image's kept estimates).
         visib: ``(n_gt,)`` ``visib_fract`` of the object's ground-truth instances, in ground-truth order.
         errors: ``{kind: (n_est, n_gt) errors}`` in the units of :data:`THRESHOLDS` (``mssd``: fraction of the
-            diameter, ``inf`` when the centres are a diameter or more apart; ``mssd_mm``: mm, same rule;
+            diameter, ``inf`` when the centres are a diameter or more apart; ``mssd_mm``: metres, same rule;
             ``mspd``: px at 640 px width).
     """
 
