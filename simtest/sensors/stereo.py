@@ -200,17 +200,16 @@ class StereoSensor:
         albedo[~hit] = 0.0
         light = np.full((h, w), self.ambient, dtype=np.float32)
         if pattern is not None:
-            fx, fy, cx, cy = (np.float32(K_ir[0, 0]), np.float32(K_ir[1, 1]), np.float32(K_ir[0, 2]),
-                              np.float32(K_ir[1, 2]))
-            u = np.arange(w, dtype=np.float32)[None, :]
-            v = np.arange(h, dtype=np.float32)[:, None]
-            x, y = (u - cx) / fx * z, (v - cy) / fy * z
+            K32 = K_ir.astype(np.float32)
+            v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+            pts = pinhole_points(K32, u, v, z)  # float32 in, float32 out
+            x, y = pts[..., 0], pts[..., 1]
             # The projector's frame is the IR frame shifted by o (same orientation by construction of poses()).
             o = (T_world_ir.R.T @ (T_proj.t - T_world_ir.t)).astype(np.float32)
             xp, yp, zp = x - o[0], y - o[1], z - o[2]
             front = hit & (zp > 1e-4)
             safe = np.where(front, zp, np.float32(1.0))
-            up, vp = fx * xp / safe + cx, fy * yp / safe + cy
+            up, vp = (a.astype(np.float32) for a in pinhole_pixels(K32, np.stack([xp, yp, zp], -1), safe))
             # Lit: the projector sees this point (its own depth there matches), else it is in the projector's shadow.
             seen = cv2.remap(proj_depth.astype(np.float32), up, vp, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                              borderValue=0.0)
