@@ -9,7 +9,8 @@ of periods per tile). Feature scales are fixed in cycles per tile, so a material
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
