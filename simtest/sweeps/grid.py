@@ -1,17 +1,22 @@
-"""Robustness sweeps: estimators x conditions (occlusion levels, image corruptions, depth noise) -> pose
-metrics and grasp success, cached per cell so an interrupted sweep resumes without recomputing.
+"""Robustness sweeps: estimators x conditions (occlusion levels, image corruptions, depth noise, render
+profiles, depth sensors) -> pose metrics and grasp success, cached per cell so an interrupted sweep resumes
+without recomputing.
 
 A *condition* changes one factor at a time from the clean data (the classic robustness-table layout):
-``clean``, ``L1``..``L3`` (occlusion), ``<corruption>-<severity>`` (e.g. ``fog-4``), ``depth-<preset>``.
-A *cell* is (estimator, condition, kind) with kind ``pose`` (evaluation on a corrupted copy of the dataset)
-or ``grasp`` (closed-loop episodes with the same condition applied to the wrist observations; occlusion is
-physical there). Each finished cell writes ``cells/<estimator>/<condition>/<kind>/cell.json`` last; a
-resumed sweep skips every cell that has it.
+``clean``, ``L1``..``L3`` (2D paste occlusion: object cutouts by default), ``<corruption>-<severity>`` (e.g.
+``fog-4``), ``depth-<preset>`` (image-space depth noise); and the generation conditions
+(:mod:`simtest.sweeps.renders`): ``depth-<sensor>`` (a simulated depth sensor, e.g. ``depth-d435-stereo``) and
+render conditions (``factors.renderers`` profiles, named ``[[renders]]`` override sets), whose datasets are the
+clean scenes generated again with the same ground truth. A *cell* is (estimator, condition, kind) with kind
+``pose`` (evaluation on the condition's dataset) or ``grasp`` (closed-loop episodes with the same condition
+applied to the wrist observations; occlusion is physical there; generation conditions have no grasp cells).
+Each finished cell writes ``cells/<estimator>/<condition>/<kind>/cell.json`` last; a resumed sweep skips
+every cell that has it.
 
 Where it runs (:mod:`simtest.backend`): the sweep goes in three phases, each a set of units on the chosen back
-end: the clean dataset (``generate``, one unit per scene), the corrupted copies it needs (one unit per
-condition), then the cells (one unit per cell; a cell runs its own evaluation or episodes in its process, with
-one worker). ``workers`` is the number of units run at once (local processes, or the CPUs of a Ray instance
+end: the datasets generated (the clean one, then each generation condition's: ``generate``, one unit per
+scene), the corrupted copies it needs (one unit per condition), then the cells (one unit per cell; a cell runs
+its own evaluation or episodes in its process, with one worker). ``workers`` is the number of units run at once (local processes, or the CPUs of a Ray instance
 started here). A cell's numbers do not depend on where it ran: episodes and images are seeded by their index.
 
 This is an orchestration module: it drives :mod:`simtest.generators`, :mod:`simtest.evaluation.run` and
@@ -29,6 +34,7 @@ from typing import Any
 
 
 from simtest.sweeps import cells
+from simtest.sweeps.renders import RenderEntry
 from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, check_backend, preflight, run_units, session
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import GT_MASKS_LABEL
@@ -67,6 +73,11 @@ class FactorsSection:
     corruptions: tuple[str, ...] = ("brightness", "frost", "snow", "fog")
     severities: tuple[int, ...] = (4,)
     depth_noise: tuple[str, ...] = ("realsense-d435",)
+    # 2D paste occluders of L1..L3: cutouts of the dataset's own unoccluded objects, or procedural noise shapes
+    occlusion_kind: str = field(default="objects", metadata=bounds(choices=("objects", "paste")))
+    # generation conditions (the clean scenes generated again): render profiles and simulated depth sensors
+    renderers: tuple[str, ...] = ()
+    depth_sensors: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -87,7 +98,8 @@ class GraspSection:
 class SweepConfig:
     """A whole sweep. ``metrics`` lists sweepable keys of :mod:`simtest.metrics.registry` shown in the tables
     and report (``ap``, ``cls_acc`` ... need ``task = "detection"``: BOP24, estimators told nothing);
-    ``timeout`` is the time limit of one estimator call (per image, per grasp episode), seconds (0: none)."""
+    ``timeout`` is the time limit of one estimator call (per image, per grasp episode), seconds (0: none);
+    ``renders`` are named generation-config override sets, each a render condition."""
 
     estimators: tuple[EstimatorEntry, ...]
     dataset: DatasetSection = field(default_factory=DatasetSection)
@@ -101,6 +113,7 @@ class SweepConfig:
     timeout: float = field(default=DEFAULT_TIMEOUT_S, metadata=bounds(0, 86_400))
     backend: str = field(default="local", metadata=bounds(choices=("local", "ray")))  # where units run
     ray_address: str | None = None  # with backend "ray": "auto" or HOST:PORT of a running cluster
+    renders: tuple[RenderEntry, ...] = ()
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "sweep config") -> "SweepConfig":
@@ -144,6 +157,7 @@ class SweepConfig:
         for d in self.factors.depth_noise:
             if d not in DEPTH_PRESETS:
                 raise bad("factors.depth_noise", d, " | ".join(DEPTH_PRESETS))
+        self._validate_generation_conditions(source, bad)
         allowed = metric_keys(sweepable=True)
         for m in self.metrics:
             if m not in allowed:
@@ -152,6 +166,29 @@ class SweepConfig:
             check_backend(self.backend, self.ray_address, self.workers)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
+
+    def _validate_generation_conditions(self, source: str, bad) -> None:
+        from simtest.sweeps.renders import DEPTH_SENSORS, PROFILES, check_overrides, flatten_overrides
+
+        for r in self.factors.renderers:
+            if r not in PROFILES:
+                raise bad("factors.renderers", r, " | ".join(PROFILES))
+        for d in self.factors.depth_sensors:
+            if d not in DEPTH_SENSORS:
+                raise bad("factors.depth_sensors", d, " | ".join(DEPTH_SENSORS))
+        for i, r in enumerate(self.renders):
+            if not r.overrides:
+                raise bad(f"renders[{i}].overrides", {}, "a table of generation-config overrides, e.g. "
+                                                         "{ \"render.profile\" = \"pbr\" }")
+            check_overrides(flatten_overrides(r.overrides), f"{source}: renders[{i}].overrides")
+        names = [c.name for c in conditions_of(self)]
+        for i, r in enumerate(self.renders):
+            if not r.name or "/" in r.name or r.name.startswith("."):
+                raise bad(f"renders[{i}].name", r.name, "a non-empty label without '/' or a leading '.'")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise bad("renders[].name", dup[0], f"a condition name not taken by another condition "
+                                                f"({', '.join(names)})")
 
     def to_dict(self) -> dict[str, Any]:
         return to_plain(dataclasses.asdict(self))
@@ -187,15 +224,23 @@ class Condition:
     """One column of the robustness table."""
 
     name: str
-    factor: str  # "clean" | "occlusion" | "corruption" | "depth"
-    level: str  # "L2", "fog", "realsense-d435", ...
+    factor: str  # "clean" | "occlusion" | "corruption" | "depth" | "sensor" | "render"
+    level: str  # "L2", "fog", "realsense-d435", "d435-stereo", "pbr", "render.profile=pbr;render.pbr_spp=4" ...
     severity: int | None = None
+    overrides: dict = field(default_factory=dict)  # generation-config overrides ("sensor" and "render")
 
-    def corruption_spec(self, definition: str):
+    @property
+    def generated(self) -> bool:
+        """Whether the condition's dataset is generated again (render and depth-sensor conditions)."""
+        return self.factor in ("sensor", "render")
+
+    def corruption_spec(self, definition: str, kind: str = "objects"):
+        """The image-space corruption of the condition (None for clean and generated conditions); ``kind``
+        is the 2D occlusion kind (``objects`` | ``paste``, :data:`simtest.corrupt.OCCLUSION_KINDS`)."""
         from simtest.corrupt import CorruptionSpec
 
         if self.factor == "occlusion":
-            return CorruptionSpec(occlusion=self.level, occlusion_definition=definition)
+            return CorruptionSpec(occlusion=self.level, occlusion_kind=kind, occlusion_definition=definition)
         if self.factor == "corruption":
             return CorruptionSpec(weather=self.level, severity=self.severity)
         if self.factor == "depth":
@@ -213,11 +258,20 @@ class Condition:
 
 
 def conditions_of(cfg: SweepConfig) -> list[Condition]:
-    """The clean condition, then occlusion levels, corruption x severity, depth presets (table order)."""
+    """The clean condition, then occlusion levels, corruption x severity, depth presets, depth sensors
+    (``depth-<sensor>``), render profiles (named by the profile) and ``[[renders]]`` (table order)."""
+    from simtest.sweeps.renders import flatten_overrides, overrides_text
+
     out = [Condition("clean", "clean", "L0")]
     out += [Condition(lv, "occlusion", lv) for lv in cfg.factors.occlusion]
     out += [Condition(f"{c}-{s}", "corruption", c, s) for c in cfg.factors.corruptions for s in cfg.factors.severities]
     out += [Condition(f"depth-{d}", "depth", d) for d in cfg.factors.depth_noise]
+    out += [Condition(f"depth-{d}", "sensor", d, overrides={"render.depth_sensor": d})
+            for d in cfg.factors.depth_sensors]
+    out += [Condition(p, "render", p, overrides={"render.profile": p}) for p in cfg.factors.renderers]
+    for r in cfg.renders:
+        ov = flatten_overrides(r.overrides)
+        out.append(Condition(r.name, "render", overrides_text(ov), overrides=ov))
     return out
 
 
@@ -237,11 +291,10 @@ def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
         if not (path / cfg.dataset.split).is_dir():
             raise DatasetError(f"sweep dataset {str(path)!r} has no split folder {cfg.dataset.split!r}")
         return path
-    from simtest.generators.config import GenerateConfig
     from simtest.generators.pipeline import generate
+    from simtest.sweeps.renders import clean_generate_config
 
-    run = {"workers": cfg.workers, "backend": cfg.backend, "ray_address": cfg.ray_address}
-    gen = GenerateConfig.from_dict({"seed": cfg.seed, **run, **cfg.dataset.generate}, source="[dataset.generate]")
+    gen = clean_generate_config(cfg, out / "data" / "clean")
     path = out / "data" / "clean"
     done = path / "manifest.json"
     if done.exists():
@@ -251,22 +304,34 @@ def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     return path
 
 
-def _corrupt_unit(unit: tuple[str, str, Condition, str, int]) -> str:
-    """One corrupted copy of the clean dataset (a unit of work): ``(clean, out, condition, definition, seed)``."""
+def _corrupt_unit(unit: tuple[str, str, Condition, str, str, int]) -> str:
+    """One corrupted copy of the clean dataset (a unit of work): ``(clean, out, condition, occlusion definition,
+    occlusion kind, seed)``."""
     from simtest.corrupt import corrupt_dataset
 
-    clean, path, cond, definition, seed = unit
-    corrupt_dataset(clean, path, cond.corruption_spec(definition), seed=seed, overwrite=True, progress=False)
+    clean, path, cond, definition, kind, seed = unit
+    corrupt_dataset(clean, path, cond.corruption_spec(definition, kind), seed=seed, overwrite=True, progress=False)
     return path
 
 
 def _condition_datasets(cfg: SweepConfig, conds: list[Condition], out: Path, stats: RunStats) -> dict[str, Path]:
     """The dataset of every condition in ``conds`` (``{name: folder}``): the clean one, generated unless given,
-    and the corrupted copies not made yet (one unit each on the sweep's back end)."""
+    the generation conditions' (generated, each checked to hold the clean ground truth), and the corrupted
+    copies not made yet (one unit each on the sweep's back end)."""
     clean = _prepare_dataset(cfg, out, progress=False)
     found = {c.name: clean if c.factor == "clean" else out / "data" / c.name for c in conds}
-    todo = [(str(clean), str(found[c.name]), c, cfg.factors.occlusion_definition, cfg.seed) for c in conds
-            if c.factor != "clean" and not (found[c.name] / "corruption.json").exists()]
+    generated = [c for c in conds if c.generated]
+    if generated:
+        from simtest.sweeps.renders import clean_generate_config, condition_generate_config, prepare_condition_dataset
+
+        clean_gen = clean_generate_config(cfg, clean)
+        gens = {c.name: condition_generate_config(clean_gen, c.overrides, c.name) for c in generated}
+        for c in generated:  # every override is applied before anything is generated
+            found[c.name] = prepare_condition_dataset(clean_gen, clean, gens[c.name], c.name, found[c.name],
+                                                      progress=False)
+    todo = [(str(clean), str(found[c.name]), c, cfg.factors.occlusion_definition, cfg.factors.occlusion_kind,
+             cfg.seed) for c in conds
+            if c.factor not in ("clean", "sensor", "render") and not (found[c.name] / "corruption.json").exists()]
     for _ in run_units(_corrupt_unit, todo, Backend.of(cfg), stats=stats):
         pass
     return found
@@ -311,7 +376,8 @@ def run_sweep(cfg: SweepConfig, out_dir: str | Path, *, resume: bool = False, ov
     report = SweepReport(out)
     conds = conditions_of(cfg)
     kinds = ["pose"] + (["grasp"] if cfg.grasp.episodes > 0 else [])
-    grid = [(e, c, k) for c in conds for e in range(len(cfg.estimators)) for k in kinds]
+    grid = [(e, c, k) for c in conds for e in range(len(cfg.estimators)) for k in kinds
+            if k == "pose" or not c.generated]  # the grasp scene renders with its own renderer
     todo = []
     for e, cond, kind in grid:
         cdir = cells.cell_dir(out, cfg.estimators[e].name, cond.name, kind)

@@ -3,7 +3,12 @@ one self-contained ``report.html`` (tables, plots and example images embedded as
 
 Plots: metric per condition for each estimator (lines over severity when several severities were swept),
 grasp success vs occlusion level with 95 % Wilson intervals, pose error vs grasp outcome with a fitted
-logistic success curve, and one example image per condition.
+logistic success curve, and one example picture per condition (:mod:`simtest.sweeps.examples`: RGB, or the
+colourized depth map for depth-noise and depth-sensor conditions).
+
+Table columns, in groups: occlusion (``L0`` = clean, ``L1``..``L3``), corruptions, depth (image-space presets,
+then simulated sensors, each by its preset name), renderer (render conditions by name). Generation conditions
+(depth sensors, renderers) have pose cells only, so the grasp table leaves them out.
 """
 
 from __future__ import annotations
@@ -42,41 +47,47 @@ def _value(summary: list[dict], est: str, cond: str, kind: str, metric: str) -> 
 def _groups(conds) -> list[tuple[str, list]]:
     groups = [("", [c for c in conds if c.factor in ("clean", "occlusion")]),
               ("corruption", [c for c in conds if c.factor == "corruption"]),
-              ("depth", [c for c in conds if c.factor == "depth"])]
+              ("depth", [c for c in conds if c.factor in ("depth", "sensor")]),
+              ("renderer", [c for c in conds if c.factor == "render"])]
     return [(g, cs) for g, cs in groups if cs]
 
 
 def _column_label(c) -> str:
     if c.factor == "clean":
         return "L0"
-    if c.factor == "depth":
+    if c.factor in ("depth", "sensor"):
         return c.level
     return c.name
+
+
+def _header(cols) -> str:
+    return ("| estimator | " + " | ".join(_column_label(c) for c in cols) + " |\n|---|" +
+            "|".join("---:" for _ in cols) + "|")
 
 
 def markdown_tables(cfg, conds, summary: list[dict]) -> str:
     """One table per metric: rows estimators, columns L0 L1 L2 L3 | corruptions | depth presets."""
     cols = [c for _, cs in _groups(conds) for c in cs]
-    header = "| estimator | " + " | ".join(_column_label(c) for c in cols) + " |"
-    sep = "|---|" + "|".join("---:" for _ in cols) + "|"
+    header = _header(cols)
     parts = []
     for m in cfg.metrics:
         spec = metric(m)
         rows = [f"| {e.name} | " + " | ".join(_fmt(spec.shown(_value(summary, e.name, c.name, "pose", m)))
                                                 for c in cols) + " |" for e in cfg.estimators]
-        parts.append(f"### {spec.label} ({spec.unit})\n\n{header}\n{sep}\n" + "\n".join(rows))
+        parts.append(f"### {spec.label} ({spec.unit})\n\n{header}\n" + "\n".join(rows))
     if cfg.grasp.episodes > 0:
         rows = []
+        grasp_cols = [c for c in cols if c.factor not in ("sensor", "render")]
         for e in cfg.estimators:
             cells = []
-            for c in cols:
+            for c in grasp_cols:
                 v = _value(summary, e.name, c.name, "grasp", "success_rate")
                 lo = _value(summary, e.name, c.name, "grasp", "ci95_low")
                 hi = _value(summary, e.name, c.name, "grasp", "ci95_high")
                 cells.append("-" if math.isnan(v) else f"{v * 100:.0f} [{lo * 100:.0f}, {hi * 100:.0f}]")
             rows.append(f"| {e.name} | " + " | ".join(cells) + " |")
         parts.append(f"### Grasp success (%, 95% CI; {cfg.grasp.episodes} episodes per cell; occlusion is "
-                     f"physical in the grasp scene)\n\n{header}\n{sep}\n" + "\n".join(rows))
+                     f"physical in the grasp scene)\n\n{_header(grasp_cols)}\n" + "\n".join(rows))
     groups = ", ".join(f"{g or 'occlusion'}: {' '.join(_column_label(c) for c in cs)}" for g, cs in _groups(conds))
     return "## Robustness tables\n\nColumns (" + groups + ").\n\n" + "\n\n".join(parts) + "\n"
 
@@ -189,28 +200,6 @@ def _plots(cfg, conds, summary: list[dict], results: list[dict]) -> list[tuple[s
     return plots
 
 
-def _examples(cfg, out: Path, conds) -> list[tuple[str, str]]:
-    """(condition, base64 JPEG) of the first image of each condition's dataset."""
-    import cv2
-
-    from simtest.io.bop import read_image, scene_dirs
-
-    clean = Path(cfg.dataset.path) if cfg.dataset.path else out / "data" / "clean"
-    out_images = []
-    for c in conds:
-        data = clean if c.factor == "clean" else out / "data" / c.name
-        try:
-            scene = scene_dirs(data / cfg.dataset.split)[0]
-            rgb = read_image(scene, 0)
-        except Exception:
-            continue
-        h, w = rgb.shape[:2]
-        small = cv2.resize(rgb, (240, int(round(240 * h / w))), interpolation=cv2.INTER_AREA)
-        ok, buf = cv2.imencode(".jpg", small[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 85])
-        out_images.append((c.name, base64.b64encode(buf.tobytes()).decode("ascii")))
-    return out_images
-
-
 def _md_to_html_tables(md: str) -> str:
     """The Markdown tables of :func:`markdown_tables` as HTML."""
     out, rows = [], []
@@ -271,6 +260,16 @@ def _labelled(cfg, out: Path, conds):
     return replace(cfg, estimators=tuple(replace(e, name=names[e.name]) for e in cfg.estimators))
 
 
+def _generation_note(conds) -> str:
+    """One paragraph naming the generation conditions and their overrides (empty without any)."""
+    gen = [c for c in conds if c.factor in ("sensor", "render")]
+    if not gen:
+        return ""
+    items = ", ".join(f"{html.escape(c.name)} (<code>{html.escape(json.dumps(c.overrides))}</code>)" for c in gen)
+    return (f"<p>Generation conditions, the clean scenes generated again with the same ground truth (poses, masks, "
+            f"exact depth byte-identical): {items}. They have no grasp cells.</p>")
+
+
 def write_report(cfg, out: Path, conds) -> dict[str, Path]:
     """Write ``tables.md`` and ``report.html`` from the sweep's ``results.csv`` and ``summary.csv``.
 
@@ -281,17 +280,20 @@ def write_report(cfg, out: Path, conds) -> dict[str, Path]:
     """
     results = read_csv(out / RESULTS_FILE)
     summary = read_csv(out / SUMMARY_FILE)
+    from simtest.sweeps.examples import example_pictures
+
+    examples = example_pictures(cfg, out, conds)  # before the relabelling: cells are found by estimator name
     cfg = _labelled(cfg, out, conds)
     md = markdown_tables(cfg, conds, summary)
     atomic_write_text(out / "tables.md", md)
     plots = _plots(cfg, conds, summary, results)
-    examples = _examples(cfg, out, conds)
     est_list = ", ".join(f"{html.escape(e.name)} (<code>{html.escape(e.estimator)}</code>"
                          f"{' ' + html.escape(json.dumps(e.options)) if e.options else ''})" for e in cfg.estimators)
     body = ["<h1>simtest robustness report</h1>", _headline(cfg, conds, summary),
             f"<p>Estimators: {est_list}. Conditions: {html.escape(', '.join(c.name for c in conds))}. "
-            f"Seed {cfg.seed}. Occlusion definition: {html.escape(cfg.factors.occlusion_definition)} (2D paste for "
-            f"pose evaluation, physical occluders in the grasp scene).</p>",
+            f"Seed {cfg.seed}. Occlusion definition: {html.escape(cfg.factors.occlusion_definition)} (2D paste of "
+            f"{'object cutouts' if cfg.factors.occlusion_kind == 'objects' else 'noise shapes'} for pose "
+            f"evaluation, physical occluders in the grasp scene).</p>", _generation_note(conds),
             _md_to_html_tables(md), '<h2>Plots</h2><div class="plots">']
     for pid, title, data in plots:
         body.append(f'<figure id="{pid}"><img alt="{html.escape(title)}" src="data:image/png;base64,{data}">'
@@ -299,9 +301,11 @@ def write_report(cfg, out: Path, conds) -> dict[str, Path]:
     body.append("</div>")
     if examples:
         body.append('<h2>Example images</h2><div class="grid">')
-        for name, data in examples:
-            body.append(f'<figure class="example"><img alt="{html.escape(name)}" '
-                        f'src="data:image/jpeg;base64,{data}"><figcaption>{html.escape(name)}</figcaption></figure>')
+        for ex in examples:
+            body.append(f'<figure class="example" data-condition="{html.escape(ex.condition)}" '
+                        f'data-channel="{ex.channel}"><img alt="{html.escape(ex.condition)} {ex.channel}" '
+                        f'src="data:image/jpeg;base64,{ex.jpeg_b64}"><figcaption>{html.escape(ex.caption)}'
+                        f'</figcaption></figure>')
         body.append("</div>")
     style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;padding:3px 8px;"
