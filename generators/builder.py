@@ -18,6 +18,7 @@ import mujoco
 from simtest.camera import CameraModel
 from simtest.errors import AssetError
 from simtest.generators.config import GenerateConfig
+from simtest.generators.looks import environment_of, skin_of, surface_maps
 from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
@@ -30,6 +31,8 @@ DRAWN_GROUPS = (0, 1, 2)
 CAMERA_NAME = "render_cam"
 #: Mocap occluder boxes pre-allocated when physical occlusion is on.
 N_OCCLUDERS = 1
+#: Height of the ceiling panel above the floor (metres).
+CEILING_HEIGHT = 10.0
 #: Contact parameters of object collision geoms: sliding, torsional, rolling friction.
 OBJECT_FRICTION = (0.9, 0.005, 0.002)
 
@@ -154,15 +157,11 @@ class SceneBuilder:
         ms.visual.global_.offheight = max(cfg.camera.height, 64)
         ms.visual.quality.offsamples = 4 if cfg.render.profile == "quality" else 0
         ms.visual.quality.shadowsize = 2048 if cfg.render.profile == "quality" else 0
-        ms.visual.headlight.ambient = [spec.ambient] * 3
         ms.visual.headlight.diffuse = [0.0, 0.0, 0.0]
         ms.visual.headlight.specular = [0.0, 0.0, 0.0]
 
         self._room(ms, spec)
-        for i, light in enumerate(spec.lights):
-            ms.worldbody.add_light(
-                name=f"light_{i}", pos=list(light.position), dir=list(light.direction), diffuse=list(light.diffuse),
-                specular=[light.specular] * 3, castshadow=cfg.render.profile == "quality")
+        self._lights(ms, spec)
 
         # Object assets, one per distinct obj_id (shared by instances); textured ones get their texture.
         textures = {oid: self._mesh_assets(ms, self.objects.get(oid))
@@ -179,7 +178,10 @@ class SceneBuilder:
             body.fullinertia = _full_inertia(obj.inertia)
             mat = ms.add_material(name=f"obj_{i}_mat", rgba=list(p.rgba), specular=p.specular,
                                   shininess=p.shininess, reflectance=p.reflectance)
-            if textures[p.obj_id] is not None:  # the texture times the material colour (a tint)
+            skinned = skin_of(obj, p.skin_seed) if textures[p.obj_id] is not None else None
+            if skinned is not None:  # this instance's variant of the object's print, on the object's UVs
+                self._skin_material(ms, mat, f"obj_{i}", skinned)
+            elif textures[p.obj_id] is not None:  # the texture times the material colour (a tint)
                 mat.textures = texture_roles(textures[p.obj_id])
             friction = list(OBJECT_FRICTION) if obj.friction is None else [obj.friction, *OBJECT_FRICTION[1:]]
             body.add_geom(name=f"obj_{i}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"mesh_{p.obj_id}",
@@ -197,9 +199,10 @@ class SceneBuilder:
             b.add_freejoint()
             gtype = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
                      "sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE}[d.shape]
-            textured = {} if d.image is None else {"material": self._texture_material(
-                ms, f"distractor_{j}", SurfaceSpec("flat", (1.0,) * 3, (1.0,) * 3, 1.0, 0.0, d.image), 1.0)}
-            rgba = list(d.rgba) if d.image is None else [1.0, 1.0, 1.0, 1.0]  # images are not tinted
+            textured = {} if d.image is None and d.material is None else {"material": self._texture_material(
+                ms, f"distractor_{j}", SurfaceSpec("flat", (1.0,) * 3, (1.0,) * 3, 1.0, 0.0, d.image, d.material),
+                1.0)}
+            rgba = list(d.rgba) if not textured else [1.0, 1.0, 1.0, 1.0]  # images are not tinted
             b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=rgba, density=400,
                        friction=list(OBJECT_FRICTION), condim=6, group=0, **textured)
 
@@ -240,6 +243,82 @@ class SceneBuilder:
                         [True] * len(spec.objects), panda, rng)
 
     # ------------------------------------------------------------------------------------------------------
+    def _lights(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
+        """The scene's lights and ambient term. With an environment, the pbr profile takes its light from the
+        environment map alone (no MuJoCo light); the other profiles approximate the map by its dominant
+        directions as directional lights and the rest as ambient (:func:`simtest.materials.light_summary`). A
+        ceiling panel lights the rasterized profiles as a directional light straight down."""
+        from simtest.render.colour import linear_to_srgb
+
+        cfg = self.cfg
+        shadows = cfg.render.profile == "quality"
+        pbr = cfg.render.profile == "pbr"
+        if spec.environment is None:
+            ms.visual.headlight.ambient = [spec.ambient] * 3
+            for i, light in enumerate(spec.lights):
+                ms.worldbody.add_light(
+                    name=f"light_{i}", pos=list(light.position), dir=list(light.direction),
+                    diffuse=list(light.diffuse), specular=[light.specular] * 3, castshadow=shadows)
+        elif pbr:
+            ms.visual.headlight.ambient = [0.0, 0.0, 0.0]
+        else:
+            from simtest.materials import light_summary
+
+            ambient, dominant = light_summary(environment_of(spec.environment))
+            k = spec.environment.strength
+            ms.visual.headlight.ambient = np.clip(linear_to_srgb(np.asarray(ambient) * k), 0, 1).tolist()
+            for i, (toward, irradiance) in enumerate(dominant):
+                ms.worldbody.add_light(
+                    name=f"env_light_{i}", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                    pos=(np.asarray(toward) * 3.0).tolist(), dir=(-np.asarray(toward)).tolist(),
+                    diffuse=np.clip(linear_to_srgb(np.asarray(irradiance) * k / np.pi), 0, 1).tolist(),
+                    specular=[0.3] * 3, castshadow=shadows)
+        if spec.ceiling is not None and not pbr:
+            ms.worldbody.add_light(name="ceiling_light", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                                   pos=[0.0, 0.0, CEILING_HEIGHT], dir=[0.0, 0.0, -1.0],
+                                   diffuse=list(spec.ceiling), specular=[0.1] * 3, castshadow=shadows)
+
+    def _add_map(self, ms: mujoco.MjSpec, name: str, image: np.ndarray) -> str:
+        """Add a 2D texture ``name`` from an (H, W) or (H, W, C) uint8 image (row 0 at the top)."""
+        pixels = np.ascontiguousarray(image, dtype=np.uint8)
+        channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+        ms.add_texture(name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=pixels.shape[1],
+                       height=pixels.shape[0], nchannel=channels).data = pixels.tobytes()
+        return name
+
+    def _pbr_roles(self, ms: mujoco.MjSpec, name: str, rgb: str, roughness=None, normal=None,
+                   metallic=None) -> list[str]:
+        """A material's texture roles: the colour always; roughness, normal and metallic maps only for the pbr
+        profile (the rasterizer draws the colour alone, so the other profiles do not upload them)."""
+        roles = [""] * int(mujoco.mjtTextureRole.mjNTEXROLE)
+        roles[int(mujoco.mjtTextureRole.mjTEXROLE_RGB)] = rgb
+        if self.cfg.render.profile == "pbr":
+            for role, image, suffix in ((mujoco.mjtTextureRole.mjTEXROLE_ROUGHNESS, roughness, "rough"),
+                                        (mujoco.mjtTextureRole.mjTEXROLE_NORMAL, normal, "normal"),
+                                        (mujoco.mjtTextureRole.mjTEXROLE_METALLIC, metallic, "metal")):
+                if image is not None:
+                    roles[int(role)] = self._add_map(ms, f"{name}_{suffix}", image)
+        return roles
+
+    def _library_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
+        """Material ``{name}_mat`` of a library material (:func:`simtest.generators.looks.surface_maps`)."""
+        maps = surface_maps(self.cfg, s.material)
+        self._add_map(ms, f"{name}_tex", maps.albedo)
+        mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False,
+                              specular=float(maps.specular), shininess=float(1.0 - maps.roughness.mean() / 255.0),
+                              metallic=float(maps.metallic), roughness=float(maps.roughness.mean() / 255.0))
+        mat.textures = self._pbr_roles(ms, name, f"{name}_tex", maps.roughness, maps.normal)
+        return f"{name}_mat"
+
+    def _skin_material(self, ms: mujoco.MjSpec, mat, name: str, skin) -> None:
+        """Show an instance's print ``skin`` (:class:`simtest.objects.skins.Skin`) on material ``mat``."""
+        self._add_map(ms, f"{name}_skin", skin.albedo)
+        mat.specular = float(skin.specular)
+        mat.textures = self._pbr_roles(ms, f"{name}_skin", f"{name}_skin", skin.roughness, None, skin.metallic)
+        mat.roughness = float(skin.roughness.mean() / 255.0)
+        mat.metallic = float(skin.metallic.mean() / 255.0)
+
+    # ------------------------------------------------------------------------------------------------------
     def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> str | None:
         """Add the object's visual and collision meshes; returns the name of its texture (None if untextured)."""
         mesh, texture = add_object_visual(ms, obj, f"mesh_{obj.obj_id}")
@@ -252,6 +331,8 @@ class SceneBuilder:
         return texture
 
     def _texture_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
+        if s.material is not None:
+            return self._library_material(ms, name, s, size)
         if s.image is not None:
             pixels = load_texture_image(s.image)
             ms.add_texture(name=f"{name}_tex", type=mujoco.mjtTexture.mjTEXTURE_2D, width=pixels.shape[1],
@@ -275,14 +356,20 @@ class SceneBuilder:
 
     def _room(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
         sc = self.cfg.scene
+        r, wh = sc.room_half_size, sc.wall_height
         floor_mat = self._texture_material(ms, "floor", spec.floor, 1.0)
-        ms.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[3.0, 3.0, 0.1],
+        ms.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[r, r, 0.1],
                               material=floor_mat, group=2, friction=list(OBJECT_FRICTION))
-        wall_mat = self._texture_material(ms, "wall", spec.walls, 1.0)
-        for k, (pos, size) in enumerate([([3.0, 0, 1.5], [0.05, 3.0, 1.5]), ([-3.0, 0, 1.5], [0.05, 3.0, 1.5]),
-                                          ([0, 3.0, 1.5], [3.0, 0.05, 1.5]), ([0, -3.0, 1.5], [3.0, 0.05, 1.5])]):
+        wall_mat = floor_mat if spec.walls is spec.floor or spec.walls == spec.floor and spec.floor.material \
+            else self._texture_material(ms, "wall", spec.walls, 1.0)
+        for k, (pos, size) in enumerate([([r, 0, wh / 2], [0.05, r, wh / 2]), ([-r, 0, wh / 2], [0.05, r, wh / 2]),
+                                          ([0, r, wh / 2], [r, 0.05, wh / 2]), ([0, -r, wh / 2], [r, 0.05, wh / 2])]):
             ms.worldbody.add_geom(name=f"wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,
                                   material=wall_mat, group=2, contype=0, conaffinity=0)
+        if spec.ceiling is not None:  # a 3 x 3 m emissive panel 10 m up (BlenderProc's BOP recipe)
+            ms.add_material(name="ceiling_mat", rgba=[*spec.ceiling, 1.0], emission=1.0)
+            ms.worldbody.add_geom(name="ceiling", type=mujoco.mjtGeom.mjGEOM_BOX, pos=[0.0, 0.0, CEILING_HEIGHT],
+                                  size=[1.5, 1.5, 0.01], material="ceiling_mat", group=2, contype=0, conaffinity=0)
         table_mat = self._texture_material(ms, "table", spec.table, 1.0)
         hx, hy = sc.table_size[0] / 2, sc.table_size[1] / 2
         h = sc.table_height

@@ -79,6 +79,12 @@ class SceneConfig:
     timestep: float = field(default=0.002, metadata=_bounds(1e-4, 0.01))
     panda: bool = False  # put the Panda arm in the scene (always on for the wrist rig)
     max_attempts: int = field(default=5, metadata=_bounds(1, 100))  # re-sample a scene that cannot be placed
+    # the room: floor and four walls at +-room_half_size (metres) from the table's centre, wall_height tall; its
+    # top is open (light from the environment and the lights enters there)
+    room_half_size: float = field(default=3.0, metadata=_bounds(0.5, 50.0))
+    wall_height: float = field(default=1.6, metadata=_bounds(0.1, 20.0))
+    # an emissive panel above the room (BlenderProc's BOP recipe: 3 x 3 m, 10 m up), brightness drawn per scene
+    ceiling_light: bool = False
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,22 @@ class LightConfig:
     intensity: tuple[float, float] = field(default=(0.3, 0.9), metadata=_rng_pair(0.0, 1.0))  # diffuse
     ambient: tuple[float, float] = field(default=(0.1, 0.35), metadata=_rng_pair(0.0, 1.0))
     colour_jitter: float = field(default=0.15, metadata=_bounds(0.0, 1.0))
+    # pbr lighting beyond the lights: "auto" = an equirectangular map of `hdri` when given, else a procedural
+    # sky with sun or studio (one at random per scene); "sky" / "studio" / "hdri" force one; "constant" = the
+    # ambient term only (earlier releases). The fast and quality profiles approximate the environment with
+    # directional lights and the ambient term (simtest.materials.light_summary).
+    environment: Literal["auto", "sky", "studio", "hdri", "constant"] = field(
+        default="auto", metadata=_bounds(choices=("auto", "sky", "studio", "hdri", "constant")))
+    hdri: str | None = None  # folder of .hdr / .exr equirectangular maps (z up: row 0 is the zenith)
+    environment_strength: tuple[float, float] = field(default=(0.6, 1.3), metadata=_rng_pair(0.0, 100.0))
+    # brightness of the ceiling panel (scene.ceiling_light): the irradiance it gives the floor's centre, as the
+    # display value a white floor would show (0.5 = mid grey)
+    ceiling_strength: tuple[float, float] = field(default=(0.3, 0.6), metadata=_rng_pair(0.0, 10.0))
+
+
+#: The procedural material families (simtest.materials.FAMILIES), all on by default.
+MATERIAL_FAMILIES = ("wood", "tiles", "fabric", "concrete", "marble", "brushed_metal", "painted_plastic",
+                     "cardboard", "paper")
 
 
 @dataclass(frozen=True)
@@ -103,7 +125,30 @@ class MaterialConfig:
     shininess: tuple[float, float] = field(default=(0.0, 0.8), metadata=_rng_pair(0.0, 1.0))
     reflectance: tuple[float, float] = field(default=(0.0, 0.15), metadata=_rng_pair(0.0, 1.0))
     background_textures: bool = True  # procedural table / floor / wall textures
-    textures: str | None = None  # folder of images (png / jpg) for the table, floor, walls and distractors
+    # folder of materials for the table, floor, walls and distractors: CC0 sets (NAME_Color / _Roughness /
+    # _NormalGL|DX images, as ambientCG and Poly Haven ship them) are full materials, other png / jpg images
+    # albedo only (simtest.materials.folder_materials); replaces the procedural families
+    textures: str | None = None
+    # procedural PBR families (simtest.materials) the table, floor, walls and distractors draw from, with
+    # weights (one per family, any scale; empty = equal); empty families = MuJoCo's checker / gradient patterns
+    families: tuple[str, ...] = field(default=MATERIAL_FAMILIES, metadata=_bounds(choices=MATERIAL_FAMILIES))
+    family_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
+    variants: int = field(default=16, metadata=_bounds(1, 100_000))  # seeds per family (each made once, cached)
+    texture_size: int = field(default=256, metadata=_bounds(32, 2048))  # pixels per side of a material's maps
+    room_material: Literal["per_surface", "shared"] = field(
+        default="per_surface", metadata=_bounds(choices=("per_surface", "shared")))  # shared: one for floor and walls
+    # per-instance variants of textured built-in objects' prints (labels, cartons, glazes: simtest.objects.skins)
+    object_textures: bool = True
+
+    def __post_init__(self) -> None:
+        if self.family_weights and len(self.family_weights) != len(self.families):
+            raise ConfigError(f"materials.family_weights has {len(self.family_weights)} values for "
+                              f"{len(self.families)} families {list(self.families)}; give one weight per family")
+        if self.family_weights and sum(self.family_weights) <= 0:
+            raise ConfigError(f"materials.family_weights = {list(self.family_weights)} sums to 0; give a positive weight")
+        size = self.texture_size
+        if size & (size - 1):
+            raise ConfigError(f"materials.texture_size = {size} is not a power of two; allowed: 32, 64, ..., 2048")
 
 
 @dataclass(frozen=True)
@@ -162,6 +207,9 @@ class AnnotationConfig:
 class GenerateConfig:
     """Everything ``simtest generate`` needs. See the module docstring for units."""
 
+    # a preset of the values below (simtest.generators.recipes); values given in the config win over it
+    recipe: Literal["tabletop", "bop-pbr"] = field(default="tabletop",
+                                                   metadata=_bounds(choices=("tabletop", "bop-pbr")))
     objects: str = "builtin"  # "builtin", "builtin-small", or a path (mesh folder, mesh file, BOP models/)
     # units of mesh files; auto: metres, refusing a diameter outside 1 cm .. 1.5 m
     units: Literal["m", "cm", "mm", "auto"] = field(default="auto",
@@ -193,8 +241,11 @@ class GenerateConfig:
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "config") -> "GenerateConfig":
-        """Validate ``data`` (nested dicts) into a config; errors name ``source`` and the dotted field."""
-        cfg = build(GenerateConfig, data, prefix="", source=source)
+        """Validate ``data`` (nested dicts) into a config; errors name ``source`` and the dotted field. A
+        ``recipe`` fills the values ``data`` leaves out (:func:`simtest.generators.recipes.with_recipe`)."""
+        from simtest.generators.recipes import with_recipe
+
+        cfg = build(GenerateConfig, with_recipe(data, source), prefix="", source=source)
         try:
             check_backend(cfg.backend, cfg.ray_address, cfg.workers)
         except ConfigError as exc:
@@ -209,17 +260,35 @@ class GenerateConfig:
         return to_toml(self.to_dict())
 
     def replace(self, **overrides: Any) -> "GenerateConfig":
-        """A copy with dotted-path overrides, validated: ``cfg.replace(**{"camera.width": 320})``."""
-        data = self.to_dict()
+        """A copy with dotted-path overrides, validated: ``cfg.replace(**{"camera.width": 320})``. A new
+        ``recipe`` keeps the values this config sets apart from its own recipe's and takes the rest from the
+        new recipe."""
+        full = self.to_dict()
+        data = full
+        if "recipe" in overrides and overrides["recipe"] != self.recipe:
+            data = _changed(full, GenerateConfig.from_dict({"recipe": self.recipe}).to_dict())
         for key, value in overrides.items():
-            node = data
+            node, known = data, full
             parts = key.split(".")
             for p in parts[:-1]:
-                if p not in node or not isinstance(node[p], dict):
+                if p not in known or not isinstance(known[p], dict):
                     raise ConfigError(f"unknown config field {key!r}")
-                node = node[p]
+                node, known = node.setdefault(p, {}), known[p]
             node[parts[-1]] = value
         return GenerateConfig.from_dict(data, source="overrides")
+
+
+def _changed(data: dict, base: dict) -> dict:
+    """The entries of ``data`` (nested dicts) that differ from ``base``."""
+    out = {}
+    for key, value in data.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            sub = _changed(value, base[key])
+            if sub:
+                out[key] = sub
+        elif key not in base or base[key] != value:
+            out[key] = value
+    return out
 
 
 def load_config(path: str | Path) -> GenerateConfig:

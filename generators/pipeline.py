@@ -274,8 +274,13 @@ def _pbr_renderer(cfg: GenerateConfig, scene):
 
     camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
     threads = thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).cores  # this worker's share
+    env = scene.spec.environment
+    if env is not None:
+        from simtest.generators.looks import environment_of
+
+        env = (environment_of(env).radiance, env.strength)
     return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
-                       threads=threads, variant=cfg.render.pbr_variant)
+                       threads=threads, variant=cfg.render.pbr_variant, environment=env)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:

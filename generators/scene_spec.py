@@ -8,14 +8,13 @@ point of interest (the centre of the settled objects), which is only known after
 from __future__ import annotations
 
 import colorsys
-import functools
-from dataclasses import asdict, dataclass, replace
-from pathlib import Path
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.generators.config import GenerateConfig
+from simtest.generators.looks import EnvironmentSpec, appearance_rng, sample_environment, sample_material, surface_maps
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import tint_rgba
 
@@ -40,6 +39,7 @@ class ObjectPlacement:
     specular: float
     shininess: float
     reflectance: float
+    skin_seed: int | None = None  # variant of a built-in object's print (generators.looks.skin_of); None: its own
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,8 @@ class DistractorSpec:
     position: tuple[float, float, float]
     quat_wxyz: tuple[float, float, float, float]
     rgba: tuple[float, float, float, float]
-    image: str | None = None  # an image texture instead of the flat colour (``materials.textures``)
+    image: str | None = None  # an image texture instead of the flat colour (earlier releases' ``materials.textures``)
+    material: str | None = None  # a material key (generators.looks.surface_maps) instead of the flat colour
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,8 @@ class SurfaceSpec:
     rgb2: tuple[float, float, float]
     repeat: float  # texture repeats per metre
     noise: float  # fraction of randomly coloured texels ("random" marks), 0..1
-    image: str | None = None  # an image file used instead of the pattern (``materials.textures``)
+    image: str | None = None  # an image file used instead of the pattern (earlier releases' ``materials.textures``)
+    material: str | None = None  # a material key (generators.looks.surface_maps) instead of the pattern
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,8 @@ class SceneSpec:
     floor: SurfaceSpec
     walls: SurfaceSpec
     views: tuple[ViewSpec, ...]
+    environment: EnvironmentSpec | None = None  # pbr environment lighting (None: the constant ambient term)
+    ceiling: tuple[float, float, float] | None = None  # the ceiling panel's display-referred brightness (RGB)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -110,8 +114,14 @@ def _colour(rng: np.random.Generator, sat: tuple[float, float] = (0.1, 0.6), val
     return tuple(float(c) for c in colorsys.hsv_to_rgb(h, s, v))
 
 
-def _surface(rng: np.random.Generator, randomize: bool, base: tuple[float, float, float]) -> SurfaceSpec:
-    if not randomize:
+def _surface(cfg: GenerateConfig, rng: np.random.Generator, base: tuple[float, float, float], material: str | None,
+             extent: float) -> SurfaceSpec:
+    """A room surface: a library material repeated at its physical tile size across ``extent`` metres, else a
+    MuJoCo builtin pattern (or ``base`` when not randomized)."""
+    if material is not None:
+        tile = float(surface_maps(cfg, material).tile_m)
+        return SurfaceSpec("flat", (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), max(1.0, extent / tile), 0.0, material=material)
+    if not cfg.materials.background_textures:
         return SurfaceSpec("flat", base, base, 1.0, 0.0)
     pattern = ["checker", "gradient", "flat"][int(rng.integers(3))]
     c1 = _colour(rng)
@@ -119,32 +129,6 @@ def _surface(rng: np.random.Generator, randomize: bool, base: tuple[float, float
     return SurfaceSpec(pattern, c1, c2, float(rng.uniform(1.0, 8.0)), float(rng.uniform(0.0, 0.3)))
 
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-@functools.lru_cache(maxsize=8)
-def texture_images(folder: str | None) -> tuple[str, ...]:
-    """The image files (``.png``, ``.jpg``, ``.jpeg``; sorted absolute paths) of ``materials.textures``.
-
-    Raises:
-        ConfigError: If the folder does not exist or holds no image.
-    """
-    if folder is None:
-        return ()
-    root = Path(folder).expanduser()
-    if not root.is_dir():
-        raise ConfigError(f"materials.textures = {folder!r} is not a folder; give a folder of "
-                          f"{'/'.join(IMAGE_SUFFIXES)} images")
-    files = tuple(str(p.resolve()) for p in sorted(root.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise ConfigError(f"materials.textures = {folder!r} holds no {'/'.join(IMAGE_SUFFIXES)} image")
-    return files
-
-
-def _with_image(s: SurfaceSpec, images: tuple[str, ...], rng: np.random.Generator) -> SurfaceSpec:
-    """``s`` textured with a random image of ``images``, repeated 0.5-2 times per metre, untinted."""
-    return SurfaceSpec("flat", (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), float(rng.uniform(0.5, 2.0)), 0.0,
-                       images[int(rng.integers(len(images)))])
 
 
 def _jitter_colour(rgba, amount: float, rng: np.random.Generator) -> tuple[float, float, float, float]:
@@ -216,17 +200,22 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         placed.append((p, radius))
         return p
 
+    # Appearance (colours, materials, lights) from the scene's appearance stream: the geometry stream `rng`
+    # draws the same values whatever the appearance options.
+    look = appearance_rng(rng)
     mat = cfg.materials
     placements = []
     for oid in chosen:
         obj = objects.get(int(oid))
         pos = place(obj.diameter / 2.0)
-        rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, rng) if mat.randomize_object_colour
+        quat = random_quat_wxyz(rng)
+        rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, look) if mat.randomize_object_colour
                 else obj.rgba)
+        skin_seed = int(look.integers(mat.variants)) if mat.object_textures and "skin" in obj.extra else None
         placements.append(ObjectPlacement(
-            obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=random_quat_wxyz(rng), rgba=rgba,
-            specular=float(rng.uniform(*mat.specular)), shininess=float(rng.uniform(*mat.shininess)),
-            reflectance=float(rng.uniform(*mat.reflectance))))
+            obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=quat, rgba=rgba,
+            specular=float(look.uniform(*mat.specular)), shininess=float(look.uniform(*mat.shininess)),
+            reflectance=float(look.uniform(*mat.reflectance)), skin_seed=skin_seed))
 
     distractors = []
     for _ in range(n_dis):
@@ -236,37 +225,38 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         radius = float(np.linalg.norm(dims)) if shape == "box" else float(dims[0] + dims[1])
         pos = place(radius)
         distractors.append(DistractorSpec(shape, size, tuple(float(v) for v in pos), random_quat_wxyz(rng),
-                                          (*_colour(rng), 1.0)))
+                                          (*_colour(look), 1.0), material=sample_material(cfg, look)))
 
     lc = cfg.lights
     lights = []
-    for _ in range(int(rng.integers(lc.count[0], lc.count[1] + 1))):
-        d = rng.uniform(*lc.distance)
-        el = rng.uniform(np.deg2rad(30), np.deg2rad(85))
-        az = rng.uniform(0, 2 * np.pi)
+    for _ in range(int(look.integers(lc.count[0], lc.count[1] + 1))):
+        d = look.uniform(*lc.distance)
+        el = look.uniform(np.deg2rad(30), np.deg2rad(85))
+        az = look.uniform(0, 2 * np.pi)
         pos = np.array([d * np.cos(el) * np.cos(az), d * np.cos(el) * np.sin(az), sc.table_height + d * np.sin(el)])
         direction = np.array([0.0, 0.0, sc.table_height]) - pos
         direction /= np.linalg.norm(direction)
-        inten = rng.uniform(*lc.intensity)
-        tint = np.clip(1.0 + rng.normal(0, lc.colour_jitter, 3), 0.5, 1.5)
+        inten = look.uniform(*lc.intensity)
+        tint = np.clip(1.0 + look.normal(0, lc.colour_jitter, 3), 0.5, 1.5)
         diffuse = np.clip(inten * tint, 0, 1)
         lights.append(LightSpec(tuple(float(v) for v in pos), tuple(float(v) for v in direction),
-                                tuple(float(v) for v in diffuse), float(rng.uniform(0.0, 0.4))))
-    ambient = float(rng.uniform(*lc.ambient))
+                                tuple(float(v) for v in diffuse), float(look.uniform(0.0, 0.4))))
+    ambient = float(look.uniform(*lc.ambient))
 
-    tex = mat.background_textures
-    table = _surface(rng, tex, (0.55, 0.45, 0.35))
-    floor = _surface(rng, tex, (0.35, 0.35, 0.35))
-    walls = _surface(rng, tex, (0.6, 0.6, 0.62))
-
-    images = texture_images(mat.textures)
-    if images:  # drawn only with a texture folder, so the default stream is unchanged
-        table, floor, walls = (_with_image(srf, images, rng) for srf in (table, floor, walls))
-        distractors = [replace(d, image=images[int(rng.integers(len(images)))]) for d in distractors]
+    table = _surface(cfg, look, (0.55, 0.45, 0.35), sample_material(cfg, look), 0.7)
+    floor = _surface(cfg, look, (0.35, 0.35, 0.35), sample_material(cfg, look), 2.0 * sc.room_half_size)
+    walls = (floor if mat.room_material == "shared" and floor.material is not None
+             else _surface(cfg, look, (0.6, 0.6, 0.62), sample_material(cfg, look), 2.0 * sc.room_half_size))
+    environment = sample_environment(cfg, look)
+    ceiling = None
+    if sc.ceiling_light:
+        grey = look.uniform(0.5, 1.0)
+        colour = np.clip(grey + look.normal(0.0, 0.03, 3), 0.4, 1.0) * look.uniform(*lc.ceiling_strength)
+        ceiling = tuple(float(c) for c in colour)
 
     views = tuple(_sample_views(cfg, rng))
     return SceneSpec(scene_index, attempt, tuple(placements), tuple(distractors), tuple(lights), ambient,
-                     table, floor, walls, views)
+                     table, floor, walls, views, environment, ceiling)
 
 
 def _sample_views(cfg: GenerateConfig, rng: np.random.Generator) -> list[ViewSpec]:

@@ -33,8 +33,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="physical occluders so a target per image lands in this level's band")
     p.add_argument("--occlusion-definition", choices=["pascal3d+", "objectcentric"],
                    help="level bands used by --occlusion (default pascal3d+)")
+    p.add_argument("--recipe", choices=["tabletop", "bop-pbr"],
+                   help="preset of scene, camera and lighting values (bop-pbr: BlenderProc's BOP recipe: room, "
+                        "ceiling panel, objects on the floor, 25 views at 0.61-1.24 m); other options win over it")
     p.add_argument("--textures", metavar="DIR",
-                   help="folder of png/jpg images for the table, floor, walls and distractors (default: procedural)")
+                   help="folder of materials for the table, floor, walls and distractors: CC0 sets "
+                        "(NAME_Color/_Roughness/_NormalGL images) or plain png/jpg images (default: procedural)")
+    p.add_argument("--hdri", metavar="DIR",
+                   help="folder of equirectangular .hdr/.exr maps lighting the pbr profile (default: procedural sky "
+                        "and studio environments)")
+    p.add_argument("--materials", metavar="FAMILY,FAMILY",
+                   help="procedural material families of the table, floor, walls and distractors (default: all; "
+                        "none: MuJoCo's checker and gradient patterns)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--channels", metavar="NAME,NAME",
                    help="dense ground truth per image: instances, coords, normals, flow, keypoints (comma-separated; "
@@ -72,6 +82,9 @@ def config_from_args(args: argparse.Namespace):
         "workers": args.workers, "backend": args.backend, "ray_address": args.ray_address, "seed": args.seed,
         "occlusion.level": args.occlusion,
         "occlusion.definition": args.occlusion_definition, "materials.textures": args.textures,
+        "lights.hdri": args.hdri, "recipe": args.recipe,
+        "materials.families": None if args.materials is None else [c.strip() for c in args.materials.split(",")
+                                                                   if c.strip() and c.strip() != "none"],
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
         "annotation.channels": None if args.channels is None else [c.strip() for c in args.channels.split(",")
                                                                     if c.strip() and c.strip() != "none"],

@@ -39,6 +39,8 @@ from simtest.camera import CameraModel
 from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
 from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
+from simtest.render.pbr_lights import emitters
+from simtest.render.pbr_shapes import box_arrays, mesh_from_arrays, sphere_arrays, transform
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
 
@@ -46,10 +48,6 @@ __all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "rend
            "INSTALL_HINT", "PBR_VARIANTS"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
-#: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
-LIGHT_RADIUS = 0.08
-#: Point spots that stand in for each MuJoCo spot light, spread over a disk of radius LIGHT_RADIUS.
-SPOT_SAMPLES = 8
 #: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
 INFINITE_PLANE = 50.0
 #: Longest light path of the path tracer (3: direct light plus one indirect bounce, which carries most of the
@@ -58,6 +56,9 @@ MAX_DEPTH = 3
 #: Samples per pixel of the albedo / normal guide pass: its samples are jittered within the pixel, so one gives
 #: noisy rather than aliased edges, which the denoiser prefilters.
 AUX_SPP = 1
+#: World from Mitsuba's envmap frame (y up, u = atan2(x, -z) / 2 pi): maps the simtest convention (z up, azimuth
+#: from +x toward +y, row 0 the zenith) onto Mitsuba's latitude-longitude lookup.
+_R_ENV_MI = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 #: Mitsuba camera frame (x left, y up, z forward) from the OpenCV camera frame (x right, y down, z forward).
 _R_CV_MI = np.diag([-1.0, -1.0, 1.0])
 #: First spawn key of the sampler seeds (scene spawn keys start with the scene index, < 10^7).
@@ -151,62 +152,6 @@ def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
     return own
 
 
-def _transform(mi, R: np.ndarray, t: np.ndarray, scale: np.ndarray | None = None):
-    """Mitsuba 4x4 transform ``[R diag(scale) | t]``."""
-    M = np.eye(4)
-    M[:3, :3] = R if scale is None else R @ np.diag(scale)
-    M[:3, 3] = t
-    return mi.ScalarTransform4f(M.tolist())
-
-
-def _mesh(mi, name: str, verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,
-          uv: np.ndarray | None = None):
-    """A Mitsuba triangle mesh from arrays (world coordinates)."""
-    mesh = mi.Mesh(name, len(verts), len(faces), has_vertex_normals=normals is not None,
-                   has_vertex_texcoords=uv is not None)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = np.ascontiguousarray(verts, dtype=np.float32).ravel()
-    params["faces"] = np.ascontiguousarray(faces, dtype=np.uint32).ravel()
-    if normals is not None:
-        params["vertex_normals"] = np.ascontiguousarray(normals, dtype=np.float32).ravel()
-    if uv is not None:
-        params["vertex_texcoords"] = np.ascontiguousarray(uv, dtype=np.float32).ravel()
-    params.update()
-    return mesh
-
-
-def _box_arrays(half: np.ndarray, repeat: np.ndarray, top_only: bool = False):
-    """Vertices, faces, normals and uv of a box with half sizes ``half`` (metres); ``top_only``: its +z face
-    alone (a plane). Each face carries the texture ``repeat`` times across it (MuJoCo's 2D mapping with
-    ``texuniform`` off)."""
-    sides = [(2, 1.0)] if top_only else [(a, s) for a in range(3) for s in (1.0, -1.0)]
-    verts, faces, normals, uvs = [], [], [], []
-    for n_ax, sign in sides:
-        # (u, v, n) right-handed, so the corners below run counter-clockwise seen from outside.
-        u_ax, v_ax = ((n_ax + 1) % 3, (n_ax + 2) % 3) if sign > 0 else ((n_ax + 2) % 3, (n_ax + 1) % 3)
-        base = len(verts)
-        for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-            p = np.zeros(3)
-            p[n_ax], p[u_ax], p[v_ax] = sign * half[n_ax], su * half[u_ax], sv * half[v_ax]
-            verts.append(p)
-            normals.append(np.eye(3)[n_ax] * sign)
-            uvs.append([(su + 1) / 2 * repeat[0], (sv + 1) / 2 * repeat[1]])
-        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
-    return np.array(verts), np.array(faces), np.array(normals), np.array(uvs)
-
-
-def _sphere_arrays(n_lat: int = 24, n_lon: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """Unit sphere: vertices (= normals) and faces of a latitude-longitude tessellation."""
-    th = np.linspace(0.0, np.pi, n_lat + 1)
-    ph = np.linspace(0.0, 2 * np.pi, n_lon + 1)
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    verts = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], axis=-1).reshape(-1, 3)
-    idx = np.arange((n_lat + 1) * (n_lon + 1)).reshape(n_lat + 1, n_lon + 1)
-    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-    return verts, faces
-
-
 def camera_sensor(mi, camera: CameraModel, spp: int) -> dict:
     """A Mitsuba ``perspective`` sensor with ``camera``'s exact intrinsics and pose.
 
@@ -228,7 +173,7 @@ def camera_sensor(mi, camera: CameraModel, spp: int) -> dict:
         "principal_point_offset_x": float(-(cx + 0.5 - w / 2.0) / w),
         "principal_point_offset_y": float(-(cy + 0.5 - h / 2.0) / h),
         "near_clip": 0.001, "far_clip": 100.0,
-        "to_world": _transform(mi, T.R @ _R_CV_MI, T.t),
+        "to_world": transform(mi, T.R @ _R_CV_MI, T.t),
         "film": {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "rgb", "rfilter": {"type": "box"}},
         "sampler": {"type": "independent", "sample_count": int(spp)},
     }
@@ -260,7 +205,7 @@ class PbrRenderer:
 
     def __init__(self, model: mujoco.MjModel, camera: CameraModel, spp: int | str = 16, denoise: bool = True,
                  geomgroups: tuple[int, ...] = (0, 1, 2), threads: int | None = None,
-                 variant: str = "auto") -> None:
+                 variant: str = "auto", environment: tuple[np.ndarray, float] | None = None) -> None:
         spp = auto_spp(camera.width, camera.height) if spp == "auto" else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or int(spp) < 1:
             raise RenderError(f"samples per pixel must be an integer >= 1 or 'auto', got {spp!r}")
@@ -278,6 +223,24 @@ class PbrRenderer:
         self._textures: dict[tuple, Any] = {}
         self._aux = None
         self._loaded: tuple[bytes, Any] | None = None  # (scene key, loaded Mitsuba scene)
+        self._environment: tuple[np.ndarray, float] | None = None
+        self._env_bitmap = None
+        self.set_environment(environment)
+
+    def set_environment(self, environment: tuple[np.ndarray, float] | None) -> None:
+        """Light the scene by an environment map instead of MuJoCo's constant ambient term: ``(radiance, strength)``
+        with ``radiance`` an (H, 2H, 3) linear equirectangular map in the convention of
+        :class:`simtest.materials.Environment` (world z up, row 0 the zenith, azimuth from +x toward +y), times
+        ``strength``; ``None`` goes back to the ambient term. MuJoCo's lights stay as they are."""
+        if environment is None:
+            self._environment, self._env_bitmap = None, None
+            return
+        radiance, strength = environment
+        radiance = np.ascontiguousarray(np.maximum(np.asarray(radiance, dtype=np.float32), 0.0) * float(strength))
+        if radiance.ndim != 3 or radiance.shape[2] != 3 or radiance.shape[1] != 2 * radiance.shape[0]:
+            raise RenderError(f"an environment map must be (H, 2H, 3) radiance, got shape {radiance.shape}")
+        self._environment = (radiance, float(strength))
+        self._env_bitmap = self._mi.Bitmap(radiance)
 
     @property
     def width(self) -> int:
@@ -327,8 +290,10 @@ class PbrRenderer:
                   m.geom_matid, m.geom_type, m.geom_size, m.geom_dataid, m.mat_rgba, m.mat_specular,
                   m.mat_shininess, m.mat_reflectance, m.mat_texrepeat, m.mat_texid, m.light_active, m.light_type,
                   m.light_ambient, m.light_diffuse, m.light_cutoff, m.light_exponent, m.vis.headlight.ambient,
-                  m.stat.center, m.tex_data):
+                  m.stat.center, m.tex_data, m.mat_roughness, m.mat_metallic, m.mat_emission):
             h.update(np.ascontiguousarray(a).tobytes())
+        if self._environment is not None:
+            h.update(self._environment[0].tobytes())
         return h.digest()
 
     def _camera_id(self, camera: int | str) -> int:
@@ -346,33 +311,99 @@ class PbrRenderer:
             rgba = _geom_rgba(m, g)
             if int(m.geom_group[g]) not in self._groups or rgba[3] <= 0.0:
                 continue
+            mat = int(m.geom_matid[g])
+            if mat >= 0 and m.mat_emission[mat] > 0 and int(m.geom_type[g]) == _G.mjGEOM_BOX:
+                scene[f"geom_{g}_panel"] = self._panel(data, g, rgba[:3] * float(m.mat_emission[mat]))
+                continue
             bsdf = self._bsdf(g, rgba)
             for k, shape in enumerate(self._geom_shapes(data, g, bsdf)):
                 scene[f"geom_{g}_{k}"] = shape
-        scene.update(self._emitters(data))
+        scene.update(emitters(mi, self.model, data))
+        if self._env_bitmap is not None:
+            scene["environment"] = {"type": "envmap", "bitmap": self._env_bitmap,
+                                    "to_world": transform(mi, _R_ENV_MI, np.zeros(3))}
         return scene
+
+    def _panel(self, data: mujoco.MjData, g: int, display: np.ndarray) -> dict:
+        """An emissive box geom (a ceiling panel) as a one-sided area light facing down from its bottom face,
+        calibrated like the lights: at ``model.stat.center`` its irradiance is ``pi`` times the linearized
+        ``rgba x emission`` (a white Lambertian floor there shows that display value)."""
+        m = self.model
+        R, t = data.geom_xmat[g].reshape(3, 3).astype(np.float64), data.geom_xpos[g].astype(np.float64)
+        half = m.geom_size[g].astype(np.float64)
+        bottom = t - R[:, 2] * half[2]
+        offset = bottom - np.asarray(m.stat.center, dtype=np.float64)
+        d2 = max(float(offset @ offset), 1e-6)
+        cos = abs(float(offset[2])) / np.sqrt(d2)
+        solid = 4.0 * half[0] * half[1] * cos * cos / d2  # projected solid angle, small-source approximation
+        radiance = np.pi * srgb_to_linear(np.clip(display, 0.0, 1.0)) / max(solid, 1e-9)
+        return {"type": "rectangle", "to_world": transform(self._mi, R @ np.diag([1.0, -1.0, -1.0]), bottom,
+                                                           np.array([half[0], half[1], 1.0])),
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": radiance.tolist()}},
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
 
     # --- materials ----------------------------------------------------------------------------------------
     def _bsdf(self, g: int, rgba: np.ndarray):
         """Two-sided principled BSDF of geom ``g``: base colour (texture x rgba, sRGB read as linear radiance
-        reflectance), roughness = 1 - shininess, specular, metallic = reflectance (MuJoCo defaults without a
-        material: specular 0.5, shininess 0.5, reflectance 0)."""
+        reflectance); roughness = the material's ``roughness`` when set (>= 0), else 1 - shininess, times its
+        roughness map if it has one (role ``ROUGHNESS``); metallic = the material's ``metallic`` when set, else
+        reflectance, or its metallic map (role ``METALLIC``); specular; a ``NORMAL`` map becomes Mitsuba's
+        ``normalmap`` (MuJoCo defaults without a material: specular 0.5, shininess 0.5, reflectance 0)."""
         m, mi = self.model, self._mi
         mat = int(m.geom_matid[g])
         spec, shin, refl = (m.mat_specular[mat], m.mat_shininess[mat], m.mat_reflectance[mat]) if mat >= 0 \
             else (0.5, 0.5, 0.0)
-        tex = int(m.mat_texid[mat, int(mujoco.mjtTextureRole.mjTEXROLE_RGB)]) if mat >= 0 else -1
+        rough = float(m.mat_roughness[mat]) if mat >= 0 and m.mat_roughness[mat] >= 0 else 1.0 - float(shin)
+        metal = float(m.mat_metallic[mat]) if mat >= 0 and m.mat_metallic[mat] >= 0 else float(refl)
+        tex = self._role(mat, mujoco.mjtTextureRole.mjTEXROLE_RGB)
         colour = srgb_to_linear(rgba[:3])
         if tex >= 0 and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D):
-            base = {"type": "bitmap", "bitmap": self._bitmap(tex, colour), "wrap_mode": "repeat",
-                    "filter_type": "bilinear", "raw": True}
+            base = self._bitmap_texture(self._bitmap(tex, colour))
         else:
             if tex >= 0:  # cube / skybox textures: their mean colour
                 colour = colour * self._texels(tex).reshape(-1, 3).mean(axis=0)
             base = {"type": "rgb", "value": colour.tolist()}
-        return mi.load_dict({"type": "twosided", "bsdf": {
-            "type": "principled", "base_color": base, "roughness": float(np.clip(1.0 - shin, 0.05, 1.0)),
-            "specular": float(np.clip(spec, 0.0, 1.0)), "metallic": float(np.clip(refl, 0.0, 1.0))}})
+        principled = {"type": "principled", "base_color": base, "roughness": float(np.clip(rough, 0.05, 1.0)),
+                      "specular": float(np.clip(spec, 0.0, 1.0)), "metallic": float(np.clip(metal, 0.0, 1.0))}
+        for key, role in (("roughness", mujoco.mjtTextureRole.mjTEXROLE_ROUGHNESS),
+                          ("metallic", mujoco.mjtTextureRole.mjTEXROLE_METALLIC)):
+            t = self._role(mat, role)
+            if t >= 0:
+                lo = 0.05 if key == "roughness" else 0.0
+                principled[key] = self._bitmap_texture(self._raw_bitmap(t, ("grey", lo)))
+        bsdf = principled
+        t = self._role(mat, mujoco.mjtTextureRole.mjTEXROLE_NORMAL)
+        if t >= 0:
+            bsdf = {"type": "normalmap", "normalmap": self._bitmap_texture(self._raw_bitmap(t, ("normal", 0.0))),
+                    "bsdf": principled}
+        return mi.load_dict({"type": "twosided", "bsdf": bsdf})
+
+    def _role(self, mat: int, role) -> int:
+        """The texture id of material ``mat`` in ``role`` (-1: none)."""
+        return int(self.model.mat_texid[mat, int(role)]) if mat >= 0 else -1
+
+    @staticmethod
+    def _bitmap_texture(bitmap) -> dict:
+        return {"type": "bitmap", "bitmap": bitmap, "wrap_mode": "repeat", "filter_type": "bilinear", "raw": True}
+
+    def _raw_bitmap(self, tex: int, kind: tuple[str, float]):
+        """A data map (not colour) of texture ``tex`` as a Mitsuba bitmap: ``("grey", lo)`` its first channel
+        / 255 clipped to >= lo; ``("normal", _)`` a tangent-space normal map in Mitsuba's frame (the texture is
+        OpenGL-style, +y toward the image's top; Mitsuba's tangent ``t`` runs toward increasing v, i.e. down
+        the image, so green is flipped)."""
+        key = (tex, *kind)
+        if key not in self._textures:
+            m = self.model
+            w, h, c = int(m.tex_width[tex]), int(m.tex_height[tex]), int(m.tex_nchannel[tex])
+            adr = int(m.tex_adr[tex])
+            raw = np.asarray(m.tex_data[adr:adr + w * h * c], dtype=np.float32).reshape(h, w, c) / 255.0
+            if kind[0] == "grey":
+                arr = np.maximum(raw[..., :1], kind[1])
+            else:
+                arr = raw[..., :3].copy()
+                arr[..., 1] = 1.0 - arr[..., 1]
+            self._textures[key] = self._mi.Bitmap(np.ascontiguousarray(arr, dtype=np.float32))
+        return self._textures[key]
 
     def _texels(self, tex: int) -> np.ndarray:
         """Texture ``tex`` as linear RGB floats (H, W, 3)."""
@@ -406,26 +437,26 @@ class PbrRenderer:
             half = size.copy()
             if gtype == _G.mjGEOM_PLANE:
                 half[:2] = np.where(half[:2] > 0, half[:2], INFINITE_PLANE)
-            v, f, n, uv = _box_arrays(half, repeat, top_only=gtype == _G.mjGEOM_PLANE)
-            return [self._with_bsdf(_mesh(mi, name, v @ R.T + t, f, n @ R.T, uv), bsdf)]
+            v, f, n, uv = box_arrays(half, repeat, top_only=gtype == _G.mjGEOM_PLANE)
+            return [self._with_bsdf(mesh_from_arrays(mi, name, v @ R.T + t, f, n @ R.T, uv), bsdf)]
         if gtype == _G.mjGEOM_SPHERE:
             return [{"type": "sphere", "center": t.tolist(), "radius": float(size[0]), "bsdf": bsdf}]
         if gtype == _G.mjGEOM_ELLIPSOID:
-            v, f = _sphere_arrays()
+            v, f = sphere_arrays()
             n = v / size
             n /= np.linalg.norm(n, axis=1, keepdims=True)
-            return [self._with_bsdf(_mesh(mi, name, (v * size) @ R.T + t, f, n @ R.T), bsdf)]
+            return [self._with_bsdf(mesh_from_arrays(mi, name, (v * size) @ R.T + t, f, n @ R.T), bsdf)]
         if gtype in (_G.mjGEOM_CYLINDER, _G.mjGEOM_CAPSULE):
             r, hh = float(size[0]), float(size[1])
             shapes = [{"type": "cylinder", "p0": [0.0, 0.0, -hh], "p1": [0.0, 0.0, hh], "radius": r,
-                       "to_world": _transform(mi, R, t), "bsdf": bsdf}]
+                       "to_world": transform(mi, R, t), "bsdf": bsdf}]
             for s in (1.0, -1.0):
                 end = t + s * hh * R[:, 2]
                 if gtype == _G.mjGEOM_CAPSULE:
                     shapes.append({"type": "sphere", "center": end.tolist(), "radius": r, "bsdf": bsdf})
                 else:  # a cap disk facing outward
                     Rc = R if s > 0 else R @ np.diag([1.0, -1.0, -1.0])
-                    shapes.append({"type": "disk", "to_world": _transform(mi, Rc, end, np.array([r, r, 1.0])),
+                    shapes.append({"type": "disk", "to_world": transform(mi, Rc, end, np.array([r, r, 1.0])),
                                    "bsdf": bsdf})
             return shapes
         return []  # heightfields, SDFs, lines: not drawn by the path tracer
@@ -451,68 +482,7 @@ class PbrRenderer:
             ta = int(m.mesh_texcoordadr[mesh_id])
             texcoords = m.mesh_texcoord[ta:ta + int(m.mesh_texcoordnum[mesh_id])].astype(np.float64)
             uv = texcoords[m.mesh_facetexcoord[fa:fa + fn]].reshape(-1, 2)  # same (u, v) convention as Mitsuba
-        return self._with_bsdf(_mesh(self._mi, name, corner_v, tris, corner_n, uv), bsdf)
-
-    # --- lights -------------------------------------------------------------------------------------------
-    def _emitters(self, data: mujoco.MjData) -> dict:
-        """The constant environment (MuJoCo's ambient) and the emitters of every active light.
-
-        MuJoCo's light colours, like its material colours, are display (sRGB) values: they are linearized, so
-        a surface lit by them keeps about the brightness the rasterizer gives it. Each light is calibrated at
-        its distance ``d`` to ``model.stat.center``: there its irradiance is ``pi D`` (D the linearized
-        ``diffuse``), so a white Lambertian surface facing it reflects radiance ``D``, as MuJoCo's unattenuated
-        light does. A spot light becomes ``SPOT_SAMPLES`` spots spread over a disk of radius ``LIGHT_RADIUS``
-        across its axis (soft shadows) with MuJoCo's cutoff and a beam width where ``cos^exponent`` halves; a
-        point light becomes a sphere of that radius; a directional light stays directional.
-        """
-        m = self.model
-        ambient = np.asarray(m.vis.headlight.ambient, dtype=np.float64).copy()
-        out: dict[str, Any] = {}
-        centre = np.asarray(m.stat.center, dtype=np.float64)
-        for i in range(m.nlight):
-            if not m.light_active[i]:
-                continue
-            ambient += m.light_ambient[i]
-            diffuse = srgb_to_linear(m.light_diffuse[i])
-            pos = np.asarray(data.light_xpos[i], dtype=np.float64)
-            axis = np.asarray(data.light_xdir[i], dtype=np.float64)
-            d2 = max(float(np.sum((pos - centre) ** 2)), LIGHT_RADIUS ** 2)
-            kind = int(m.light_type[i])
-            if kind == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL):
-                out[f"light_{i}"] = {"type": "directional", "direction": axis.tolist(),
-                                     "irradiance": {"type": "rgb", "value": (np.pi * diffuse).tolist()}}
-            elif kind == int(mujoco.mjtLightType.mjLIGHT_SPOT):
-                out.update(self._spot(i, pos, axis, np.pi * diffuse * d2))
-            else:
-                out[f"light_{i}"] = {"type": "sphere", "center": pos.tolist(), "radius": LIGHT_RADIUS,
-                                     "emitter": {"type": "area", "radiance": {
-                                         "type": "rgb", "value": (diffuse * d2 / LIGHT_RADIUS ** 2).tolist()}}}
-        out["environment"] = {"type": "constant",
-                              "radiance": {"type": "rgb", "value": srgb_to_linear(ambient).tolist()}}
-        return out
-
-    def _spot(self, i: int, pos: np.ndarray, axis: np.ndarray, intensity: np.ndarray) -> dict:
-        """Light ``i`` as ``SPOT_SAMPLES`` Mitsuba spots (total on-axis ``intensity``, W/sr) on a Vogel disk."""
-        m = self.model
-        cutoff = float(np.clip(m.light_cutoff[i], 1.0, 89.0))
-        exponent = float(m.light_exponent[i])
-        half = float(np.degrees(np.arccos(0.5 ** (1.0 / exponent)))) if exponent > 0 else cutoff
-        beam = min(half, 0.95 * cutoff)
-        axis = axis / max(np.linalg.norm(axis), 1e-12)
-        u = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
-        u /= np.linalg.norm(u)
-        v = np.cross(axis, u)
-        out = {}
-        for k in range(SPOT_SAMPLES):
-            r = LIGHT_RADIUS * np.sqrt((k + 0.5) / SPOT_SAMPLES)
-            a = k * np.pi * (3.0 - np.sqrt(5.0))  # golden angle
-            p = pos + r * (np.cos(a) * u + np.sin(a) * v)
-            out[f"light_{i}_{k}"] = {
-                "type": "spot", "cutoff_angle": cutoff, "beam_width": beam,
-                "to_world": self._mi.ScalarTransform4f().look_at(origin=p.tolist(), target=(p + axis).tolist(),
-                                                                 up=u.tolist()),
-                "intensity": {"type": "rgb", "value": (intensity / SPOT_SAMPLES).tolist()}}
-        return out
+        return self._with_bsdf(mesh_from_arrays(self._mi, name, corner_v, tris, corner_n, uv), bsdf)
 
     def close(self) -> None:
         self._textures.clear()
