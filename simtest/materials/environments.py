@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 if "cv2" not in sys.modules:  # OpenCV reads this switch once; it must be set before the first import
     os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
@@ -115,21 +116,27 @@ def environment_files(folder: str) -> tuple[str, ...]:
 def _imread_float(path: str) -> np.ndarray:
     import cv2
 
-    img = cv2.imread(path, cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    try:
+        img = cv2.imread(path, cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    except cv2.error:
+        img = None
     if img is not None:
         return img[..., ::-1]
     if path.lower().endswith(".exr"):
         try:
             import imageio.v3 as iio
 
-            img = np.asarray(iio.imread(path), dtype=np.float32)
+            with warnings.catch_warnings():                        # imageio's plugin probing warns
+                warnings.simplefilter("ignore")
+                img = np.asarray(iio.imread(path), dtype=np.float32)
             return img[..., :3] if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
         except Exception as exc:
-            raise AssetError(f"environment file {path!r} could not be read: OpenCV's OpenEXR support is off "
-                             f"(set OPENCV_IO_ENABLE_OPENEXR=1 before cv2 is first imported) and imageio "
-                             f"failed ({exc}); convert it to Radiance .hdr, e.g. "
+            raise AssetError(f"environment file {path!r} could not be read: OpenCV did not decode it (its "
+                             f"OpenEXR support is missing from this build, or was off because "
+                             f"OPENCV_IO_ENABLE_OPENEXR=1 was not set before cv2 was first imported) and "
+                             f"imageio failed ({' '.join(str(exc).split())}); convert it to Radiance .hdr, e.g. "
                              f"`oiiotool in.exr -o out.hdr`") from exc
-    raise AssetError(f"environment file {path!r} could not be read as an HDR image")
+    raise AssetError(f"environment file {path!r} could not be read as a Radiance .hdr image")
 
 
 def read_environment(path: str, height: int = 256) -> Environment:

@@ -8,7 +8,7 @@ import numpy as np
 
 from simtest.materials.sphere import LUMA, directions, up_weights
 
-__all__ = ["sky_radiance", "studio_radiance", "unit_direction"]
+__all__ = ["sky_radiance", "studio_radiance", "sunny_sky", "unit_direction"]
 
 
 def unit_direction(elevation: float, azimuth: float) -> np.ndarray:
@@ -26,15 +26,23 @@ def _irradiance_up(radiance: np.ndarray) -> float:
 
 
 def sky_radiance(rng: np.random.Generator, height: int) -> np.ndarray:
-    """A clear-to-hazy sky with a sun disk and a ground (see ``procedural_environment``)."""
+    """A clear-to-hazy sky with a sun disk and a ground, its parameters drawn from ``rng`` (see
+    ``procedural_environment``)."""
     elevation, azimuth = np.radians(rng.uniform(15.0, 75.0)), rng.uniform(0.0, 2.0 * np.pi)
     turbidity = rng.uniform(2.0, 6.0)
-    haze = (turbidity - 2.0) / 4.0
-    share = float(np.clip(0.85 - 0.12 * haze + rng.uniform(-0.02, 0.02), 0.7, 0.85))
+    share = float(np.clip(0.85 - 0.03 * (turbidity - 2.0) + rng.uniform(-0.02, 0.02), 0.7, 0.85))
     rho = rng.uniform(0.2, 0.3)
-    ground_col = _luma_one(np.array([rng.uniform(0.9, 1.1), 1.0, rng.uniform(0.65, 0.85)]))
+    ground = np.array([rng.uniform(0.9, 1.1), 1.0, rng.uniform(0.65, 0.85)])
+    return sunny_sky(height, unit_direction(elevation, azimuth), turbidity, share, rho, ground)
+
+
+def sunny_sky(height: int, sun: np.ndarray, turbidity: float = 3.0, share: float = 0.8, rho: float = 0.25,
+              ground_rgb: np.ndarray = (1.0, 1.0, 0.8)) -> np.ndarray:
+    """A sky lit by a sun disk (angular radius 1.2 texel rows) toward the unit direction ``sun`` (above the
+    horizon), scaled so the horizontal irradiance is pi with the fraction ``share`` from the sun; turbidity
+    2 (clear) .. 6 (hazy); a ground of albedo ``rho`` (colour ``ground_rgb``, normalised to luminance 1)."""
+    haze = (turbidity - 2.0) / 4.0
     d = directions(height)
-    sun = unit_direction(elevation, azimuth)
     cos_z = np.clip(d[..., 2], 0.0, 1.0)
     cos_g = np.clip(d @ sun, -1.0, 1.0)
     gamma = np.arccos(cos_g)
@@ -46,14 +54,14 @@ def sky_radiance(rng: np.random.Generator, height: int) -> np.ndarray:
     sky = sky * glow * np.array([1.0, 0.97, 0.9 + 0.1 * (1.0 - haze)])
     upper = (d[..., 2] > 0.0)[..., None]
     sky = np.where(upper, sky, 0.0)
-    texel = np.pi / height
-    disk = (gamma < 1.2 * texel) & upper[..., 0]
+    disk = (gamma < 1.2 * np.pi / height) & upper[..., 0]
     disk.flat[int(np.argmin(gamma))] = True
-    sun_col = _luma_one(np.array([1.0, 0.86 + 0.1 * np.sin(elevation), 0.62 + 0.3 * np.sin(elevation)]))
+    sin_e = float(sun[2])
+    sun_col = _luma_one(np.array([1.0, 0.86 + 0.1 * sin_e, 0.62 + 0.3 * sin_e]))
     sun_e_unit = float((disk * up_weights(height)[:, None]).sum())
     sky *= np.pi * (1.0 - share) / _irradiance_up(sky)
     sky[disk] = np.pi * share / sun_e_unit * sun_col
-    return np.where(upper, sky, rho * ground_col)
+    return np.where(upper, sky, rho * _luma_one(np.asarray(ground_rgb, dtype=np.float64)))
 
 
 def _box(d: np.ndarray, centre: np.ndarray, half_u: float, half_v: float) -> np.ndarray:
