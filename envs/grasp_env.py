@@ -6,7 +6,11 @@ A gymnasium environment (registered as ``simtest/PandaGrasp-v0``) on the generat
 Observation (a dict):
 
 * ``rgb``: (H, W, 3) uint8 wrist-camera image (corrupted as asked);
-* ``depth``: (H, W) float32 planar depth, metres, 0 = missing (with sensor noise as asked);
+* ``depth``: (H, W) float32 planar depth, metres, 0 = missing: the exact rendered depth, or with
+  ``depth_sensor="d435-stereo"`` / ``"passive-stereo"`` the depth sensed by the simulated stereo camera
+  (:mod:`simtest.sensors.stereo`: IR pair, projector, SGBM, registration; 0 = invalid), then the
+  ``depth_noise`` / corruption as asked. The exact depth behind it is :attr:`PandaGraspEnv.depth_exact`
+  (``last_frame.depth``), never in ``info`` (which stays small per step);
 * ``K``: (3, 3) float64 intrinsics, pixels (D435-like: fx = fy = 615 px at 640 px width);
 * ``T_base_cam``: (4, 4) pose of the wrist camera (OpenCV frame) in the robot base frame, metres;
 * ``joint_pos``, ``joint_vel``: (7,) arm joint angles (rad) and velocities (rad/s);
@@ -28,8 +32,9 @@ rested; the episode terminates once that has held for :data:`HOLD_TIME` seconds.
 :class:`simtest.corrupt.CorruptionSpec` fields, e.g. ``{"weather": "fog", "severity": 4}``),
 ``depth_noise`` (a preset name of :data:`simtest.corrupt.DEPTH_PRESETS`), ``placement``
 (``"upright"`` | ``"random"``) and ``start`` (``"home"`` | ``"observe"``: the arm's initial configuration).
-Corruption and depth noise change observations only, never ``info``; they draw from the episode's own
-generator, so the same seed gives the same corrupted images.
+Corruption, depth noise and the depth sensor change observations only, never ``info``; they draw from the
+episode's own generators (the sensor from a stream of its own below the corruption stream), so the same seed
+gives the same images, and turning the sensor on changes nothing but ``obs["depth"]``.
 
 ``info`` (ground truth, for oracles and scoring): ``target_obj_id``, ``target_name``, ``target_instance``,
 ``obj_ids`` (per instance), ``T_world_obj`` and ``T_cam_obj`` ((N, 4, 4) per instance, metres),
@@ -75,6 +80,9 @@ import mujoco
 
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
+from simtest.envs.observation import (DEPTH_SENSORS, T_world_cam_matrix, capture_images,
+                                      observation_dict, observation_space, resolve_depth_sensor,
+                                      sensor_stream)
 from simtest.envs.options import (CONTROL_DT, HOLD_TIME, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
                                   EpisodeConfig, check_action, load_objects, pick_target)
 from simtest.errors import ConfigError
@@ -83,7 +91,7 @@ from simtest.robot import rotvec_to_matrix
 from simtest.render.rasterizer import Frame, Renderer
 
 __all__ = ["PandaGraspEnv", "EpisodeConfig", "CONTROL_DT", "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION",
-           "SUCCESS_HEIGHT", "HOLD_TIME", "load_objects"]
+           "SUCCESS_HEIGHT", "HOLD_TIME", "DEPTH_SENSORS", "load_objects"]
 
 
 
@@ -115,6 +123,9 @@ class PandaGraspEnv(gym.Env):
             about 1-2 % of a step that renders). ``None`` (default): the pool when ``observe_every_step``, else
             one model per scene structure (physics-only stepping at full speed; a reset with other objects
             compiles a new model).
+        depth_sensor: ``"none"`` (the observation's depth is the exact rendered depth) or a simulated stereo
+            sensor of :data:`DEPTH_SENSORS` (``"d435-stereo"``, ``"passive-stereo"``): the observation's depth is
+            then the sensed depth (0 = invalid); the exact depth stays in :attr:`depth_exact`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / CONTROL_DT))}
@@ -124,7 +135,8 @@ class PandaGraspEnv(gym.Env):
                  occlusion: str | int = "L0", corruption: dict | None = None, depth_noise: str | None = None,
                  placement: str = "upright", start: str = "home", observe_every_step: bool = True,
                  render_width: int | None = None, render_height: int | None = None, ik: str = "fast",
-                 object_units: str = "auto", object_scale: float = 1.0, model_pool: bool | None = None) -> None:
+                 object_units: str = "auto", object_scale: float = 1.0, model_pool: bool | None = None,
+                 depth_sensor: str = "none") -> None:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         for name, v in (("width", width), ("height", height)):
@@ -134,6 +146,9 @@ class PandaGraspEnv(gym.Env):
             raise ConfigError(f"ik must be 'fast' (one DLS step, simtest.robot.DiffIK) or 'panda' "
                               f"(simtest.robot.ik_step), got {ik!r}")
         self.ik = ik
+        self._sensor = resolve_depth_sensor(depth_sensor)
+        self.depth_sensor = "none" if self._sensor is None else self._sensor.name
+        self._sensor_rng: np.random.Generator | None = None
         self.object_units, self.object_scale = object_units, float(object_scale)
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
@@ -148,16 +163,7 @@ class PandaGraspEnv(gym.Env):
             "objects": objects, "target": target, "n_distractors": n_distractors, "occlusion": occlusion,
             "corruption": corruption, "depth_noise": depth_noise, "placement": placement, "start": start})
         self.camera = CameraModel.default(self.width, self.height)
-        h, w = self.height, self.width
-        self.observation_space = spaces.Dict({
-            "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
-            "depth": spaces.Box(0.0, 100.0, (h, w), np.float32),
-            "K": spaces.Box(-1e5, 1e5, (3, 3), np.float64),
-            "T_base_cam": spaces.Box(-10.0, 10.0, (4, 4), np.float64),
-            "joint_pos": spaces.Box(-2 * np.pi, 2 * np.pi, (7,), np.float64),
-            "joint_vel": spaces.Box(-100.0, 100.0, (7,), np.float64),
-            "gripper_width": spaces.Box(-0.01, 0.1, (1,), np.float64),
-        })
+        self.observation_space = observation_space(self.width, self.height)
         lim = np.array([MAX_STEP_TRANSLATION] * 3 + [MAX_STEP_ROTATION] * 3 + [1.0], dtype=np.float32)
         self.action_space = spaces.Box(-lim, lim, dtype=np.float32)
         self._act_lo, self._act_hi = -lim.astype(np.float64), lim.astype(np.float64)
@@ -200,6 +206,7 @@ class PandaGraspEnv(gym.Env):
         self.config = cfg
         # Independent streams: scene layout, occluder, observation corruption.
         scene_rng, occ_rng, self._corrupt_rng = self.np_random.spawn(3)
+        self._sensor_rng = sensor_stream(self._corrupt_rng) if self._sensor is not None else None
         objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = pick_target(objects, cfg.target, scene_rng)
@@ -369,46 +376,33 @@ class PandaGraspEnv(gym.Env):
         return robot.wrist_camera_model(self.data, self.ids)
 
     def _T_world_cam(self) -> np.ndarray:
-        """4x4 ``T_world_cam`` (OpenCV) of the wrist camera at the current state (the MuJoCo->OpenCV flip of
-        :mod:`simtest.camera`, without building a :class:`CameraModel`)."""
-        T = np.zeros((4, 4))
-        x = self.data.cam_xmat[self.ids.camera]
-        T[:3, 0], T[:3, 1], T[:3, 2] = x[0::3], -x[1::3], -x[2::3]  # xmat @ diag(1, -1, -1)
-        T[:3, 3] = self.data.cam_xpos[self.ids.camera]
-        T[3, 3] = 1.0
-        return T
+        """4x4 ``T_world_cam`` (OpenCV) of the wrist camera at the current state."""
+        return T_world_cam_matrix(self.data, self.ids.camera)
 
     def capture(self) -> dict:
         """Render a new (corrupted) observation at the current state and return it."""
         return self._observe(render=True)
 
     def _observe(self, render: bool) -> dict:
-        d, ids = self.data, self.ids
         if render or self._obs is None:
-            frame = self._renderer.render(d, ids.camera, rgb=True, depth=True, seg=True)
-            self._frame = frame
-            rgb, depth = frame.rgb, frame.depth
-            if self.config.corruption is not None:
-                rgb, depth, _ = self.config.corruption.apply(rgb, depth, None, self._corrupt_rng, self._cam_K)
-            self._images = (np.ascontiguousarray(rgb, dtype=np.uint8),
-                            np.ascontiguousarray(depth, dtype=np.float32))
+            self._frame, *images = capture_images(self._renderer, self.data, self.ids, self._cam_K,
+                                                  self.config.corruption, self._corrupt_rng, self._sensor,
+                                                  self._sensor_rng)
+            self._images = tuple(images)
             self._T_base_cam_at_capture = self._T_base_world @ self._T_world_cam()
-        obs = {
-            "rgb": self._images[0],
-            "depth": self._images[1],
-            "K": self._cam_K.copy(),
-            "T_base_cam": self._T_base_cam_at_capture.copy(),
-            "joint_pos": d.qpos[ids.arm_qpos].copy(),
-            "joint_vel": d.qvel[ids.arm_dof].copy(),
-            "gripper_width": np.array([robot.gripper_width(d, ids)], dtype=np.float64),
-        }
-        self._obs = obs
-        return obs
+        self._obs = observation_dict(self._images, self._cam_K, self._T_base_cam_at_capture, self.data, self.ids)
+        return self._obs
 
     @property
     def last_frame(self) -> Frame | None:
-        """The clean render (rgb, depth, segmentation) behind the last captured observation."""
+        """The clean render (rgb, exact depth, segmentation) behind the last captured observation."""
         return self._frame
+
+    @property
+    def depth_exact(self) -> np.ndarray | None:
+        """The exact planar depth (H, W) float32 metres (0 = nothing hit) behind the last captured observation,
+        whatever the depth sensor and corruption made of ``obs["depth"]``; None before the first capture."""
+        return None if self._frame is None else self._frame.depth
 
     def target_mask(self) -> np.ndarray:
         """Visible mask (H, W) bool of the target in the last captured observation (ground truth)."""

@@ -77,6 +77,8 @@ class GraspRunConfig:
         occlusion: ``"L0".."L3"``.
         weather, severity: Image corruption of the observation (None = clean).
         depth_noise: Depth-noise preset (None = clean).
+        depth_sensor: ``"none"`` (exact depth) or a simulated stereo sensor (``"d435-stereo"``,
+            ``"passive-stereo"``): the estimator and the planner see its sensed depth (see ``PandaGraspEnv``).
         width, height: Wrist camera size, pixels.
         workers: Worker processes (local), or the CPUs of a Ray instance started here.
         backend: Where the episodes run: ``"local"`` or ``"ray"`` (:mod:`simtest.backend`); not part of the
@@ -107,6 +109,7 @@ class GraspRunConfig:
     weather: str | None = None
     severity: int = 3
     depth_noise: str | None = None
+    depth_sensor: str = "none"
     width: int = 320
     height: int = 240
     workers: int = 1
@@ -189,7 +192,7 @@ def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     from simtest.estimators.base import estimator_label, load_estimator
 
     env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
-                        object_scale=cfg.scale,
+                        object_scale=cfg.scale, depth_sensor=cfg.depth_sensor,
                         render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
     return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
@@ -273,6 +276,9 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
+    from simtest.envs.observation import resolve_depth_sensor
+
+    resolve_depth_sensor(cfg.depth_sensor)  # a bad name fails here, listing the sensors
     from simtest.envs.grasp_env import EpisodeConfig
 
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
@@ -432,7 +438,9 @@ def summary_markdown(s: dict) -> str:
                   f", objects `{cfg.get('objects')}`, occlusion {cfg.get('occlusion')}, "
                   f"weather {cfg.get('weather') or 'none'}"
                   + (f" (severity {cfg.get('severity')})" if cfg.get("weather") else "")
-                  + f", depth noise {cfg.get('depth_noise') or 'none'}, distractors {cfg.get('n_distractors')}, "
+                  + f", depth noise {cfg.get('depth_noise') or 'none'}"
+                  f", depth sensor {cfg.get('depth_sensor', 'none')}"
+                  f", distractors {cfg.get('n_distractors')}, "
                   f"seed {cfg.get('seed')}, planner obstacles {cfg.get('planner_obstacles', 'sim')}.", ""]
     if s.get("command_line"):
         lines += ["```", " ".join(s["command_line"]), "```", ""]

@@ -40,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--severity", type=int, default=3, help="corruption severity 1..5 (default 3)")
     p.add_argument("--depth-noise", default=None, choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),
                    help="depth-noise preset of the observation (default: none)")
+    p.add_argument("--depth-sensor", default="none", choices=["none", "d435-stereo", "passive-stereo"],
+                   help="depth of the observation: none (the exact rendered depth, default) or a simulated stereo "
+                        "sensor (IR pair, dot projector, SGBM): the estimator and the planner see its sensed depth")
     p.add_argument("--planner-obstacles", default="sim", choices=["sim", "observed"],
                    help="obstacles of the grasp planner's collision check: sim (the simulator's geometry of "
                         "distractors and occluders, default) or observed (only the points of the observation's "
@@ -85,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed, objects=objects, units=args.units, scale=args.scale, targets=_targets(args.target),
         n_distractors=args.distractors,
         occlusion=args.occlusion, weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
+        depth_sensor=args.depth_sensor,
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, backend=args.backend or "local", ray_address=args.ray_address, video=args.video,
         video_episodes=args.video_episodes, timeout=args.timeout,

@@ -1,0 +1,107 @@
+"""What the grasp env's wrist camera observes: the observation space, the captured images (the clean render,
+the simulated depth sensor, the observation corruption) and the wrist camera's pose matrix.
+
+Depth sensors (:data:`DEPTH_SENSORS`): ``"none"`` (the observation's depth is the renderer's exact planar
+depth) or a stereo preset of :mod:`simtest.sensors.stereo` (``"d435-stereo"``, ``"passive-stereo"``: the
+observation's depth is the sensed depth, metres, 0 = no measurement). The sensor's noise comes from a stream
+of its own below the episode's corruption stream (:func:`sensor_stream`), so turning a sensor on draws
+nothing from any other stream of the episode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from simtest import robot
+from simtest.errors import ConfigError
+from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
+
+__all__ = ["DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space", "capture_images",
+           "T_world_cam_matrix", "observation_dict"]
+
+#: Depth sensor names the env takes: the exact depth, or a stereo preset.
+DEPTH_SENSORS: tuple[str, ...] = ("none", *STEREO_PRESETS)
+
+#: Spawn-key entry of the sensor's stream below the episode's corruption stream.
+SENSOR_STREAM = 0x5E45
+
+
+def resolve_depth_sensor(name: str | None) -> StereoSensor | None:
+    """The sensor of ``name`` (:data:`DEPTH_SENSORS`; ``None`` or ``"none"``: no sensor, exact depth).
+
+    Raises:
+        ConfigError: Another name (the message lists the allowed ones).
+    """
+    if name is None or name == "none":
+        return None
+    if not isinstance(name, str) or name not in STEREO_PRESETS:
+        raise ConfigError(f"depth_sensor must be one of {', '.join(DEPTH_SENSORS)} (none: the exact depth; "
+                          f"else a simulated stereo preset of simtest.sensors.stereo), got {name!r}")
+    return STEREO_PRESETS[name]
+
+
+def sensor_stream(episode_stream: np.random.Generator) -> np.random.Generator:
+    """The sensor noise generator of an episode: the child at :data:`SENSOR_STREAM` of ``episode_stream``'s
+    ``SeedSequence``, computed directly (nothing is drawn from ``episode_stream`` and its spawn count is
+    untouched), so the same episode seed gives the same sensed bytes and every other stream is unchanged."""
+    ss = episode_stream.bit_generator.seed_seq
+    child = np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, SENSOR_STREAM), pool_size=ss.pool_size)
+    return np.random.default_rng(child)
+
+
+def observation_space(width: int, height: int) -> spaces.Dict:
+    """The env's observation space at a ``width`` x ``height`` wrist camera (see :mod:`simtest.envs.grasp_env`)."""
+    h, w = int(height), int(width)
+    return spaces.Dict({
+        "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
+        "depth": spaces.Box(0.0, 100.0, (h, w), np.float32),
+        "K": spaces.Box(-1e5, 1e5, (3, 3), np.float64),
+        "T_base_cam": spaces.Box(-10.0, 10.0, (4, 4), np.float64),
+        "joint_pos": spaces.Box(-2 * np.pi, 2 * np.pi, (7,), np.float64),
+        "joint_vel": spaces.Box(-100.0, 100.0, (7,), np.float64),
+        "gripper_width": spaces.Box(-0.01, 0.1, (1,), np.float64),
+    })
+
+
+def T_world_cam_matrix(data, camera_id: int) -> np.ndarray:
+    """4x4 ``T_world_cam`` (OpenCV) of MuJoCo camera ``camera_id`` at ``data``'s state (the MuJoCo->OpenCV flip
+    of :mod:`simtest.camera`, without building a :class:`~simtest.camera.CameraModel`)."""
+    T = np.zeros((4, 4))
+    x = data.cam_xmat[camera_id]
+    T[:3, 0], T[:3, 1], T[:3, 2] = x[0::3], -x[1::3], -x[2::3]  # xmat @ diag(1, -1, -1)
+    T[:3, 3] = data.cam_xpos[camera_id]
+    T[3, 3] = 1.0
+    return T
+
+
+def capture_images(renderer, data, ids, K: np.ndarray, corruption, corrupt_rng: np.random.Generator,
+                   sensor: StereoSensor | None = None, sensor_rng: np.random.Generator | None = None):
+    """One wrist-camera capture: ``(frame, rgb, depth)``.
+
+    ``frame`` is the clean render (RGB, exact depth, segmentation: the ground truth behind the observation);
+    ``depth`` is the sensed depth of ``sensor`` (float32 metres, 0 = invalid) or the exact depth without one;
+    ``corruption`` (a :class:`~simtest.corrupt.CorruptionSpec` or None) is applied to that RGB and depth with
+    ``corrupt_rng``. The sensor restores the camera and intrinsics it moves, so ``frame`` is unaffected.
+    """
+    frame = renderer.render(data, ids.camera, rgb=True, depth=True, seg=True)
+    rgb, depth = frame.rgb, frame.depth
+    if sensor is not None:
+        depth = sensor.sense(renderer, data, ids.camera, robot.wrist_camera_model(data, ids), sensor_rng)
+    if corruption is not None:
+        rgb, depth, _ = corruption.apply(rgb, depth, None, corrupt_rng, K)
+    return frame, np.ascontiguousarray(rgb, dtype=np.uint8), np.ascontiguousarray(depth, dtype=np.float32)
+
+
+def observation_dict(images: tuple[np.ndarray, np.ndarray], K: np.ndarray, T_base_cam: np.ndarray, data,
+                     ids) -> dict:
+    """The observation dict of the captured ``images`` (rgb, depth) and the arm's current state."""
+    return {
+        "rgb": images[0],
+        "depth": images[1],
+        "K": K.copy(),
+        "T_base_cam": T_base_cam.copy(),
+        "joint_pos": data.qpos[ids.arm_qpos].copy(),
+        "joint_vel": data.qvel[ids.arm_dof].copy(),
+        "gripper_width": np.array([robot.gripper_width(data, ids)], dtype=np.float64),
+    }
