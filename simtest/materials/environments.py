@@ -181,13 +181,14 @@ def _light_region(y: np.ndarray, peak: tuple[int, int]) -> np.ndarray:
     return np.roll(labels == labels[r, w // 2], -shift, axis=1)
 
 
-def light_summary(env: Environment, max_lights: int = 3, contrast: float = 6.0
+def light_summary(env: Environment, max_lights: int = 3, contrast: float = 6.0, max_solid_angle: float = 1.0
                   ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
     """What a rasterizer with an ambient term and a few directional lights can approximate of ``env``.
 
-    Lights are the connected regions around the brightest texels (above a tenth of their peak) whose peak luminance
-    exceeds ``contrast`` times the environment's mean luminance; each is removed (replaced by the mean of a
-    ring around it) before the next is searched.
+    Lights are the connected regions around the brightest texels (above a tenth of their peak) whose peak
+    luminance exceeds ``contrast`` times the environment's mean luminance and whose solid angle is at most
+    ``max_solid_angle`` steradians (a bright floor or an overcast sky stays ambient); each is removed (replaced
+    by the mean of a ring around it) before the next is searched.
 
     Returns:
         (ambient, lights): ``ambient`` the (3,) linear RGB mean diffuse irradiance over all normal directions,
@@ -208,6 +209,8 @@ def light_summary(env: Environment, max_lights: int = 3, contrast: float = 6.0
         if y[peak] <= contrast * max(mean_y, 1e-12):
             break
         mask = _light_region(y, peak)
+        if float((omega * mask).sum()) > max_solid_angle:
+            break
         power = (rad * (omega * mask)[..., None])                  # L dOmega per texel, RGB
         weight = power @ LUMA
         d = (dirs * weight[..., None]).sum(axis=(0, 1))

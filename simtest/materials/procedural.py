@@ -231,7 +231,7 @@ def procedural_material(family: str, seed: int, size: int = 256) -> MaterialMaps
     return _cached(family, int(seed), int(size))
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=128)
 def _cached(family: str, seed: int, size: int) -> MaterialMaps:
     rng = np.random.default_rng(child_sequence(seed, FAMILIES.index(family)))
     raw = _GENERATORS[family](rng, size)

@@ -80,7 +80,7 @@ def studio_radiance(rng: np.random.Generator, height: int) -> np.ndarray:
     """A dark-grey studio with 2-4 soft boxes and a floor bounce (see ``procedural_environment``)."""
     d = directions(height)
     n = int(rng.integers(2, 5))
-    grey = rng.uniform(0.02, 0.05)
+    grey = rng.uniform(0.006, 0.018)
     rad = np.repeat((grey * (1.0 + 0.3 * np.clip(d[..., 2], 0.0, 1.0)))[..., None], 3, axis=2)
     az0 = rng.uniform(0.0, 2.0 * np.pi)
     for i in range(n):

@@ -75,7 +75,7 @@ def test_light_summary_finds_a_known_sun(elevation, azimuth):
     ambient, lights = light_summary(env)
     assert _angle(lights[0][0], sun) <= np.pi / 128                # within a texel
     assert np.isclose(lights[0][1] @ LUMA * sun[2], 0.8 * np.pi, rtol=0.02)
-    assert len(lights) == 1
+    assert len(lights) == 1 and (ambient > 0).all()
 
 
 def test_studio_lights():
@@ -83,7 +83,7 @@ def test_studio_lights():
         env = procedural_environment("studio", seed, 64)
         y = env.radiance @ LUMA
         ambient, lights = light_summary(env)
-        assert 2 <= len(lights) <= 3
+        assert 2 <= len(lights) <= 3 and (ambient > 0).all()
         assert all(d[2] > 0 and (e > 0).all() for d, e in lights)
         assert np.median(y[:32]) < 0.2 * y.max()                    # dark surround, bright boxes
         assert 0.15 <= np.median(y[40:]) <= 0.4                     # the floor bounce
