@@ -153,7 +153,9 @@ def _marble(rng: np.random.Generator, size: int) -> _Raw:
     vein = np.zeros_like(u)
     for (a, b), ph, w, t, weight in zip(freq, phases, widths, turb, (1.0, 0.5)):
         s = np.sin(2.0 * np.pi * (a * u + b * v) + 2.2 * t + ph)
-        vein = np.maximum(vein, weight * (1.0 - smoothstep(0.0, w, np.abs(s))))
+        core = 1.0 - smoothstep(0.0, w, np.abs(s))
+        halo = 1.0 - smoothstep(0.0, 6.0 * w, np.abs(s))        # the soft cloud around a vein
+        vein = np.maximum(vein, weight * np.maximum(core, 0.3 * halo))
     albedo = _lerp(base * (1.0 + 0.05 * cloud)[..., None], vein_col, 0.85 * vein)
     rough = np.clip(r0 + 0.06 * vein, 0.0, 0.3)
     return _Raw(albedo, rough, -vein, 0.5, 0.0, 0.5, 0.8)
