@@ -1,5 +1,6 @@
-"""``simtest sweep CONFIG --out DIR``: the robustness grid (occlusion x corruptions x depth noise) for pose
-metrics and grasp success, resumable, with tables and a self-contained HTML report."""
+"""``simtest sweep CONFIG --out DIR``: the robustness grid (occlusion, corruptions, depth noise, depth sensors,
+render conditions) for pose metrics and grasp success, resumable, with tables and a self-contained HTML report
+(docs/sweeps.md)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ from simtest.cli.common import add_backend_options, common_parser, locks_output
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sweep", parents=[common_parser()], help="run a robustness sweep and write tables and report.html",
                        description="Run every (estimator, condition) cell of a sweep config (TOML or JSON; see "
-                                   "configs/sweep-demo.toml) and write results.csv, summary.csv, tables.md and "
-                                   "report.html. Finished cells are cached: --resume continues an interrupted "
+                                   "configs/sweep-demo.toml, configs/sweep-renderers.toml and docs/sweeps.md) and "
+                                   "write results.csv, summary.csv, tables.md and report.html. Render and "
+                                   "depth-sensor conditions generate the clean scenes again and must keep their "
+                                   "ground truth. Finished cells are cached: --resume continues an interrupted "
                                    "sweep without recomputing them.")
     p.add_argument("config", help="sweep config file (.toml or .json)")
     p.add_argument("--out", required=True, help="output folder")

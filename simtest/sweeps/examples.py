@@ -2,8 +2,9 @@
 
 Image conditions (clean, occlusion, corruptions) and render conditions show their RGB; depth conditions
 (image-space depth noise ``depth-<preset>`` and simulated sensors ``depth-<sensor>``) show their DEPTH map,
-colourized (turbo, near blue, far red, over the 1st..99th percentile of the valid depths) with the invalid
-pixels (depth 0) black, beside the clean depth drawn the same way. A condition's dataset is the one its pose
+colourized (turbo, near blue, far red, over the 1st..99th percentile of the clean image's valid depths, the
+same range for every depth picture so their colours compare) with the invalid pixels (depth 0) black, beside
+the clean depth drawn the same way. A condition's dataset is the one its pose
 cells evaluated (``cell.json``), so a render condition that is the clean dataset shows the clean images.
 """
 
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Example", "example_pictures", "DEPTH_FACTORS", "WIDTH"]
+__all__ = ["Example", "example_pictures", "depth_range", "colourize_depth_range", "DEPTH_FACTORS", "WIDTH"]
 
 #: Condition factors whose picture is the depth map.
 DEPTH_FACTORS: tuple[str, ...] = ("depth", "sensor")
@@ -60,15 +61,32 @@ def _jpeg(rgb: np.ndarray, nearest: bool) -> str:
     return base64.b64encode(buf.tobytes()).decode("ascii")
 
 
-def _depth_picture(scene: Path, im_id: int) -> tuple[np.ndarray, str]:
-    """The colourized depth of one image and its caption (range, invalid fraction)."""
+def _read_depth(scene: Path, im_id: int) -> np.ndarray:
     from simtest.io.bop import read_depth
-    from simtest.viz.channels import colourize_depth
 
     cams = json.loads((scene / "scene_camera.json").read_text())
-    depth = read_depth(scene, im_id, float(cams[str(im_id)].get("depth_scale", 1.0)))
-    pic = colourize_depth(depth)
-    return pic.image, pic.caption.replace("holes (black)", "invalid (black)")
+    return read_depth(scene, im_id, float(cams[str(im_id)].get("depth_scale", 1.0)))
+
+
+def depth_range(depth: np.ndarray) -> tuple[float, float]:
+    """The 1st and 99th percentile of the valid depths, metres (``(0, 1)`` without any)."""
+    valid = depth[depth > 0]
+    if valid.size == 0:
+        return 0.0, 1.0
+    lo, hi = np.percentile(valid, [1, 99])
+    return float(lo), max(float(hi), float(lo) + 1e-6)
+
+
+def colourize_depth_range(depth: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, str]:
+    """Depth (H, W), metres, 0 = invalid, as the turbo colour map over ``[lo, hi]`` (near blue, far red;
+    outside clipped), invalid pixels black; RGB uint8 and a caption (range, invalid fraction)."""
+    import cv2
+
+    d = np.asarray(depth, dtype=np.float32)
+    valid = d > 0
+    g = np.clip((d - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
+    out = np.where(valid[..., None], cv2.applyColorMap(g, cv2.COLORMAP_TURBO)[..., ::-1], 0).astype(np.uint8)
+    return out, f"{lo:.2f}-{hi:.2f} m (blue near, red far), {(~valid).mean() * 100:.1f}% invalid (black)"
 
 
 def _first_scene(data: Path, split: str) -> Path:
@@ -83,19 +101,19 @@ def example_pictures(cfg, out: Path, conds) -> list[Example]:
     from simtest.io.bop import read_image
 
     found: list[Example] = []
-    clean_depth_shown = False
+    span: tuple[float, float] | None = None
     for c in conds:
         try:
             scene = _first_scene(_dataset_of(cfg, out, c), cfg.dataset.split)
             if c.factor not in DEPTH_FACTORS:
                 found.append(Example(c.name, "rgb", c.name, _jpeg(read_image(scene, 0), nearest=False)))
                 continue
-            if not clean_depth_shown:
-                clean = _first_scene(_dataset_of(cfg, out, conds[0]), cfg.dataset.split)
-                img, caption = _depth_picture(clean, 0)
+            if span is None:  # every depth picture over the clean depth's range, so colours compare
+                clean = _read_depth(_first_scene(_dataset_of(cfg, out, conds[0]), cfg.dataset.split), 0)
+                span = depth_range(clean)
+                img, caption = colourize_depth_range(clean, *span)
                 found.append(Example("clean", "depth", f"clean depth: {caption}", _jpeg(img, nearest=True)))
-                clean_depth_shown = True
-            img, caption = _depth_picture(scene, 0)
+            img, caption = colourize_depth_range(_read_depth(scene, 0), *span)
             found.append(Example(c.name, "depth", f"{c.name} depth: {caption}", _jpeg(img, nearest=True)))
         except Exception:  # noqa: BLE001 - a picture is an illustration; a missing one must not fail the report
             continue

@@ -144,19 +144,24 @@ def _picture(img: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndarra
 
 def test_report_shows_the_depth_map_of_depth_conditions(sweep):
     from simtest.io.bop import read_depth, read_image
-    from simtest.viz.channels import colourize_depth
+    from simtest.sweeps.examples import colourize_depth_range, depth_range
 
     _, out, _ = sweep
     p = _Examples()
     p.feed((out / "report.html").read_text())
     assert {("clean", "rgb"), ("clean", "depth"), ("depth-realsense-d435", "depth"), ("depth-d435-stereo", "depth"),
             ("quality", "rgb"), ("fast", "rgb")} <= set(p.found)
+    def depth_of(data: Path) -> np.ndarray:
+        scale = json.loads((_scene(data) / "scene_camera.json").read_text())["0"]["depth_scale"]
+        return read_depth(_scene(data), 0, scale)
+
+    span = depth_range(depth_of(out / "data" / "clean"))
     for cond, data in (("depth-d435-stereo", out / "data" / "depth-d435-stereo"),
                        ("depth-realsense-d435", out / "data" / "depth-realsense-d435")):
         shown = _decode(p.found[(cond, "depth")])
         size = (shown.shape[1], shown.shape[0])
-        scale = json.loads((_scene(data) / "scene_camera.json").read_text())["0"]["depth_scale"]
-        depth = colourize_depth(read_depth(_scene(data), 0, scale)).image
+        depth, _ = colourize_depth_range(depth_of(data), *span)
+        assert (depth_of(data) == 0).any()  # the sensed / noisy depth has invalid pixels, drawn black
         rgb = read_image(_scene(data), 0)
         err_depth = np.abs(shown - _picture(depth, size, True)).mean()
         err_rgb = np.abs(shown - _picture(rgb, size, False)).mean()
@@ -269,3 +274,12 @@ def test_paste_occlusion_uses_object_cutouts_unless_told(tmp_path):
     paste = SweepConfig.from_dict({**SWEEP, "factors": {"occlusion": ["L1"], "occlusion_kind": "paste"}})
     l1 = [c for c in conditions_of(paste) if c.name == "L1"][0]
     assert l1.corruption_spec(paste.factors.occlusion_definition, paste.factors.occlusion_kind).occlusion_kind == "paste"
+
+
+def test_shipped_renderer_sweep_config_reads():
+    from simtest.sweeps.grid import load_sweep_config
+
+    cfg = load_sweep_config(Path(__file__).parents[3] / "configs" / "sweep-renderers.toml")
+    conds = {c.name: c for c in conditions_of(cfg)}
+    assert conds["depth-d435-stereo"].factor == "sensor" and conds["quality"].factor == "render"
+    assert conds["pbr"].overrides == {"render.profile": "pbr", "render.pbr_spp": 8}
