@@ -16,8 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "corrupt", parents=[common_parser()],
         help="preview image corruptions, or write a corrupted copy of a BOP dataset",
         description="Preview: a grid of corruptions x severities 1..5 of one image. Dataset: a copy of a BOP "
-                    "dataset with corrupted RGB (ImageNet-C), pasted occluders and/or depth-sensor noise; "
-                    "ground truth is copied unchanged (a paste occlusion updates mask_visib and "
+                    "dataset with corrupted RGB (ImageNet-C), pasted occluders (cutouts of the dataset's objects by "
+                    "default, or noise shapes) and/or depth-sensor noise; ground truth is copied unchanged (a paste occlusion updates mask_visib and "
                     "scene_gt_info.json), parameters and seed go to corruption.json.",
     )
     mode = p.add_mutually_exclusive_group(required=True)
@@ -29,10 +29,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="corruptions shown by --preview (default: all)")
     p.add_argument("--weather", metavar="NAME", help="image corruption (any of the 19 ImageNet-C names)")
     p.add_argument("--severity", type=int, default=4, metavar="S", help="severity 1..5 (default: 4)")
-    p.add_argument("--occlusion", metavar="L1|L2|L3", help="paste-occlusion level")
-    p.add_argument("--occlusion-kind", default="paste", metavar="KIND",
-                   help="paste (noise/crop ellipses and polygons, default) or objects (cutouts of the dataset's "
-                        "unoccluded rendered objects)")
+    p.add_argument("--occlusion", metavar="L1|L2|L3", help="2D occlusion level (occluders pasted on the image)")
+    p.add_argument("--occlusion-kind", default=None, choices=["objects", "paste"],
+                   help="objects (default: cutouts of the dataset's own unoccluded rendered objects, with their "
+                        "visible masks; without the option, a dataset with no usable instance, e.g. no masks, "
+                        "falls back to paste with a warning, recorded in corruption.json; given explicitly, that "
+                        "is an error) or paste (noise/crop-textured ellipses and polygons)")
     p.add_argument("--occlusion-definition", default="pascal3d+", metavar="DEF",
                    help="level bands: pascal3d+ (default) or objectcentric")
     p.add_argument("--depth-noise", choices=LazyChoices("simtest.corrupt", "DEPTH_PRESETS"),
@@ -93,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     spec = CorruptionSpec(weather=args.weather, severity=args.severity, depth_noise=args.depth_noise,
-                          occlusion=args.occlusion, occlusion_kind=args.occlusion_kind,
+                          occlusion=args.occlusion, occlusion_kind=args.occlusion_kind or "objects",
                           occlusion_definition=args.occlusion_definition)
     if spec.is_identity:
         raise ConfigError("nothing to corrupt: give at least one of --weather, --occlusion, --depth-noise")
@@ -101,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError(f"dataset folder {args.in_dir} does not exist")
     backend, stats = backend_from_args(args), RunStats()
     record = corrupt_dataset(args.in_dir, args.out, spec, seed=args.seed, overwrite=args.overwrite,
-                             progress=not args.quiet, backend=backend, stats=stats)
+                             progress=not args.quiet, backend=backend, stats=stats,
+                             cutout_fallback=args.occlusion_kind is None)
     if not args.quiet:
         print(f"simtest corrupt: {stats.summary()}", file=sys.stderr)
     line = f"wrote {args.out}: {record['images']} images, {spec.label()}, seed {args.seed}"
@@ -109,5 +112,7 @@ def run(args: argparse.Namespace) -> int:
     if "mean_fg_fraction" in occ:
         line += (f"; occlusion FG {occ['mean_fg_fraction']:.0%} BG {occ['mean_bg_fraction']:.0%} "
                  f"(in band {occ['in_band_fraction']:.0%}, {occ['definition']})")
+    if "cutout_fallback" in occ:
+        line += "; the dataset has no object cutouts: noise shapes pasted (see corruption.json)"
     print(line)
     return 0

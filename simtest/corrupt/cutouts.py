@@ -24,7 +24,7 @@ MIN_PIXELS = 64
 
 
 def _candidates(scenes: list[Path]) -> list[tuple[Path, int, int]]:
-    """``(scene, im_id, gt_id)`` of every instance visible enough, in file order."""
+    """``(scene, im_id, gt_id)`` of every instance visible enough whose visible mask file exists, in file order."""
     out = []
     for scene in scenes:
         info_path = scene / "scene_gt_info.json"
@@ -33,7 +33,8 @@ def _candidates(scenes: list[Path]) -> list[tuple[Path, int, int]]:
         for im_key, infos in sorted(read_json(info_path).items(), key=lambda kv: int(kv[0])):
             for gt_id, inf in enumerate(infos):
                 if float(inf.get("visib_fract", 0.0)) >= MIN_VISIB_FRACT and \
-                        int(inf.get("px_count_visib", 0)) >= MIN_PIXELS:
+                        int(inf.get("px_count_visib", 0)) >= MIN_PIXELS and \
+                        (scene / "mask_visib" / f"{int(im_key):06d}_{gt_id:06d}.png").is_file():
                     out.append((scene, int(im_key), gt_id))
     return out
 
@@ -43,13 +44,14 @@ def object_cutouts(scenes: list[Path], max_count: int = 64) -> list[np.ndarray]:
     folders with ``rgb/``, ``mask_visib/`` and ``scene_gt_info.json``). Deterministic: depends on the files only.
 
     Raises:
-        DatasetError: If no instance is visible enough (``visib_fract >= 0.95``, >= 64 pixels).
+        DatasetError: If no instance is visible enough (``visib_fract >= 0.95``, >= 64 pixels) with its
+            ``mask_visib/`` file.
     """
     cands = _candidates(scenes)
     if not cands:
         raise DatasetError(f"no object cutouts: no instance in {len(scenes)} scene(s) is at least "
-                           f"{MIN_VISIB_FRACT:.0%} visible with {MIN_PIXELS} pixels (scene_gt_info.json); "
-                           f"use the 'paste' occlusion kind")
+                           f"{MIN_VISIB_FRACT:.0%} visible with {MIN_PIXELS} pixels (scene_gt_info.json) and a "
+                           f"mask_visib/ file; use the 'paste' occlusion kind")
     pick = np.unique(np.linspace(0, len(cands) - 1, min(max_count, len(cands))).round().astype(int))
     out = []
     for i in pick:

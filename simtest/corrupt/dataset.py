@@ -6,8 +6,9 @@ Everything that is ground truth is copied byte-identically: ``camera.json``, ``m
 * ``rgb/`` images, when an image corruption or an occlusion is asked (written in the same format and file
   name; JPEG files are re-encoded at quality 95);
 * ``depth/`` PNGs, only when a depth-noise preset is asked (same ``depth_scale`` as in ``scene_camera.json``);
-* with a paste occlusion (procedural shapes, or with the ``objects`` kind cutouts of the dataset's own
-  unoccluded objects, :mod:`simtest.corrupt.cutouts`), the ``mask_visib/`` files of occluded instances and ``scene_gt_info.json``
+* with a paste occlusion (with the default ``objects`` kind cutouts of the dataset's own unoccluded objects,
+  :mod:`simtest.corrupt.cutouts`, falling back to noise shapes with a warning when the dataset has none; with
+  ``paste`` procedural noise shapes), the ``mask_visib/`` files of occluded instances and ``scene_gt_info.json``
   (``px_count_visib``, ``visib_fract``, ``bbox_visib``): in the occluded copy the visible masks and
   visibility fractions include the pasted occluders, while amodal masks, poses, ``px_count_all`` and
   ``px_count_valid`` (clean depth) are unchanged. ``scene_gt_coco.json``, if present, is copied unchanged and
@@ -26,9 +27,10 @@ records the back end and worker count under ``execution``; no other byte depends
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +77,7 @@ def find_scenes(dataset: Path) -> list[Path]:
 
 def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec: CorruptionSpec, seed: int,
                     overwrite: bool = False, progress: bool = True, backend: Backend | None = None,
-                    stats: RunStats | None = None) -> dict[str, Any]:
+                    stats: RunStats | None = None, cutout_fallback: bool = False) -> dict[str, Any]:
     """Write a corrupted copy of the BOP dataset ``in_dir`` to ``out_dir`` (see the module docstring).
 
     Args:
@@ -89,13 +91,18 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
             masks and ``scene_gt_info.json`` its worker writes. The output is the same for every back end and
             worker count but for ``execution`` in ``corruption.json``, which records them.
         stats: Filled with the units finished, retried and failed (:class:`simtest.backend.RunStats`).
+        cutout_fallback: With the ``objects`` occlusion kind on a dataset without a usable cutout source (no
+            instance at least 95 % visible with its ``mask_visib/`` file, e.g. no masks): paste noise shapes
+            instead, with a logged warning, ``occlusion_kind: paste`` and the reason (``occlusion.cutout_fallback``)
+            in ``corruption.json``. False (default): that is a :class:`DatasetError`.
 
     Returns:
         The record written to ``out_dir/corruption.json``.
 
     Raises:
         DatasetError: Missing or malformed input dataset (scene files are checked by
-            :func:`simtest.io.bop.read_scene_files`), or a non-empty output without ``overwrite``.
+            :func:`simtest.io.bop.read_scene_files`), a non-empty output without ``overwrite``, or no object
+            cutouts for the ``objects`` kind without ``cutout_fallback`` (before anything is written).
         ConfigError: Bad seed or spec.
     """
     if not isinstance(spec, CorruptionSpec):
@@ -114,17 +121,15 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     for scene in scenes:
         files = read_scene_files(scene, require_gt=False)
         cache[scene] = {"camera": files.camera, "gt": files.gt or {}, "gt_info": files.gt_info}
+    bank, fallback = _cutout_bank(spec, scenes, cutout_fallback)  # a missing source fails before any write
+    if fallback is not None:
+        spec = replace(spec, occlusion_kind="paste")
     preflight(backend or Backend())  # before the output is touched
     prepare_out_dir(dst, overwrite=overwrite, clear=True, protect=[src], what="output dataset")
     dst.mkdir(parents=True, exist_ok=True)
 
     units = _scene_units(scenes, cache)
     change_rgb = spec.weather is not None or spec.occlusion is not None
-    bank = None
-    if spec.occlusion is not None and spec.occlusion_kind == "objects":
-        from simtest.corrupt.cutouts import object_cutouts
-
-        bank = object_cutouts(scenes)
     backend = backend if backend is not None else Backend()
     done = _run_scenes(units, _Setup(src, dst, spec, int(seed), change_rgb, bank), backend,
                        stats if stats is not None else RunStats(), progress)
@@ -142,9 +147,33 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
                 _atomic_copy(path, dst / path.relative_to(src))
 
     record = _record(src, spec, seed, sum(len(u.images) for u in units), change_rgb, occlusion_records)
+    if fallback is not None:
+        record["occlusion"]["cutout_fallback"] = fallback
     record["execution"] = {"backend": backend.name, "workers": backend.workers}
     _atomic_write(dst / "corruption.json", json.dumps(record, indent=2).encode("utf-8"))
     return record
+
+
+def _cutout_bank(spec: CorruptionSpec, scenes: list[Path],
+                 fallback: bool) -> tuple[list[np.ndarray] | None, str | None]:
+    """The object cutouts of the ``objects`` occlusion kind, and why noise shapes replace them (or None).
+
+    A dataset without a usable cutout source raises the :class:`DatasetError` of
+    :func:`~simtest.corrupt.cutouts.object_cutouts`, or with ``fallback`` falls back to the ``paste`` kind with
+    a logged warning (see :func:`corrupt_dataset`).
+    """
+    if spec.occlusion is None or spec.occlusion_kind != "objects":
+        return None, None
+    from simtest.corrupt.cutouts import object_cutouts
+
+    try:
+        return object_cutouts(scenes), None
+    except DatasetError as exc:
+        if not fallback:
+            raise
+        reason = f"{exc}; pasted noise shapes instead (occlusion kind 'paste')"
+        logging.getLogger(__name__).warning("object cutouts unavailable: %s", reason)
+        return None, reason
 
 
 # --- scenes: the units of work ------------------------------------------------------------------------------

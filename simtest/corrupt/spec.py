@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -43,8 +44,9 @@ class CorruptionSpec:
         severity: 1..5 for ``weather``.
         depth_noise: A preset name from :data:`simtest.corrupt.DEPTH_PRESETS`, or None.
         occlusion: Occlusion level 1..3 (``"L1".."L3"`` accepted and stored as an int), or None (0 -> None).
-        occlusion_kind: ``"paste"`` (2D textured occluders; depth untouched) or ``"objects"`` (2D cutouts of
-            rendered objects, :mod:`simtest.corrupt.cutouts`, passed as ``occluder_bank``; depth untouched).
+        occlusion_kind: ``"objects"`` (default: 2D cutouts of rendered objects, :mod:`simtest.corrupt.cutouts`,
+            passed to :meth:`apply` as ``occluder_bank``; without one, noise shapes are pasted instead, with a
+            ``UserWarning``) or ``"paste"`` (2D noise/crop-textured ellipses and polygons). Depth is untouched.
         occlusion_definition: ``"pascal3d+"`` or ``"objectcentric"`` level bands.
     """
 
@@ -52,7 +54,7 @@ class CorruptionSpec:
     severity: int = 4
     depth_noise: str | None = None
     occlusion: int | None = None
-    occlusion_kind: str = "paste"
+    occlusion_kind: str = "objects"
     occlusion_definition: str = "pascal3d+"
 
     def __post_init__(self) -> None:
@@ -117,7 +119,8 @@ class CorruptionSpec:
                 ``occlusion`` is set. Typically the visible masks of the annotated objects.
             rng: Source of all randomness.
             K: 3x3 intrinsics (pixels); required by the Kinect-v1 and D435 depth presets.
-            occluder_bank: RGBA patches pasted by the ``objects`` occlusion kind (required by it).
+            occluder_bank: RGBA patches pasted by the ``objects`` occlusion kind; without them that kind pastes
+                noise shapes (as ``"paste"``) and warns once (``UserWarning``).
 
         Returns:
             ``(rgb, depth, occluder_mask)``: new arrays (``depth`` is returned as given, as float32, when no
@@ -146,10 +149,12 @@ class CorruptionSpec:
             obj = union_mask(masks, (h, w))
             bank = None
             if self.occlusion_kind == "objects":
-                if not occluder_bank:
-                    raise ConfigError("the 'objects' occlusion kind needs object cutouts (occluder_bank, see "
-                                      "simtest.corrupt.cutouts.object_cutouts); none were given")
-                bank = occluder_bank
+                if occluder_bank:
+                    bank = occluder_bank
+                else:
+                    warnings.warn("the 'objects' occlusion kind got no object cutouts (occluder_bank, see "
+                                  "simtest.corrupt.cutouts.object_cutouts): pasting noise shapes instead; pass "
+                                  "occlusion_kind='paste' to choose them", UserWarning, stacklevel=3)
             out, occ, occ_info = paste_occluders(out, obj, self.occlusion, occ_rng, occluder_bank=bank,
                                                  definition=self.occlusion_definition)
             info = occ_info.to_dict()

@@ -10,8 +10,8 @@ import pytest
 from simtest.cli import main
 from simtest.corrupt import CorruptionSpec
 from simtest.corrupt.cutouts import MIN_VISIB_FRACT, object_cutouts
-from simtest.corrupt.dataset import find_scenes
-from simtest.errors import ConfigError
+from simtest.corrupt.dataset import corrupt_dataset, find_scenes
+from simtest.errors import DatasetError
 from simtest.io.bop import read_image, read_json, read_mask
 
 
@@ -46,8 +46,52 @@ def test_objects_kind_pastes_cutouts(small_dataset):
     out, _, occ, info = spec.apply_with_info(rgb, None, masks, np.random.default_rng(0), None, occluder_bank=bank)
     assert occ.any() and not np.array_equal(out[occ], rgb[occ])
     assert set(info["kinds"]) <= {"bank", "none"} and "bank" in info["kinds"]
-    with pytest.raises(ConfigError, match="objects.*cutouts"):
-        spec.apply(rgb, None, masks, np.random.default_rng(0), None)
+    # Without cutouts the objects kind pastes noise shapes, as the paste kind does, and says so.
+    with pytest.warns(UserWarning, match="objects.*cutouts"):
+        fallback = spec.apply(rgb, None, masks, np.random.default_rng(0), None)
+    paste = CorruptionSpec(occlusion=2, occlusion_kind="paste").apply(rgb, None, masks, np.random.default_rng(0), None)
+    assert np.array_equal(fallback[0], paste[0]) and np.array_equal(fallback[2], paste[2])
+
+
+def test_objects_is_the_default_kind(small_dataset, tmp_path):
+    assert CorruptionSpec().occlusion_kind == "objects" and CorruptionSpec(occlusion=1).label() == "occL1-objects"
+    out = tmp_path / "occ"
+    assert main(["corrupt", "--in", str(small_dataset), "--out", str(out), "--occlusion", "L1",
+                 "--no-progress"]) == 0
+    record = json.loads((out / "corruption.json").read_text())
+    assert record["spec"]["occlusion_kind"] == "objects" and "cutout_fallback" not in record["occlusion"]
+    assert record["occlusion"]["mean_fg_fraction"] > 0.1
+    with pytest.raises(SystemExit):
+        main(["corrupt", "--in", str(small_dataset), "--out", str(tmp_path / "x"), "--occlusion", "L1",
+              "--occlusion-kind", "shapes"])
+
+
+def test_a_dataset_without_masks_falls_back_to_noise_shapes(small_dataset, tmp_path, caplog, capsys):
+    import shutil
+
+    bare = tmp_path / "bare"
+    shutil.copytree(small_dataset, bare)
+    for scene in find_scenes(bare):
+        shutil.rmtree(scene / "mask_visib")
+    with pytest.raises(DatasetError, match="mask_visib"):
+        object_cutouts(find_scenes(bare))
+    with pytest.raises(DatasetError, match="mask_visib"):  # the library call falls back only when asked
+        corrupt_dataset(bare, tmp_path / "strict", CorruptionSpec(occlusion=1), seed=0, progress=False)
+    assert not (tmp_path / "strict").exists()
+    with caplog.at_level("WARNING", logger="simtest.corrupt.dataset"):
+        record = corrupt_dataset(bare, tmp_path / "lib", CorruptionSpec(occlusion=1), seed=0, progress=False,
+                                 cutout_fallback=True)
+    assert "object cutouts unavailable" in caplog.text and "mask_visib" in caplog.text
+    assert record["spec"]["occlusion_kind"] == "paste" and "mask_visib" in record["occlusion"]["cutout_fallback"]
+    out = tmp_path / "occ"
+    assert main(["corrupt", "--in", str(bare), "--out", str(out), "--occlusion", "L1", "--no-progress"]) == 0
+    assert "no object cutouts: noise shapes pasted" in capsys.readouterr().out
+    record = json.loads((out / "corruption.json").read_text())
+    assert record["spec"]["occlusion_kind"] == "paste" and "mask_visib" in record["occlusion"]["cutout_fallback"]
+    # An explicit --occlusion-kind objects does not fall back.
+    assert main(["corrupt", "--in", str(bare), "--out", str(tmp_path / "explicit"), "--occlusion", "L1",
+                 "--occlusion-kind", "objects", "--no-progress"]) != 0
+    assert "mask_visib" in capsys.readouterr().err
 
 
 def test_corrupt_command_with_object_cutouts(small_dataset, tmp_path):

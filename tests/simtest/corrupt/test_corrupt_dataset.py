@@ -84,7 +84,7 @@ def test_spec_apply_and_validation() -> None:
     mask = np.zeros((H, W), bool)
     mask[10:30, 20:40] = True
     spec = CorruptionSpec(weather="fog", severity=3, depth_noise="azure-kinect", occlusion="L2")
-    assert spec.occlusion == 2 and spec.label() == "fog-3+occL2-paste+azure-kinect"
+    assert spec.occlusion == 2 and spec.label() == "fog-3+occL2-objects+azure-kinect"
     assert CorruptionSpec.from_dict(spec.to_dict()) == spec
     K3 = np.asarray(K).reshape(3, 3)
     a = spec.apply(rgb, depth, [mask], np.random.default_rng(1), K3)
