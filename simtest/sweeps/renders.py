@@ -241,7 +241,7 @@ def check_same_ground_truth(clean: Path, other: Path, split: str, name: str, sam
             what = f"{b[key]} differs from the clean {a[key]}"
         else:
             continue
-        if key.split("/")[2:3] == ["exact-depth"]:
+        if any("depth_exact" in f.parts for f in (a.get(key), b.get(key)) if f is not None):
             what += " (exact depth: depth_exact/ of a depth-sensor dataset against depth/, as 16-bit values)"
         raise ConfigError(f"sweep condition {name!r} changed the ground truth: {what}. Its overrides make a "
                           f"different dataset, not a render condition (render conditions may change only rgb/ "

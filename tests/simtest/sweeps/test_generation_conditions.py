@@ -283,3 +283,23 @@ def test_shipped_renderer_sweep_config_reads():
     conds = {c.name: c for c in conditions_of(cfg)}
     assert conds["depth-d435-stereo"].factor == "sensor" and conds["quality"].factor == "render"
     assert conds["pbr"].overrides == {"render.profile": "pbr", "render.pbr_spp": 8}
+
+
+def test_generation_conditions_over_a_given_dataset_use_its_manifest(sweep, tmp_path):
+    _, out, _ = sweep
+    clean = out / "data" / "clean"
+    cfg = SweepConfig.from_dict({**SWEEP, "estimators": [{"name": "oracle", "estimator": "oracle"}],
+                                 "dataset": {"path": str(clean)},
+                                 "factors": {"occlusion": [], "corruptions": [], "depth_noise": [],
+                                             "renderers": ["quality"]}})
+    run_sweep(cfg, tmp_path / "s", progress=False)
+    for name in GT_FILES:
+        assert _same_bytes(_scene(clean) / name, _scene(tmp_path / "s" / "data" / "quality") / name), name
+    # the same scenes and settings as the first sweep's quality condition: the same RGB bytes
+    assert _same_bytes(_scene(out / "data" / "quality") / "rgb" / "000000.jpg",
+                       _scene(tmp_path / "s" / "data" / "quality") / "rgb" / "000000.jpg")
+    bare = tmp_path / "bare"
+    shutil.copytree(clean, bare, ignore=shutil.ignore_patterns("manifest.json"))
+    cfg = SweepConfig.from_dict({**cfg.to_dict(), "dataset": {"path": str(bare)}})
+    with pytest.raises(ConfigError, match=r"manifest\.json' is missing or records no generation config"):
+        run_sweep(cfg, tmp_path / "s2", progress=False)
