@@ -1,7 +1,8 @@
 """The report's example pictures: the first image of each condition's dataset, as the estimators see it.
 
 Image conditions (clean, occlusion, corruptions) and render conditions show their RGB; depth conditions
-(image-space depth noise ``depth-<preset>`` and simulated sensors ``depth-<sensor>``) show their DEPTH map,
+(image-space depth noise ``depth-<preset>``, simulated sensors ``depth-<sensor>`` and ``[[renders]]`` that set
+``render.depth_sensor``) show their DEPTH map,
 colourized (turbo, near blue, far red, over the 1st..99th percentile of the clean image's valid depths, the
 same range for every depth picture so their colours compare) with the invalid pixels (depth 0) black, beside
 the clean depth drawn the same way. A condition's dataset is the one its pose
@@ -105,7 +106,7 @@ def example_pictures(cfg, out: Path, conds) -> list[Example]:
     for c in conds:
         try:
             scene = _first_scene(_dataset_of(cfg, out, c), cfg.dataset.split)
-            if c.factor not in DEPTH_FACTORS:
+            if c.factor not in DEPTH_FACTORS and c.overrides.get("render.depth_sensor", "none") == "none":
                 found.append(Example(c.name, "rgb", c.name, _jpeg(read_image(scene, 0), nearest=False)))
                 continue
             if span is None:  # every depth picture over the clean depth's range, so colours compare
