@@ -28,6 +28,14 @@ revolution by less than 0.15 mm, well below the 1 mm tolerance the symmetry test
 
 The seed changes shape parameters (about +-6 %) and colours; the same seed gives byte-identical vertices.
 Densities are chosen per category so that masses are plausible (about 50 g to 1 kg).
+
+Every object wears the default skin of its category (:mod:`simtest.objects.skins`: printed labels, cartons,
+glazed ceramics, a banana peel, a two-tone drill, capped markers) as a texture with face-corner UVs on the mesh
+above, unchanged. The texture carries the colour, so ``rgba`` is white (MuJoCo multiplies the two; a scene's
+per-instance tint multiplies it too); ``extra["skin"]`` holds ``family``, ``base_rgb`` (the colour the seed
+drew, the dominant colour of the print, sRGB in [0, 1]) and the skin ``seed`` (drawn from its own stream
+``default_rng([seed, category index, instance, 7])``), so ``skins.skin(category, base_rgb, other_seed)`` gives
+other variants of the same object.
 """
 
 from __future__ import annotations
@@ -41,6 +49,8 @@ import trimesh
 
 from simtest.errors import AssetError
 import simtest.objects.shapes as shapes
+import simtest.objects.skins as skins
+from simtest.objects.appearance import Appearance
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
 
 __all__ = ["load_builtin", "BUILTIN_SETS", "CATEGORIES", "SMALL_NAMES", "build_object"]
@@ -339,6 +349,11 @@ def build_object(category: str, instance: int, seed: int = 0) -> ObjectModel:
     mesh, offset = shapes.center_bbox(shape.mesh)
     base = np.asarray(cat.palette[int(rng.integers(len(cat.palette)))])
     rgb = np.clip(base + rng.uniform(-0.04, 0.04, size=3), 0.0, 1.0)
+    base_rgb = tuple(np.round(rgb, 4).tolist())
+    # The skin's variant comes from its own stream: shapes and colours above stay as they were.
+    skin_seed = int(np.random.default_rng([int(seed), ci, instance, 7]).integers(2**31))
+    look = skins.skin(cat.name, base_rgb, skin_seed)
+    appearance = Appearance(texture=look.albedo, face_uv=skins.skin_uv(cat.name, mesh, params))
     return ObjectModel(
         obj_id=_first_id(ci) + instance,
         name=f"{cat.name}_{instance}",
@@ -347,11 +362,13 @@ def build_object(category: str, instance: int, seed: int = 0) -> ObjectModel:
         mesh=mesh,
         density=cat.density,
         concave=cat.concave,
-        rgba=(*np.round(rgb, 4).tolist(), 1.0),
+        rgba=(1.0, 1.0, 1.0, 1.0),
+        appearance=appearance,
         symmetries_discrete=shape.symmetries_discrete,
         symmetries_continuous=shape.symmetries_continuous,
         source=f"builtin:{cat.name}:{seed}",
-        extra={"params": params, "origin_offset": offset.tolist(), "seed": int(seed)},
+        extra={"params": params, "origin_offset": offset.tolist(), "seed": int(seed),
+               "skin": {"family": skins.SKIN_FAMILIES[cat.name], "base_rgb": list(base_rgb), "seed": skin_seed}},
     )
 
 

@@ -39,14 +39,19 @@ def test_models_info_as_bop_toolkit_reads_it(tmp_path, builtin_small):
             assert abs(entry[f"size_{ax}"] - obj.size[i] * MM_PER_M) < 1e-9
         for flat in entry.get("symmetries_discrete", []):
             assert len(flat) == 16
-        # the PLY is in millimetres with normals and colours, and faces as vertex_indices
+        # the PLY is in millimetres with normals and colours (texture coordinates and the texture next to it for
+        # a textured object, as the built-ins are), and faces as vertex_indices
         ply = out / f"obj_{obj.obj_id:06d}.ply"
         header = ply.read_bytes().split(b"end_header")[0].decode()
-        for prop in ("property float nx", "property uchar red", "property list uchar int vertex_indices",
-                     "binary_little_endian"):
+        textured = obj.appearance is not None and obj.appearance.kind == "texture"
+        looks = ("property float texture_u", f"comment TextureFile obj_{obj.obj_id:06d}.png") if textured else (
+            "property uchar red",)
+        for prop in ("property float nx", "property list uchar int vertex_indices", "binary_little_endian", *looks):
             assert prop in header
+        assert (out / f"obj_{obj.obj_id:06d}.png").is_file() == textured
         mesh = trimesh.load(ply, process=False)
-        np.testing.assert_allclose(mesh.vertices, obj.vertices * MM_PER_M, atol=1e-3)
+        # vertices are split where UVs differ: every face corner is at the same place, in the same order
+        np.testing.assert_allclose(mesh.vertices[mesh.faces], obj.vertices[obj.faces] * MM_PER_M, atol=1e-3)
     assert "symmetries_continuous" in info["1"] and info["1"]["symmetries_continuous"][0]["offset"] == [0, 0, 0]
     assert "symmetries_continuous" not in info["7"] and "symmetries_discrete" not in info["7"]  # mug
     assert len(info["13"]["symmetries_discrete"]) == 3  # box
@@ -55,5 +60,6 @@ def test_models_info_as_bop_toolkit_reads_it(tmp_path, builtin_small):
 def test_no_temporary_files_left(tmp_path, builtin_small):
     out = write_bop_models(builtin_small, tmp_path / "models")
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted([f"obj_{i:06d}.ply" for i in builtin_small.ids]
+    textures = [f"obj_{o.obj_id:06d}.png" for o in builtin_small if o.appearance is not None]
+    assert names == sorted([f"obj_{i:06d}.ply" for i in builtin_small.ids] + textures
                            + ["models_info.json", "simtest_objects.json"])
