@@ -24,6 +24,7 @@ bytes. The exact depth, masks and poses are not touched (the sensed depth is a n
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -137,6 +138,18 @@ class StereoSensor:
     def num_disparities(self, f_ir: float) -> int:
         return int(max(16, 16 * np.ceil(f_ir * self.baseline / self.min_depth / 16.0)))
 
+    def matcher(self, camera: CameraModel):
+        """The ``cv2.StereoSGBM`` matcher of the IR pair at ``camera``'s image size (3-way mode)."""
+        import cv2
+
+        bs = self.block_size
+        area = camera.width * camera.height / (640.0 * 480.0)
+        return cv2.StereoSGBM_create(minDisparity=0, numDisparities=self.num_disparities(self.ir_K(camera)[0, 0]),
+                                     blockSize=bs, P1=self.p1_scale * bs * bs, P2=self.p2_scale * bs * bs,
+                                     disp12MaxDiff=self.disp12_max_diff, uniquenessRatio=self.uniqueness_ratio,
+                                     speckleWindowSize=max(4, int(round(self.speckle_window * area))),
+                                     speckleRange=self.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
     # --- one view --------------------------------------------------------------------------------------
     def sense(self, renderer, data, camera_id: int, camera: CameraModel, rng: np.random.Generator) -> np.ndarray:
         """Sensed depth (H, W) float32 metres in the colour ``camera`` (0 = no measurement); see the module."""
@@ -145,86 +158,118 @@ class StereoSensor:
     def sense_view(self, renderer, data, camera_id: int, camera: CameraModel,
                    rng: np.random.Generator) -> "StereoView":
         """:meth:`sense` with the intermediate images (IR pair, left-IR depth, exact left-IR depth)."""
-        import cv2
 
         K_ir = self.ir_K(camera)
         T_left, T_right, T_proj = self.poses(camera)
         use_rgb = self.albedo == "rgb"
-        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
-            proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
-            left = at.render(T_left, rgb=use_rgb, seg=self.mirror)
-            right = at.render(T_right, rgb=use_rgb, seg=self.mirror)
         diffuse = _diffuse_fraction(renderer.model) if self.mirror else None
         pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
-        ir = []
-        for frame, T in ((left, T_left), (right, T_right)):
-            ir.append(self._ir_image(frame, T, K_ir, T_proj, proj_depth, pattern, rng, diffuse))
+        shape = (camera.height, camera.width)
+        noise = [rng.standard_normal(shape, dtype=np.float32) for _ in range(2)]  # left, then right
+        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at, ThreadPoolExecutor(1) as helper:
+            proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
+            left = at.render(T_left, rgb=use_rgb, seg=self.mirror)
+            # The left IR image is computed on a helper thread while the right camera renders (numpy, OpenCV
+            # and MuJoCo's renderer release the GIL); the images do not depend on the thread.
+            job = helper.submit(self._left_image, left, T_left, K_ir, T_proj, proj_depth, pattern, noise[0],
+                                diffuse)
+            right = at.render(T_right, rgb=use_rgb, seg=self.mirror)
+            ir_right = self._ir_image(right, T_right, K_ir, T_proj, proj_depth, pattern, noise[1], diffuse)
+            ir_left, flat = job.result()
+        ir = [ir_left, ir_right]
         f = float(K_ir[0, 0])
-        bs = self.block_size
-        area = camera.width * camera.height / (640.0 * 480.0)
-        sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=self.num_disparities(f), blockSize=bs,
-                                     P1=self.p1_scale * bs * bs, P2=self.p2_scale * bs * bs,
-                                     disp12MaxDiff=self.disp12_max_diff, uniquenessRatio=self.uniqueness_ratio,
-                                     speckleWindowSize=max(4, int(round(self.speckle_window * area))),
-                                     speckleRange=self.speckle_range, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-        disp = sgbm.compute(ir[0], ir[1]).astype(np.float32) / 16.0
+        disp = self.matcher(camera).compute(ir[0], ir[1])  # fixed point, 16 x disparity
         depth_ir = np.zeros(disp.shape, dtype=np.float32)
-        ok = disp > 0
-        depth_ir[ok] = f * self.baseline / disp[ok]
-        if self.texture_threshold > 0:
-            img = ir[0].astype(np.float32) / 255.0
-            mean = cv2.boxFilter(img, -1, (bs, bs))
-            var = cv2.boxFilter(img * img, -1, (bs, bs)) - mean * mean
-            depth_ir[np.sqrt(np.maximum(var, 0.0)) < self.texture_threshold] = 0.0
+        np.divide(np.float32(16.0 * f * self.baseline), disp, out=depth_ir, where=disp > 0, dtype=np.float32)
+        if flat is not None:
+            depth_ir[flat] = 0.0
         depth_ir[(depth_ir < self.min_depth) | (depth_ir > self.max_depth)] = 0.0
         T_col_ir = camera.T_cam_world @ T_left
         depth = register_depth(depth_ir, K_ir, T_col_ir, camera.K, camera.width, camera.height)
         return StereoView(depth, ir[0], ir[1], depth_ir, left.depth, K_ir)
 
-    def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
-                  rng: np.random.Generator, diffuse: np.ndarray | None = None) -> np.ndarray:
-        """The 8-bit IR image of one camera from its exact depth (and colour), float32 throughout."""
+    def _left_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
+                    noise: np.ndarray, diffuse: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The left IR image and its texture-threshold mask: True where the local contrast (std over the
+        matching block, fraction of full scale) is below ``texture_threshold`` (None when the threshold is 0)."""
         import cv2
 
-        z = frame.depth.astype(np.float32)
+        ir = self._ir_image(frame, T_world_ir, K_ir, T_proj, proj_depth, pattern, noise, diffuse)
+        if self.texture_threshold <= 0:
+            return ir, None
+        bs = (self.block_size, self.block_size)
+        img = ir.astype(np.float32)
+        img *= np.float32(1.0 / 255.0)
+        mean = cv2.boxFilter(img, -1, bs)
+        var = cv2.boxFilter(img * img, -1, bs)
+        var -= mean * mean
+        return ir, var < np.float32(self.texture_threshold) ** 2
+
+    def _ir_image(self, frame, T_world_ir: Pose, K_ir: np.ndarray, T_proj: Pose, proj_depth, pattern,
+                  noise: np.ndarray, diffuse: np.ndarray | None = None) -> np.ndarray:
+        """The 8-bit IR image of one camera from its exact depth (and colour), float32 throughout; ``noise`` is
+        the camera's standard normal sensor-noise draw (H, W).
+
+        The pixel rays come from :func:`_unit_rays` (``camera.pinhole_points`` at unit depth, broadcast
+        (1, W) and (H, 1)); the projector shares the camera's orientation and ``K_ir``, so a point's projector
+        pixel is ``pinhole_pixels`` of its projector-frame coordinates, written out in float32 here. The surface
+        normal is the cross product of the back-projected surface's pixel derivatives, in closed form from the
+        depth gradients ``z_u``, ``z_v``: ``n ~ (-fx z_u, -fy z_v, fx x_n z_u + fy y_n z_v + z)`` with
+        ``(x_n, y_n, 1)`` the pixel's ray.
+        """
+        import cv2
+
+        z = frame.depth
         h, w = z.shape
         hit = z > 0
         if self.albedo == "rgb":
-            rgb = frame.rgb.astype(np.float32)
-            albedo = (0.299 / 255) * rgb[..., 0] + (0.587 / 255) * rgb[..., 1] + (0.114 / 255) * rgb[..., 2]
+            # luminance 0.299 R + 0.587 G + 0.114 B, 0-1
+            albedo = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+            albedo *= np.float32(1.0 / 255.0)
         else:
             albedo = np.full((h, w), float(self.albedo), dtype=np.float32)
         if diffuse is not None:
-            albedo *= diffuse[np.where(frame.seg >= 0, frame.seg, len(diffuse) - 1)]
+            albedo *= diffuse[frame.seg]  # seg -1 (background) indexes the last entry, 1
         albedo[~hit] = 0.0
-        light = np.full((h, w), self.ambient, dtype=np.float32)
+        ir = albedo * np.float32(self.ambient)
         if pattern is not None:
-            K32 = K_ir.astype(np.float32)
-            v, u = np.mgrid[0:h, 0:w].astype(np.float32)
-            pts = pinhole_points(K32, u, v, z)  # float32 in, float32 out
-            x, y = pts[..., 0], pts[..., 1]
+            f32 = np.float32
+            fx, fy, cx, cy = (f32(K_ir[0, 0]), f32(K_ir[1, 1]), f32(K_ir[0, 2]), f32(K_ir[1, 2]))
+            xn, yn = _unit_rays(K_ir, w, h)
             # The projector's frame is the IR frame shifted by o (same orientation by construction of poses()).
             o = (T_world_ir.R.T @ (T_proj.t - T_world_ir.t)).astype(np.float32)
-            xp, yp, zp = x - o[0], y - o[1], z - o[2]
+            xp = xn * z - o[0]
+            yp = yn * z - o[1]
+            zp = z - o[2]
             front = hit & (zp > 1e-4)
-            safe = np.where(front, zp, np.float32(1.0))
-            up, vp = (a.astype(np.float32) for a in pinhole_pixels(K32, np.stack([xp, yp, zp], -1), safe))
+            inv = np.divide(f32(1.0), zp, out=np.ones_like(zp), where=front)
+            up = xp * inv
+            up *= fx
+            up += cx
+            vp = yp * inv
+            vp *= fy
+            vp += cy
             # Lit: the projector sees this point (its own depth there matches), else it is in the projector's shadow.
-            seen = cv2.remap(proj_depth.astype(np.float32), up, vp, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=0.0)
-            lit = front & (np.abs(seen - zp) <= self.shadow_tolerance * zp + 1e-3)
-            # cos(incidence) from the surface normal of the back-projected points
-            gx = [np.gradient(c, axis=1) for c in (x, y, z)]
-            gy = [np.gradient(c, axis=0) for c in (x, y, z)]
-            n = (gx[1] * gy[2] - gx[2] * gy[1], gx[2] * gy[0] - gx[0] * gy[2], gx[0] * gy[1] - gx[1] * gy[0])
-            nn = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2) + np.float32(1e-12)
-            r2 = xp ** 2 + yp ** 2 + zp ** 2 + np.float32(1e-12)
-            cos = np.abs(n[0] * xp + n[1] * yp + n[2] * zp) / (nn * np.sqrt(r2))
+            seen = cv2.remap(proj_depth, up, vp, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            seen -= zp
+            lit = front & (np.abs(seen, out=seen) <= f32(self.shadow_tolerance) * zp + f32(1e-3))
+            # cos(incidence) between the surface normal and the projector ray; fall-off 1 / r^2
+            zu = cv2.Sobel(z, cv2.CV_32F, 1, 0, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
+            zv = cv2.Sobel(z, cv2.CV_32F, 0, 1, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
+            nx, ny = -fx * zu, -fy * zv
+            nz = xn * (fx * zu) + yn * (fy * zv) + z
+            r2 = xp * xp + yp * yp + zp * zp + f32(1e-12)
+            dot = np.abs(nx * xp + ny * yp + nz * zp)
+            nn = np.sqrt((nx * nx + ny * ny + nz * nz) * r2) + f32(1e-12)
             dots = cv2.remap(pattern, up, vp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            light += np.where(lit, np.float32(self.projector_power) * dots * cos / r2, np.float32(0.0))
-        ir = albedo * light + np.float32(self.noise) * rng.standard_normal((h, w), dtype=np.float32)
-        return np.clip(np.rint(ir * 255.0), 0, 255).astype(np.uint8)
+            gain = dots * dot
+            gain /= nn * r2
+            gain[~lit] = 0.0
+            ir += albedo * (f32(self.projector_power) * gain)
+        ir += np.float32(self.noise) * noise
+        ir *= np.float32(255.0)
+        return np.clip(np.rint(ir, out=ir), 0, 255, out=ir).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -269,6 +314,24 @@ class _RenderAt:
         self.model.cam_intrinsic[self.cid] = self.intr
         self.data.cam_xpos[self.cid] = self.pos
         self.data.cam_xmat[self.cid] = self.mat
+
+
+def _unit_rays(K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pixel rays at unit depth under ``K``: ``x/z`` of each column (1, W) and ``y/z`` of each row (H, 1),
+    float32 (``camera.pinhole_points`` at z = 1), cached per intrinsics and size."""
+    return _rays(tuple(float(k) for k in np.asarray(K, dtype=np.float64).ravel()), int(width), int(height))
+
+
+@lru_cache(maxsize=8)
+def _rays(K: tuple[float, ...], width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    Km = np.asarray(K).reshape(3, 3)
+    u, v = np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64)
+    xn = pinhole_points(Km, u, np.full(width, Km[1, 2]), np.ones(width))[:, 0]
+    yn = pinhole_points(Km, np.full(height, Km[0, 2]), v, np.ones(height))[:, 1]
+    out = xn.astype(np.float32)[None, :], yn.astype(np.float32)[:, None]
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _diffuse_fraction(model) -> np.ndarray:
@@ -321,11 +384,23 @@ def _rescale_depth(depth: np.ndarray, K_src: np.ndarray, K_dst: np.ndarray, widt
 
     if np.array_equal(K_src, K_dst) and depth.shape == (height, width):
         return np.asarray(depth, dtype=np.float32).copy()
-    u = (np.arange(width, dtype=np.float64) - K_dst[0, 2]) / K_dst[0, 0] * K_src[0, 0] + K_src[0, 2]
-    v = (np.arange(height, dtype=np.float64) - K_dst[1, 2]) / K_dst[1, 1] * K_src[1, 1] + K_src[1, 2]
-    mu, mv = np.meshgrid(u.astype(np.float32), v.astype(np.float32))
+    mu, mv = _ray_maps(tuple(np.asarray(K_src, np.float64).ravel().tolist()),
+                       tuple(np.asarray(K_dst, np.float64).ravel().tolist()), int(width), int(height))
     return cv2.remap(np.asarray(depth, dtype=np.float32), mu, mv, cv2.INTER_NEAREST,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+
+
+@lru_cache(maxsize=8)
+def _ray_maps(K_src: tuple[float, ...], K_dst: tuple[float, ...], width: int,
+              height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The source pixel of each destination pixel's ray (one centre and orientation): ``cv2.remap`` maps."""
+    (fs, _, cxs, _, gs, cys, *_), (fd, _, cxd, _, gd, cyd, *_) = K_src, K_dst
+    u = (np.arange(width, dtype=np.float64) - cxd) / fd * fs + cxs
+    v = (np.arange(height, dtype=np.float64) - cyd) / gd * gs + cys
+    mu, mv = np.meshgrid(u.astype(np.float32), v.astype(np.float32))
+    mu.setflags(write=False)
+    mv.setflags(write=False)
+    return mu, mv
 
 
 def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst: np.ndarray, width: int,
