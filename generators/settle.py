@@ -16,8 +16,9 @@ __all__ = ["SettleResult", "settle", "FAR_AWAY"]
 
 #: Rotational damping of free bodies while settling, per kg m^2 of their largest principal inertia (1/s).
 ROCKING_DAMPING = 5.0
-#: Where removed objects are parked (metres): far outside every camera's far plane.
-FAR_AWAY = np.array([500.0, 500.0, -500.0])
+#: Where removed objects are parked (metres): far outside every camera's far plane, above the floor (whose plane
+#: collides as a half-space: a body parked below it would be in contact, 500 m deep).
+FAR_AWAY = np.array([500.0, 500.0, 500.0])
 
 
 @dataclass(frozen=True)
