@@ -174,9 +174,9 @@ def _print_label(reg: _Region, a, h, base, rng: np.random.Generator, h0: float, 
     title = (-0.22, 0.22, y_logo - r_logo - 0.2, y_logo - r_logo - 0.04)
     reg.paint(_glyphs(da, ell, rng, title, 1, int(rng.integers(5, 10)), 0.95), accent)
     back = (a - front) % 1.0 - 0.5
-    reg.paint(lab & _box(back, ell, -0.16, 0.16, 0.1, 0.9), _WHITE)
-    reg.paint(_glyphs(back, ell, rng, (-0.14, 0.14, 0.45, 0.86), int(rng.integers(4, 8)), 22), _DARK)
-    for mask, colour in zip(_bars(back, ell, rng, (-0.12, 0.0, 0.14, 0.42)), (_WHITE, _DARK)):
+    reg.paint(lab & _box(back, ell, -0.11, 0.11, 0.1, 0.9), _WHITE)
+    reg.paint(_glyphs(back, ell, rng, (-0.1, 0.1, 0.45, 0.86), int(rng.integers(4, 8)), 16), _DARK)
+    for mask, colour in zip(_bars(back, ell, rng, (-0.09, 0.02, 0.14, 0.42)), (_WHITE, _DARK)):
         reg.paint(mask & lab, colour)
 
 
@@ -203,7 +203,7 @@ def _label_family(canvas: SimpleNamespace, base, rng: np.random.Generator, bottl
             _lid(canvas, name, rng)
         return
     shoulder, _neck, cap_at = SIDE_BANDS["bottle"]
-    plastic = base * rng.uniform(0.55, 0.8) + _WHITE * rng.uniform(0.1, 0.3)
+    plastic = base + (_WHITE - base) * rng.uniform(0.1, 0.35)
     cap = _shift(base, float(rng.choice([0.0, 0.33, 0.5])), 1.1, 0.7) if rng.random() < 0.6 else _WHITE
     reg.paint(True, plastic[None, None, :] * (1 + 0.05 * np.cos(2 * np.pi * 12 * h))[..., None], rough=0.25)
     _print_label(reg, a, h, base, rng, float(rng.uniform(0.1, 0.16)), shoulder - float(rng.uniform(0.04, 0.1)), 2.8)
@@ -288,9 +288,9 @@ def _marker(canvas: SimpleNamespace, base, rng: np.random.Generator) -> None:
 def _carton(canvas: SimpleNamespace, base, rng: np.random.Generator) -> None:
     """A printed cardboard box: panels, a product picture, titles and text on front and back, a nutrition
     panel on one side, a barcode on the other, plain cardboard on top and bottom."""
-    board = np.array([0.66, 0.54, 0.4]) if rng.random() < 0.5 else np.array([0.9, 0.88, 0.83])
+    board = np.array([0.66, 0.54, 0.4]) if rng.random() < 0.7 else np.array([0.9, 0.88, 0.83])
     food = _shift((0.75, 0.45, 0.2), float(rng.uniform(-0.08, 0.15)), rng.uniform(0.6, 1.1), rng.uniform(0.8, 1.1))
-    accent, accent2 = _accent(base, rng), _accent(base, rng)
+    accent, accent2 = _shift(base, float(rng.choice([-0.08, 0.08, 0.5])), 1.0, 0.6), _accent(base, rng)
     for face in ("front", "back"):
         reg = _Region(canvas, face)
         s, t = reg.s, reg.t
@@ -352,10 +352,10 @@ def _drill(canvas: SimpleNamespace, base, rng: np.random.Generator) -> None:
     handle = _Region(canvas, "handle")
     handle.paint(True, grey, rough=0.8)
     handle.paint((handle.t * 18) % 1.0 < 0.3, grey * 0.6)  # grip ridges
-    handle.paint(handle.s < 0.22, base, rough=0.35)
+    handle.paint(handle.s < 0.4, base, rough=0.35)
     battery = _Region(canvas, "battery")
     battery.paint(True, grey * 0.8, rough=0.6)
-    battery.paint(np.abs(battery.t - 0.55) < 0.1, base)
+    battery.paint((battery.t > 0.3) & (np.abs(battery.t - 0.8) > 0.05), base)
     battery.paint(_glyphs(battery.s, battery.t, rng, (0.2, 0.8, 0.15, 0.35), 1, 6), _WHITE * 0.7)
     chuck = _Region(canvas, "chuck")
     chuck.mottle(_METAL, rng, 0.05, rough=0.3, metal=1.0)
