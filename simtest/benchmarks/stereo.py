@@ -6,8 +6,8 @@ preset; best of ``repeat`` runs per view, milliseconds, averaged over the views.
 
 Where the sensor's time goes: ``passes_ms`` is what its GL passes cost (measured as one depth-only pass and two
 full RGB + depth + segmentation passes of the same view: the projector, left and right IR renders),
-``sgbm_ms`` the matcher on the view's IR pair, and ``other_ms`` the rest (the IR images, of which the left one
-is computed while the right camera renders, the texture threshold and the registration).
+``sgbm_ms`` the matcher on the view's IR pair, and ``other_ms`` the rest (the two IR images, the texture
+threshold and the registration).
 """
 
 from __future__ import annotations

@@ -24,7 +24,6 @@ bytes. The exact depth, masks and poses are not touched (the sensed depth is a n
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -165,19 +164,14 @@ class StereoSensor:
         diffuse = _diffuse_fraction(renderer.model) if self.mirror else None
         pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
-        shape = (camera.height, camera.width)
-        noise = [rng.standard_normal(shape, dtype=np.float32) for _ in range(2)]  # left, then right
-        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at, ThreadPoolExecutor(1) as helper:
+        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
             proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
             left = at.render(T_left, rgb=use_rgb, seg=self.mirror)
-            # The left IR image is computed on a helper thread while the right camera renders (numpy, OpenCV
-            # and MuJoCo's renderer release the GIL); the images do not depend on the thread.
-            job = helper.submit(self._left_image, left, T_left, K_ir, T_proj, proj_depth, pattern, noise[0],
-                                diffuse)
             right = at.render(T_right, rgb=use_rgb, seg=self.mirror)
-            ir_right = self._ir_image(right, T_right, K_ir, T_proj, proj_depth, pattern, noise[1], diffuse)
-            ir_left, flat = job.result()
-        ir = [ir_left, ir_right]
+        shape = (camera.height, camera.width)
+        noise = [_gaussian(rng, shape) for _ in range(2)]  # left, then right
+        ir_left, flat = self._left_image(left, T_left, K_ir, T_proj, proj_depth, pattern, noise[0], diffuse)
+        ir = [ir_left, self._ir_image(right, T_right, K_ir, T_proj, proj_depth, pattern, noise[1], diffuse)]
         f = float(K_ir[0, 0])
         disp = self.matcher(camera).compute(ir[0], ir[1])  # fixed point, 16 x disparity
         depth_ir = np.zeros(disp.shape, dtype=np.float32)
@@ -314,6 +308,23 @@ class _RenderAt:
         self.model.cam_intrinsic[self.cid] = self.intr
         self.data.cam_xpos[self.cid] = self.pos
         self.data.cam_xmat[self.cid] = self.mat
+
+
+def _gaussian(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Standard normal sensor noise (float32) by inverse-CDF sampling: 16 random bits per pixel from ``rng`` index
+    a table of the normal quantiles at ``(k + 0.5) / 65536`` (tails cut at 4.3 sigma, std 1 - 1e-5); 4x faster
+    than ``rng.standard_normal``; below the 8-bit quantisation of the IR image the two cannot be told apart."""
+    bits = np.frombuffer(rng.bytes(2 * shape[0] * shape[1]), dtype="<u2").reshape(shape)
+    return np.take(_normal_quantiles(), bits)
+
+
+@lru_cache(maxsize=1)
+def _normal_quantiles() -> np.ndarray:
+    from scipy.special import ndtri
+
+    out = ndtri((np.arange(65536, dtype=np.float64) + 0.5) / 65536.0).astype(np.float32)
+    out.setflags(write=False)
+    return out
 
 
 def _unit_rays(K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
