@@ -90,10 +90,9 @@ class _Region:
         rgb = c.rgb[self.window]
         maps = [(v, m[self.window]) for v, m in ((rough, c.rough), (metal, c.metal)) if v is not None]
         if alpha.dtype == bool:  # a mask: assign where it is set (the cheap, common case)
-            mask = np.broadcast_to(alpha, self.s.shape)
-            rgb[mask] = colour if colour.ndim == 1 else np.broadcast_to(colour, rgb.shape)[mask]
+            np.copyto(rgb, colour, where=alpha[..., None] if alpha.ndim else alpha)
             for value, view in maps:
-                view[mask] = value
+                np.copyto(view, value, where=alpha)
             return
         a = np.broadcast_to(alpha.astype(np.float64), self.s.shape)
         rgb += a[..., None] * (colour - rgb)
@@ -101,7 +100,7 @@ class _Region:
             view += a * (value - view)
 
 
-def _noise(x, y, rng: np.random.Generator, terms: int = 5, kmax: int = 4) -> np.ndarray:
+def _noise(x, y, rng: np.random.Generator, terms: int = 3, kmax: int = 4) -> np.ndarray:
     """Smooth noise of about unit amplitude from a few sinusoids, periodic with period 1 in ``x`` (a coordinate
     constant along an image axis is reduced along it: sin(A + B) from its parts)."""
     shape = np.broadcast(x, y).shape
