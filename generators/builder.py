@@ -181,7 +181,7 @@ class SceneBuilder:
             skinned = skin_of(obj, p.skin_seed) if textures[p.obj_id] is not None else None
             if skinned is not None:  # this instance's variant of the object's print, on the object's UVs
                 self._skin_material(ms, mat, f"obj_{i}", skinned)
-            elif textures[p.obj_id] is not None:  # the texture times the material colour (a tint)
+            elif textures[p.obj_id] is not None and not p.plain:  # the texture times the material colour (a tint)
                 mat.textures = texture_roles(textures[p.obj_id])
             friction = list(OBJECT_FRICTION) if obj.friction is None else [obj.friction, *OBJECT_FRICTION[1:]]
             body.add_geom(name=f"obj_{i}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"mesh_{p.obj_id}",

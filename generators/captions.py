@@ -49,6 +49,7 @@ from simtest.render.colour import srgb_to_linear
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.io.files import atomic_write_json
+from simtest.generators.looks import skin_of
 from simtest.objects.appearance import render_texture
 
 __all__ = ["COLOUR_NAMES", "CAPTIONS_FILE", "CaptionObject", "srgb_to_lab", "colour_name", "dominant_colour",
@@ -143,14 +144,17 @@ def colour_name(rgb: Sequence[float]) -> str:
     return _NAMES[int(_name_index(np.asarray(rgb, dtype=np.float64)[:3]))]
 
 
-def _face_colours(obj) -> np.ndarray | None:
+def _face_colours(obj, texture: np.ndarray | None = None) -> np.ndarray | None:
     """(M, 3) colour in [0, 1] of each face of a textured / vertex- or face-coloured object, else None: the
     texel the renderer draws at the face's UV centroid (:func:`~simtest.objects.appearance.render_texture`, which
-    bakes vertex and face colours into one texel per face)."""
+    bakes vertex and face colours into one texel per face); ``texture`` replaces the object's own texture (an
+    instance's print variant on the same UVs)."""
     drawn = None if obj.appearance is None else render_texture(obj.appearance, obj.faces)
     if drawn is None:
         return None
     tex, face_uv = drawn
+    if texture is not None:
+        tex = texture
     h, w = tex.shape[:2]
     uv = np.mod(face_uv.mean(axis=1), 1.0)  # UV centroid per face, wrapped
     col = np.clip(np.floor(uv[:, 0] * w).astype(np.int64), 0, w - 1)
@@ -158,19 +162,22 @@ def _face_colours(obj) -> np.ndarray | None:
     return tex[row, col].astype(np.float64) / 255.0
 
 
-def dominant_colour(obj, rgba: Sequence[float]) -> tuple[str, tuple[float, float, float]]:
+def dominant_colour(obj, rgba: Sequence[float], texture: np.ndarray | None = None
+                    ) -> tuple[str, tuple[float, float, float]]:
     """``(name, rgb)`` of the colour most of an instance's surface shows.
 
     Args:
-        obj: The :class:`~simtest.objects.ObjectModel` (its ``appearance``, faces and face areas).
+        obj: The :class:`~simtest.objects.ObjectModel` (its ``appearance``, faces and face areas); None for an
+            instance drawn in its material colour alone.
         rgba: The instance's material colour (it tints a texture or vertex colours), each in [0, 1].
+        texture: The instance's own texture when it differs from the object's (a print variant, same UVs).
 
     Returns:
         The winning name (area-weighted vote over faces) and the area-weighted mean sRGB of the faces that
         carry it; for a plain object, the name of ``rgba`` and ``rgba[:3]``.
     """
     tint = np.asarray(rgba, dtype=np.float64)[:3]
-    faces = _face_colours(obj)
+    faces = None if obj is None else _face_colours(obj, texture)
     if faces is None:
         return colour_name(tint), tuple(float(v) for v in tint)
     faces = faces * tint
@@ -383,7 +390,8 @@ def scene_captions(scene, objects, camera: CameraModel, table_height: float) -> 
     """:func:`caption_scene` of a settled scene's annotated (active) instances, seen from ``camera``.
 
     ``gt_id`` is the rank of the instance among the active ones, as in every image's ``scene_gt.json``; the
-    colour is the instance's material rgba from the scene spec (with the object's texture or vertex colours).
+    colour is the instance's material rgba from the scene spec (with the object's texture or vertex colours, or
+    the instance's print variant).
     """
     objs = []
     active = [i for i, a in enumerate(scene.active) if a]
@@ -392,7 +400,10 @@ def scene_captions(scene, objects, camera: CameraModel, table_height: float) -> 
         obj = objects.get(oid)
         R, t = scene.object_pose_world(i)
         pts = Pose(R, t).apply(obj.vertices)
-        name, rgb = dominant_colour(obj, scene.spec.objects[i].rgba)
+        placement = scene.spec.objects[i]
+        skin = skin_of(obj, placement.skin_seed)
+        name, rgb = (dominant_colour(None, placement.rgba) if placement.plain
+                     else dominant_colour(obj, placement.rgba, None if skin is None else skin.albedo))
         objs.append(CaptionObject(
             gt_id=gt_id, obj_id=int(oid), category=caption_category(obj.category) or obj.category, colour=name,
             rgb=rgb, diameter=float(obj.diameter), centre=tuple(float(v) for v in t),

@@ -133,7 +133,7 @@ class MaterialConfig:
     # weights (one per family, any scale; empty = equal); empty families = MuJoCo's checker / gradient patterns
     families: tuple[str, ...] = field(default=MATERIAL_FAMILIES, metadata=_bounds(choices=MATERIAL_FAMILIES))
     family_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
-    variants: int = field(default=16, metadata=_bounds(1, 100_000))  # seeds per family (each made once, cached)
+    variants: int = field(default=12, metadata=_bounds(1, 100_000))  # seeds per family (each made once, cached)
     texture_size: int = field(default=256, metadata=_bounds(32, 2048))  # pixels per side of a material's maps
     room_material: Literal["per_surface", "shared"] = field(
         default="per_surface", metadata=_bounds(choices=("per_surface", "shared")))  # shared: one for floor and walls

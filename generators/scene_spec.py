@@ -40,6 +40,7 @@ class ObjectPlacement:
     shininess: float
     reflectance: float
     skin_seed: int | None = None  # variant of a built-in object's print (generators.looks.skin_of); None: its own
+    plain: bool = False  # drawn without its print, in its base colour (``materials.object_textures = false``)
 
 
 @dataclass(frozen=True)
@@ -137,10 +138,13 @@ def _jitter_colour(rgba, amount: float, rng: np.random.Generator) -> tuple[float
 
 
 def object_colour(obj: ObjectModel, colour_jitter: float, texture_jitter: float,
-                  rng: np.random.Generator) -> tuple[float, float, float, float]:
+                  rng: np.random.Generator, plain: bool = False) -> tuple[float, float, float, float]:
     """The material colour of one instance: a textured (or vertex-coloured) object keeps its texture, tinted
     around its own material colour by up to ``texture_jitter`` (never replaced); a plain one gets its colour
-    jittered by ``colour_jitter`` (standard deviation per channel)."""
+    jittered by ``colour_jitter`` (standard deviation per channel). ``plain``: a built-in object drawn without
+    its print gets its base colour (``obj.extra["skin"]["base_rgb"]``) jittered."""
+    if plain:
+        return _jitter_colour((*obj.extra["skin"]["base_rgb"], 1.0), colour_jitter, rng)
     if obj.appearance is None:
         return _jitter_colour(obj.rgba, colour_jitter, rng)
     tint = tint_rgba(texture_jitter, rng)
@@ -209,13 +213,14 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         obj = objects.get(int(oid))
         pos = place(obj.diameter / 2.0)
         quat = random_quat_wxyz(rng)
-        rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, look) if mat.randomize_object_colour
-                else obj.rgba)
+        plain = not mat.object_textures and "skin" in obj.extra
+        rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, look, plain)
+                if mat.randomize_object_colour else (*obj.extra["skin"]["base_rgb"], 1.0) if plain else obj.rgba)
         skin_seed = int(look.integers(mat.variants)) if mat.object_textures and "skin" in obj.extra else None
         placements.append(ObjectPlacement(
             obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=quat, rgba=rgba,
             specular=float(look.uniform(*mat.specular)), shininess=float(look.uniform(*mat.shininess)),
-            reflectance=float(look.uniform(*mat.reflectance)), skin_seed=skin_seed))
+            reflectance=float(look.uniform(*mat.reflectance)), skin_seed=skin_seed, plain=plain))
 
     distractors = []
     for _ in range(n_dis):

@@ -11,10 +11,12 @@ import trimesh
 
 from simtest.camera import CameraModel, look_at_pose
 from simtest.errors import ConfigError
-from simtest.generators.captions import CAPTIONS_FILE, CaptionObject, caption_category, caption_scene
+from simtest.generators.captions import CAPTIONS_FILE, CaptionObject, caption_category, caption_scene, dominant_colour
 from simtest.generators.config import GenerateConfig
+from simtest.generators.looks import skin_of
 from simtest.generators.pipeline import generate
 from simtest.io.bop import pose_from_bop
+from simtest.objects import load_object_set
 from simtest.objects.loaders import load_dataset_objects
 
 TABLE = 0.4
@@ -108,6 +110,7 @@ def test_captions_agree_with_objects_poses_and_claims(captioned):
     assert manifest["captions"] is True and manifest["config"]["captions"] is True
     categories = {o["obj_id"]: o["category"] for o in manifest["objects"]}
     objects = load_dataset_objects(captioned)
+    generated = load_object_set(manifest["config"]["objects"])  # with the prints' recipe (skins)
     n_relational = n_attr = 0
     for scene_dir in sorted((captioned / "train_pbr").iterdir()):
         data = json.loads((scene_dir / CAPTIONS_FILE).read_text())
@@ -121,10 +124,15 @@ def test_captions_agree_with_objects_poses_and_claims(captioned):
             k = int(key)
             assert rec["obj_id"] == gts[k][0]
             assert rec["category"] == caption_category(categories[rec["obj_id"]])
-            # builtin objects are plain: the named colour is the material colour of this instance
+            # the named colour is the dominant colour of this instance's print times its material colour
             placement = info["spec"]["objects"][active[k]]
             assert placement["obj_id"] == rec["obj_id"]
-            np.testing.assert_allclose(rec["rgb"], placement["rgba"][:3], atol=1e-4)
+            obj = generated.get(rec["obj_id"])
+            skin = skin_of(obj, placement["skin_seed"])
+            name, rgb = dominant_colour(None if placement["plain"] else obj, placement["rgba"],
+                                        None if skin is None else skin.albedo)
+            assert rec["colour"] == name
+            np.testing.assert_allclose(rec["rgb"], rgb, atol=1e-4)
             for r in rec["relations"]:
                 if r["relation"] == "on":
                     assert geo[k]["zmin"] - TABLE <= 0.01

@@ -92,8 +92,12 @@ def test_pbr_reads_the_material_maps(tmp_path):
     normal = m.mat_texid[:, int(mujoco.mjtTextureRole.mjTEXROLE_NORMAL)]
     assert (rough >= 0).sum() >= 3 and (normal >= 0).sum() >= 3  # table, floor, walls (+ distractors)
     generate(cfg, tmp_path / "pbr", progress=False)
+    generate(cfg, tmp_path / "pbr_again", progress=False)
     generate(_config(**{**PLAIN, "frames_per_scene": 1}), tmp_path / "plain", progress=False)
     assert _ground_truth_differs(tmp_path / "plain", tmp_path / "pbr") == []
+    same = [p for p in _same_tree(tmp_path / "pbr" / "train_pbr", tmp_path / "pbr_again" / "train_pbr")
+            if not p.endswith("scene_info.json")]
+    assert same == []  # same seed, same materials and environment, same bytes
 
 
 def test_fast_profile_uploads_colour_maps_only():
