@@ -233,34 +233,59 @@ class StereoSensor:
             xn, yn = _unit_rays(K_ir, w, h)
             # The projector's frame is the IR frame shifted by o (same orientation by construction of poses()).
             o = (T_world_ir.R.T @ (T_proj.t - T_world_ir.t)).astype(np.float32)
-            xp = xn * z - o[0]
-            yp = yn * z - o[1]
+            xp = xn * z
+            xp -= o[0]
+            yp = yn * z
+            yp -= o[1]
             zp = z - o[2]
-            front = hit & (zp > 1e-4)
+            front = zp > 1e-4
+            front &= hit
             inv = np.divide(f32(1.0), zp, out=np.ones_like(zp), where=front)
             up = xp * inv
             up *= fx
             up += cx
-            vp = yp * inv
+            vp = np.multiply(yp, inv, out=inv)
             vp *= fy
             vp += cy
             # Lit: the projector sees this point (its own depth there matches), else it is in the projector's shadow.
             seen = cv2.remap(proj_depth, up, vp, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
             seen -= zp
-            lit = front & (np.abs(seen, out=seen) <= f32(self.shadow_tolerance) * zp + f32(1e-3))
-            # cos(incidence) between the surface normal and the projector ray; fall-off 1 / r^2
-            zu = cv2.Sobel(z, cv2.CV_32F, 1, 0, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
-            zv = cv2.Sobel(z, cv2.CV_32F, 0, 1, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
-            nx, ny = -fx * zu, -fy * zv
-            nz = xn * (fx * zu) + yn * (fy * zv) + z
-            r2 = xp * xp + yp * yp + zp * zp + f32(1e-12)
-            dot = np.abs(nx * xp + ny * yp + nz * zp)
-            nn = np.sqrt((nx * nx + ny * ny + nz * nz) * r2) + f32(1e-12)
-            dots = cv2.remap(pattern, up, vp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            gain = dots * dot
-            gain /= nn * r2
-            gain[~lit] = 0.0
-            ir += albedo * (f32(self.projector_power) * gain)
+            tol = zp * f32(self.shadow_tolerance)
+            tol += f32(1e-3)
+            lit = np.abs(seen, out=seen) <= tol
+            lit &= front
+            # cos(incidence) between the surface normal n and the projector ray p, and the fall-off 1 / |p|^2:
+            # with a = fx z_u, b = fy z_v, n = (-a, -b, x_n a + y_n b + z) and, since p = (x_n z, y_n z, z) - o,
+            # n . p = a (o_x - x_n o_z) + b (o_y - y_n o_z) + z p_z.
+            a = cv2.Sobel(z, cv2.CV_32F, 1, 0, ksize=1, scale=0.5 * float(fx), borderType=cv2.BORDER_REPLICATE)
+            b = cv2.Sobel(z, cv2.CV_32F, 0, 1, ksize=1, scale=0.5 * float(fy), borderType=cv2.BORDER_REPLICATE)
+            tmp = np.multiply(yn, b, out=tol)
+            nz = xn * a
+            nz += tmp
+            nz += z
+            dot = a * (o[0] - xn * o[2])
+            if o[1] or o[2]:
+                dot += np.multiply(b, o[1] - yn * o[2], out=tmp)
+            dot += np.multiply(z, zp, out=tmp)
+            np.abs(dot, out=dot)
+            n2 = np.multiply(a, a, out=a)
+            n2 += np.multiply(b, b, out=b)
+            n2 += np.multiply(nz, nz, out=nz)
+            r2 = np.multiply(xp, xp, out=xp)
+            r2 += np.multiply(yp, yp, out=yp)
+            r2 += np.multiply(zp, zp, out=tmp)
+            r2 += f32(1e-12)
+            n2 *= r2
+            norm = np.sqrt(n2, out=n2)  # |n| |p|
+            norm += f32(1e-12)
+            norm *= r2
+            gain = cv2.remap(pattern, up, vp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            gain *= dot
+            gain /= norm
+            gain *= lit
+            gain *= f32(self.projector_power)
+            gain *= albedo
+            ir += gain
         ir += np.float32(self.noise) * noise
         ir *= np.float32(255.0)
         return np.clip(np.rint(ir, out=ir), 0, 255, out=ir).astype(np.uint8)
