@@ -24,7 +24,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "simtest eval --estimator keypoints|segicp --opt checkpoint=OUT/model.pt --data TEST --out DIR.",
     )
     p.add_argument("model", choices=MODELS, help="what to train")
-    p.add_argument("--data", required=True, metavar="DATASET", help="training BOP dataset")
+    p.add_argument("--data", required=True, metavar="DATASET", action="append",
+                   help="training BOP dataset; repeat it to train on a mixture (e.g. datasets of several render "
+                        "profiles, same objects)")
+    p.add_argument("--data-weights", metavar="W,W", help="mixture weights, one per --data (normalised; default: "
+                                                         "proportional to the datasets' image counts)")
     p.add_argument("--split", default="train_pbr", help="training split folder (default: train_pbr)")
     p.add_argument("--val", metavar="DATASET", help="validation BOP dataset (ADD(-S)-0.1d after every epoch)")
     p.add_argument("--val-split", default="train_pbr", help="validation split folder (default: train_pbr)")
@@ -36,7 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
                    help="on-the-fly corruptions: occlusion, weather, depth, or none (default: occlusion,weather; "
                         "weather leaves out brightness/frost/snow/fog, which stay unseen)")
-    p.add_argument("--crop", metavar="HxW", help="train on HxW crops around objects (e.g. 128x128); default full images")
+    p.add_argument("--crop", metavar="HxW", help="keypoints --arch crop: the zoom-in crop size (default 128x128); "
+                                                 "otherwise train on HxW crops around objects (default full images)")
+    p.add_argument("--arch", default="crop", choices=("crop", "full"),
+                   help="keypoints: crop (zoom-in crops around each object, the keypoints estimator; default) or "
+                        "full (whole images, the keypoints-full estimator)")
+    p.add_argument("--margin", type=float, default=1.3,
+                   help="keypoints --arch crop: crop side / object box side (default: 1.3)")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -94,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
 
     prepare_out_dir(args.out, overwrite=args.overwrite, resume=args.resume, can_resume=True, clear=True,
-                    protect=[args.data] + ([args.val] if args.val else []), what="run folder")
+                    protect=list(args.data) + ([args.val] if args.val else []), what="run folder")
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -103,7 +113,12 @@ def run(args: argparse.Namespace) -> int:
     from simtest.data import augmentation
 
     augmentation(list(augment))  # validates the names
-    common = dict(data=args.data, out=args.out, split=args.split, val=args.val, val_split=args.val_split,
+    from simtest.data import parse_weights
+
+    weights = parse_weights(args.data_weights, len(args.data))
+    data = args.data[0] if len(args.data) == 1 else tuple(args.data)
+    common = dict(data=data, data_weights=weights, out=args.out, split=args.split, val=args.val,
+                  val_split=args.val_split,
                   val_images=args.val_images, batch_size=args.batch_size, augment=augment, device=args.device,
                   seed=args.seed, crop=parse_crop(args.crop), threads=args.threads,
                   **_given(args, epochs="epochs", lr="lr", workers="workers", augment_p="augment_p"))
@@ -113,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_segmentation(args, common)
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 
-    cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), **common)
+    cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
+                      margin=args.margin, **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

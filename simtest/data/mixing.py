@@ -37,7 +37,7 @@ from simtest.data.feed import ImageFeed, check_feed_options, check_seed, collate
 from simtest.io.dataset import select_scene_dirs
 from simtest.errors import ConfigError, DatasetError
 
-__all__ = ["UnlabelledDataset", "MixedDataset", "collate_mixed"]
+__all__ = ["UnlabelledDataset", "MixedDataset", "collate_mixed", "labelled_mixture", "parse_weights"]
 
 
 @dataclass(frozen=True)
@@ -239,3 +239,52 @@ def collate_mixed(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
     for k in keys:
         out[k] = torch.tensor([int(s[k]) for s in samples], dtype=torch.int64)
     return out
+
+
+def parse_weights(text: str | None, n: int, flag: str = "--data-weights") -> tuple[float, ...] | None:
+    """``"0.7,0.3"`` -> ``(0.7, 0.3)``: ``n`` non-negative finite weights, not all zero (None stays None).
+
+    Raises:
+        ConfigError: Naming ``flag``, the text and how many weights were expected.
+    """
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n or not all(np.isfinite(vals)) or min(vals) < 0 or sum(vals) <= 0:
+        raise ConfigError(f"{flag} must be {n} comma-separated non-negative weights (one per --data, not all 0), "
+                          f"got {text!r}")
+    return vals
+
+
+def labelled_mixture(roots: Sequence[str], split: str = "train_pbr", weights: Sequence[float] | None = None,
+                     seed: int = 0, **dataset_options: Any) -> Any:
+    """The labelled training feed of one or several BOP datasets.
+
+    One root gives its :class:`simtest.data.PoseDataset`; several give a :class:`MixedDataset` of theirs
+    drawing ``weights`` (normalised; default proportional to the datasets' sizes) of each epoch's samples
+    (as many as all datasets hold together), in an order fixed by ``seed`` and the epoch. Dataset ``k`` seeds
+    its own transforms with ``seed + k``, so two datasets do not corrupt their ``i``-th images alike.
+
+    Args:
+        roots: BOP dataset folders (same object set). split: Their split folder.
+        weights: One non-negative weight per root, or None.
+        seed: Seed of the order and of the transforms.
+        **dataset_options: Passed to every :class:`~simtest.data.PoseDataset` (``objects``, ``transform``, ...).
+
+    Raises:
+        ConfigError: No root, or weights that do not match the roots.
+    """
+    from simtest.data.labelled import PoseDataset
+
+    roots = [str(r) for r in ([roots] if isinstance(roots, (str, Path)) else roots)]
+    if not roots:
+        raise ConfigError("labelled_mixture needs at least one dataset folder")
+    if weights is not None and len(weights) != len(roots):
+        raise ConfigError(f"{len(weights)} mixture weights given for {len(roots)} datasets ({', '.join(roots)})")
+    sets = [PoseDataset(r, split, seed=int(seed) + k, **dataset_options) for k, r in enumerate(roots)]
+    if len(sets) == 1:
+        return sets[0]
+    return MixedDataset(sets, ratio=weights, seed=int(seed))

@@ -3,4 +3,8 @@
 from simtest.estimators.base import (ESTIMATORS, Estimator, Observation, PoseEstimate, load_estimator,
                                      register_estimator)
 
+#: The zoom-in keypoint estimator is ``keypoints``; the first, whole-image keypoint network stays available.
+register_estimator("keypoints", "simtest.estimators.keypoints:CropKeypointEstimator")
+register_estimator("keypoints-full", "simtest.estimators.keypoints:FullImageKeypointEstimator")
+
 __all__ = ["ESTIMATORS", "Estimator", "Observation", "PoseEstimate", "load_estimator", "register_estimator"]

@@ -7,7 +7,10 @@ inputs and outputs:
 * segmentation (``simtest-segmentation/1``): ``input`` (N, 3 or 4, H, W) float32 (RGB in [0, 1], then the
   relative depth channel), H and W multiples of 16 -> ``logits`` (N, C+1, H, W);
 * keypoints (``simtest-keypoints/1``): ``input`` (N, 3, H, W) -> ``seg`` (N, C+1, H/4, W/4), ``offsets``
-  (N, J, 2, H/4, W/4), ``conf_logit`` (N, J, H/4, W/4).
+  (N, J, 2, H/4, W/4), ``conf_logit`` (N, J, H/4, W/4);
+* keypoint crops (``simtest-keypoints/2``): ``input`` (N, 3, S, S) crops -> ``fg`` (N, C, S/4, S/4) mask logits,
+  ``kp`` (N, C 3 J, S/4, S/4) per-class offsets and confidence logits
+  (:class:`simtest.estimators.keypoints.crop_model.CropKeypointNet`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ __all__ = ["export_checkpoint", "OPSET", "INSTALL_HINT"]
 
 OPSET = 18
 INSTALL_HINT = "pip install 'simtest[train]' (torch, onnx, onnxscript)"
-_FORMATS = ("simtest-segmentation/1", "simtest-keypoints/1")
+_FORMATS = ("simtest-segmentation/1", "simtest-keypoints/1", "simtest-keypoints/2")
 
 
 def _network(ckpt: dict[str, Any]):
@@ -43,18 +46,27 @@ def _network(ckpt: dict[str, Any]):
     from simtest.estimators.keypoints.model import KeypointNet, NetConfig
 
     class _Tuple(torch.nn.Module):  # the exporter wants a tuple of outputs, the net returns a dict
-        def __init__(self, inner: torch.nn.Module) -> None:
+        def __init__(self, inner: torch.nn.Module, keys: tuple[str, ...]) -> None:
             super().__init__()
-            self.inner = inner
+            self.inner, self.keys = inner, keys
 
         def forward(self, x: torch.Tensor):
             out = self.inner(x)
-            return out["seg"], out["offsets"], out["conf_logit"]
+            return tuple(out[k] for k in self.keys)
+
+    if ckpt["format"] == "simtest-keypoints/2":
+        from simtest.estimators.keypoints.crop_model import CropKeypointNet, CropNetConfig
+
+        crop_net = CropKeypointNet(CropNetConfig.from_dict(ckpt["net"]))
+        crop_net.load_state_dict(ckpt["model"])
+        S = int(crop_net.cfg.crop_size)
+        example = torch.rand(2, 3, S, S, generator=torch.Generator().manual_seed(0))
+        return _Tuple(crop_net.eval(), ("fg", "kp")).eval(), example, ["fg", "kp"]
 
     net = KeypointNet(NetConfig.from_dict(ckpt["net"]))
     net.load_state_dict(ckpt["model"])
     example = torch.rand(2, 3, 240, 320, generator=torch.Generator().manual_seed(0))
-    return _Tuple(net.eval()).eval(), example, ["seg", "offsets", "conf_logit"]
+    return _Tuple(net.eval(), ("seg", "offsets", "conf_logit")).eval(), example, ["seg", "offsets", "conf_logit"]
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path | None = None, overwrite: bool = True) -> Path:

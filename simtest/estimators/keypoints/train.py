@@ -1,5 +1,11 @@
 """Training loop of the keypoint estimator (``simtest train keypoints``).
 
+Two networks: ``arch="crop"`` (the ``keypoints`` estimator: zoom-in crops around each object's jittered visible
+box, :class:`~simtest.estimators.keypoints.crops.KeypointCrops`, the crop network of :mod:`.crop_model`,
+checkpoints of format ``simtest-keypoints/2``) and ``arch="full"`` (the first, whole-image network of
+:mod:`.model`, format ``simtest-keypoints/1``, run by :class:`~simtest.estimators.keypoints.infer.KeypointEstimator`).
+Several training datasets are mixed with stated weights by :func:`simtest.data.labelled_mixture`.
+
 Every random choice is seeded from ``seed``: weights from a ``torch.Generator``, the sample order of epoch
 ``e`` from a generator keyed by ``(seed, e)``, corruptions per sample by ``(seed, e, index)``
 (:func:`simtest.data.sample_rng`). After each epoch the full state goes to ``OUT/last.pt`` (atomic write), so
@@ -19,10 +25,13 @@ from pathlib import Path
 from typing import Any, Callable
 
 from simtest.errors import ConfigError
-from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, export_beside, lr_at,
-                                        optimizer_step, pad16, settings_dict)
+from simtest.estimators.training import (TrainResult, check_settings, epoch_generator, epoch_loader, export_beside,
+                                        lr_at, optimizer_step, pad16, settings_dict)
 
-__all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model"]
+__all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model", "build_crop_model", "ARCHS"]
+
+#: Networks ``train_keypoints`` trains.
+ARCHS = ("crop", "full")
 
 
 @dataclass(frozen=True)
@@ -30,7 +39,10 @@ class TrainConfig:
     """Settings of one training run (all recorded in the checkpoints).
 
     Attributes:
-        data: Training BOP dataset folder. split: its split folder.
+        data: Training BOP dataset folder, or several (mixed). split: their split folder.
+        data_weights: Mixture weight per dataset of ``data`` (None: proportional to their sizes).
+        arch: ``crop`` (zoom-in crops, the ``keypoints`` estimator) or ``full`` (whole images, the first network).
+        margin: Crop window side / visible box side (``crop`` arch).
         out: Run folder (checkpoints, ``history.json``).
         val: Validation dataset folder (None: no validation). val_split: its split folder.
         val_images: Validate on the first N images only (None: all).
@@ -44,13 +56,14 @@ class TrainConfig:
         seed: Seed of everything random.
         workers: DataLoader worker processes.
         keypoints: ``bbox`` (8 corners) or ``fps``.
-        crop: ``(height, width)`` training crops around objects, or None for full images.
+        crop: ``full`` arch: ``(height, width)`` training crops around objects, or None for full images;
+            ``crop`` arch: the zoom-in crop size (square; None: 128).
         seg_weight: Weight of the segmentation loss against the keypoint loss.
         widths, decoder: Network channels (see :class:`~simtest.estimators.keypoints.model.NetConfig`).
         threads: torch CPU threads (None: torch's default).
     """
 
-    data: str
+    data: str | tuple[str, ...]
     out: str
     split: str = "train_pbr"
     val: str | None = None
@@ -71,9 +84,19 @@ class TrainConfig:
     widths: tuple[int, int, int, int] = (16, 32, 64, 96)
     decoder: tuple[int, int] = (64, 48)
     threads: int | None = None
+    data_weights: tuple[float, ...] | None = None
+    arch: str = "full"
+    margin: float = 1.3
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
+        if self.arch not in ARCHS:
+            raise ConfigError(f"keypoint training: arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
+        if self.arch == "crop" and self.crop is not None and (self.crop[0] != self.crop[1] or self.crop[0] % 16):
+            raise ConfigError(f"keypoint training: crop arch needs a square crop, a multiple of 16 pixels, got "
+                              f"{self.crop!r}")
+        if not 1.0 <= float(self.margin) <= 3.0:
+            raise ConfigError(f"keypoint training: margin must be in [1, 3], got {self.margin!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return settings_dict(self)
@@ -93,13 +116,35 @@ def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32,
     return net
 
 
-def validate(net, record: dict[str, Any], val: str, split: str, device: str, max_images: int | None
-             ) -> dict[str, Any]:
-    """ADD(-S)-0.1d (overall and per object) of the network on a validation dataset (GT masks as targets)."""
-    from simtest.estimators.keypoints.infer import KeypointEstimator
+def build_crop_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48),
+                     crop_size: int = 128, margin: float = 1.3):
+    """A freshly initialised crop network (:class:`~.crop_model.CropKeypointNet`), deterministic in ``seed``."""
+    import torch
+
+    from simtest.estimators.keypoints.crop_model import CropKeypointNet, CropNetConfig
+
+    cfg = CropNetConfig(num_classes=int(num_classes), num_keypoints=int(num_keypoints), widths=tuple(widths),
+                        decoder=tuple(decoder), crop_size=int(crop_size), margin=float(margin))
+    with torch.random.fork_rng(devices=[]):
+        net = CropKeypointNet(cfg)
+    net.init_weights(torch.Generator().manual_seed(int(seed)))
+    return net
+
+
+def validate(net, record: dict[str, Any], val: str, split: str, device: str, max_images: int | None,
+             arch: str = "full") -> dict[str, Any]:
+    """ADD(-S)-0.1d (overall and per object) of the network on a validation dataset (ground-truth masks or
+    boxes as targets)."""
     from simtest.evaluation.run import evaluate
 
-    est = KeypointEstimator(model=net, objects_record=record, device=device)
+    if arch == "crop":
+        from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
+
+        est = CropKeypointEstimator(model=net, objects_record=record, device=device, detect="gt")
+    else:
+        from simtest.estimators.keypoints.infer import KeypointEstimator
+
+        est = KeypointEstimator(model=net, objects_record=record, device=device)
     rep = evaluate(val, est, split=split, vsd=False, progress=False, max_images=max_images)
     net.train()
     return {"val_add_s_or_add_01d": float(rep.overall["add_s_or_add_01d"]),
@@ -108,34 +153,87 @@ def validate(net, record: dict[str, Any], val: str, split: str, device: str, max
             "val_median_te_m": float(rep.overall["median_te_m"])}
 
 
+def _loader(dataset, cfg: TrainConfig, epoch: int):
+    """The epoch's shuffled loader: whole images (:func:`epoch_loader`) or their crops (``collate_crops``)."""
+    if cfg.arch != "crop":
+        return epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
+    from torch.utils.data import DataLoader
+
+    from simtest.estimators.keypoints.crops import collate_crops
+
+    dataset.set_epoch(epoch)
+    return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+                      num_workers=int(cfg.workers), collate_fn=collate_crops, generator=epoch_generator(cfg.seed, epoch))
+
+
+def _losses(net, batch, cfg: TrainConfig):
+    """The loss dict of one batch (moved to the device) for the run's network."""
+    import torch
+
+    batch = {k: (v.to(cfg.device) if torch.is_tensor(v) else v) for k, v in batch.items()}
+    if cfg.arch == "crop":
+        from simtest.estimators.keypoints.crop_model import crop_loss
+
+        return crop_loss(net(batch["rgb"]), batch, net.cfg, cfg.seg_weight)
+    from simtest.estimators.keypoints.loss import make_targets, total_loss
+
+    x = pad16(batch["rgb"])
+    pred = net(x)
+    batch["rgb"] = x
+    tg = make_targets(batch, tuple(pred["seg"].shape[-2:]), net.cfg.stride, net.cfg.offset_scale)
+    out = total_loss(pred, tg, cfg.seg_weight)
+    out["fg"] = out.pop("seg")
+    return out
+
+
 def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoch: int, total_steps: int,
                  progress: bool) -> tuple[dict[str, float], int]:
     """One epoch of optimisation (cosine learning rate per step); returns the summed losses and the batch count."""
-    import torch
     from tqdm import tqdm
 
-    from simtest.estimators.keypoints.loss import make_targets, total_loss
-
-    loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
-    sums = {"loss": 0.0, "seg": 0.0, "kp": 0.0}
+    sums = {"loss": 0.0, "fg": 0.0, "kp": 0.0}
     n = 0
-    bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
-               dynamic_ncols=True, leave=False)
+    bar = tqdm(_loader(dataset, cfg, epoch), desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch",
+               disable=not progress, dynamic_ncols=True, leave=False)
     for i, batch in enumerate(bar):
+        if cfg.arch == "crop" and len(batch["labels"]) == 0:
+            continue
         step = epoch * steps_per_epoch + i
         for g in opt.param_groups:
             g["lr"] = lr_at(step, total_steps, cfg.lr)
-        x = pad16(batch["rgb"].to(cfg.device))
-        pred = net(x)
-        batch = {k: (v.to(cfg.device) if torch.is_tensor(v) else v) for k, v in batch.items()}
-        batch["rgb"] = x
-        tg = make_targets(batch, tuple(pred["seg"].shape[-2:]), net.cfg.stride, net.cfg.offset_scale)
-        losses = total_loss(pred, tg, cfg.seg_weight)
-        optimizer_step(net, opt, losses, sums)
+        optimizer_step(net, opt, _losses(net, batch, cfg), sums)
         n += 1
-        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", seg=f"{sums['seg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
+        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", fg=f"{sums['fg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
     bar.close()
     return sums, n
+
+
+def _setup(cfg: TrainConfig):
+    """``(record, objects, training feed, network)`` of a run: objects checked across the training and validation
+    datasets, the (mixed, augmented; cropped for the crop arch) feed, a seeded network on the device."""
+    from simtest.data import augmentation, labelled_mixture
+    from simtest.estimators.keypoints.checkpoint import check_objects, object_record
+    from simtest.estimators.keypoints.crops import KeypointCrops
+    from simtest.objects.loaders import load_dataset_objects
+
+    roots = [str(cfg.data)] if isinstance(cfg.data, (str, Path)) else [str(d) for d in cfg.data]
+    objects = load_dataset_objects(roots[0])
+    record = object_record(objects, cfg.keypoints)
+    for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
+        check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
+        # i.e. every other training dataset and the validation dataset must hold the same objects
+    crop = cfg.crop if cfg.arch == "full" else None
+    dataset = labelled_mixture(roots, cfg.split, cfg.data_weights, int(cfg.seed), objects=objects,
+                               keypoints=cfg.keypoints, transform=augmentation(list(cfg.augment), p=cfg.augment_p),
+                               crop=crop)
+    J, C = len(record["keypoints"][0]), len(record["obj_ids"])
+    if cfg.arch == "crop":
+        size = 128 if cfg.crop is None else int(cfg.crop[0])
+        dataset = KeypointCrops(dataset, size=size, margin=cfg.margin, seed=int(cfg.seed))
+        net = build_crop_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder, size, cfg.margin)
+    else:
+        net = build_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder)
+    return record, objects, dataset, net.to(cfg.device)
 
 
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,
@@ -149,10 +247,8 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     """
     import torch
 
-    from simtest.data import PoseDataset, augmentation
-    from simtest.estimators.keypoints.checkpoint import (FORMAT, check_objects, load_checkpoint, object_record,
-                                                         save_checkpoint)
-    from simtest.objects.loaders import load_dataset_objects
+    from simtest.estimators.keypoints.checkpoint import FORMAT, check_objects, load_checkpoint, save_checkpoint
+    from simtest.estimators.keypoints.crop_infer import CROP_FORMAT
     from simtest.io.files import atomic_write_text
 
     t_start = time.perf_counter()
@@ -161,27 +257,19 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
         raise ConfigError(f"device {cfg.device!r} asked but CUDA is not available to this torch build "
                           f"({torch.__version__}); use --device cpu")
+    fmt = CROP_FORMAT if cfg.arch == "crop" else FORMAT
     out = Path(cfg.out)
     last_path, best_path, model_path = out / "last.pt", out / "best.pt", out / "model.pt"
     if last_path.exists() and not resume:
         raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
                           "output folder")
-    objects = load_dataset_objects(cfg.data)
-    record = object_record(objects, cfg.keypoints)
-    if cfg.val is not None:
-        check_objects(record, load_dataset_objects(cfg.val), where=f"training dataset {cfg.data}")
-        # i.e. the validation dataset {cfg.val} must hold the same objects
-    dataset = PoseDataset(cfg.data, cfg.split, objects=objects, keypoints=cfg.keypoints,
-                          transform=augmentation(list(cfg.augment), p=cfg.augment_p), seed=int(cfg.seed),
-                          crop=cfg.crop)
-    J = len(record["keypoints"][0])
-    net = build_model(dataset.num_classes, J, int(cfg.seed), cfg.widths, cfg.decoder).to(cfg.device)
+    record, objects, dataset, net = _setup(cfg)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict[str, Any]] = []
     start_epoch = 0
     best = -1.0
     if resume and last_path.exists():
-        ck = load_checkpoint(last_path)
+        ck = load_checkpoint(last_path, fmt=fmt)
         check_objects(ck["objects"], objects, where=f"checkpoint {last_path}")
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
@@ -193,7 +281,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     total_steps = steps_per_epoch * cfg.epochs
 
     def checkpoint(epoch: int, with_optimizer: bool) -> dict[str, Any]:
-        return {"format": FORMAT, "net": net.cfg.to_dict(), "objects": record,
+        return {"format": fmt, "net": net.cfg.to_dict(), "objects": record,
                 "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": int(epoch),
                 "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
                 "train": cfg.to_dict()}
@@ -206,10 +294,10 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
                                "train_seconds": time.perf_counter() - t0}
         if cfg.val is not None:
             t1 = time.perf_counter()
-            rec.update(validate(net, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images))
+            rec.update(validate(net, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch))
             rec["val_seconds"] = time.perf_counter() - t1
         history.append(rec)
-        msg = (f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (seg {rec['seg']:.3f}, kp {rec['kp']:.3f}), "
+        msg = (f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (mask {rec['fg']:.3f}, kp {rec['kp']:.3f}), "
                f"{rec['train_seconds']:.0f} s")
         if "val_add_s_or_add_01d" in rec:
             msg += f"; val ADD(-S)-0.1d {100 * rec['val_add_s_or_add_01d']:.1f} %"

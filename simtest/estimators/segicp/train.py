@@ -32,7 +32,7 @@ from simtest.estimators.training import (TrainResult, check_settings, epoch_load
                                         optimizer_step, settings_dict)
 
 __all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
-           "FORMAT"]
+           "FORMAT", "data_roots"]
 
 
 
@@ -41,7 +41,9 @@ class SegTrainConfig:
     """Settings of one segmentation training run (recorded in the checkpoints).
 
     Attributes:
-        data, split: Training BOP dataset folder and split. out: Run folder.
+        data, split: Training BOP dataset folder (or several, mixed by :func:`simtest.data.labelled_mixture`)
+            and split. out: Run folder.
+        data_weights: Mixture weight per dataset of ``data`` (None: proportional to their sizes).
         val, val_split, val_images: Validation dataset (None: none), its split, first N images only.
         epochs, batch_size: Epochs in total (a resumed run continues up to it), images per step.
         lr, weight_decay: Peak AdamW learning rate (warm-up then cosine decay) and weight decay.
@@ -54,7 +56,7 @@ class SegTrainConfig:
         max_images: Train on the first N images only (None: all).
     """
 
-    data: str
+    data: str | tuple[str, ...]
     out: str
     split: str = "train_pbr"
     val: str | None = None
@@ -74,6 +76,7 @@ class SegTrainConfig:
     workers: int = 0
     threads: int | None = None
     max_images: int | None = None
+    data_weights: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         check_settings(self, "segmentation training")
@@ -181,13 +184,18 @@ def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
     return {"val_miou": float(iou.mean()) if len(iou) else 0.0, "val_pixel_acc": correct / max(total, 1)}
 
 
+def data_roots(data: str | tuple[str, ...] | list[str]) -> list[str]:
+    """The training dataset folders of a config's ``data`` (one folder or several)."""
+    return [str(data)] if isinstance(data, (str, Path)) else [str(d) for d in data]
+
+
 def _datasets(cfg: SegTrainConfig, objects: Any):
     """The training dataset (augmented, optionally cropped) and the validation dataset (or None)."""
-    from simtest.data import PoseDataset, augmentation
+    from simtest.data import PoseDataset, augmentation, labelled_mixture
 
-    train = PoseDataset(cfg.data, cfg.split, objects=objects, transform=augmentation(list(cfg.augment),
-                        p=cfg.augment_p), seed=int(cfg.seed), crop=cfg.crop, crop_jitter=0.5,
-                        max_images=cfg.max_images)
+    train = labelled_mixture(data_roots(cfg.data), cfg.split, cfg.data_weights, int(cfg.seed), objects=objects,
+                             transform=augmentation(list(cfg.augment), p=cfg.augment_p), crop=cfg.crop,
+                             crop_jitter=0.5, max_images=cfg.max_images)
     val = None
     if cfg.val is not None:
         val = PoseDataset(cfg.val, cfg.val_split, objects=objects, max_images=cfg.val_images)
@@ -219,13 +227,15 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
     if last_path.exists() and not resume:
         raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
                           "output folder")
-    objects = load_dataset_objects(cfg.data)
+    roots = data_roots(cfg.data)
+    objects = load_dataset_objects(roots[0])
     record = object_record(objects)
-    if cfg.val is not None:
-        check_objects(record, load_dataset_objects(cfg.val), where=f"training dataset {cfg.data}")
+    for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
+        check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
     dataset, val = _datasets(cfg, objects)
-    focal = float(dataset.load_numpy(0)["K"][0, 0])
-    net = build_segnet(dataset.num_classes, int(cfg.seed), cfg.depth_input, cfg.widths).to(cfg.device)
+    first = dataset.datasets[0] if hasattr(dataset, "datasets") else dataset
+    focal = float(first.load_numpy(0)["K"][0, 0])
+    net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths).to(cfg.device)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict[str, Any]] = []
     start_epoch, best = 0, -1.0

@@ -11,8 +11,8 @@ from simtest.data import PoseDataset, collate  # noqa: E402
 from simtest.errors import ConfigError  # noqa: E402
 from simtest.estimators import load_estimator  # noqa: E402
 from simtest.estimators.base import Observation  # noqa: E402
-from simtest.estimators.keypoints import (KeypointEstimator, check_objects, fuse_keypoints, load_checkpoint,  # noqa: E402
-                                          object_record, solve_pnp)
+from simtest.estimators.keypoints import check_objects, fuse_keypoints, load_checkpoint, object_record, solve_pnp  # noqa: E402
+from simtest.estimators.keypoints.infer import KeypointEstimator  # noqa: E402
 from simtest.estimators.keypoints.loss import confidence, keypoint_loss, make_targets, total_loss  # noqa: E402
 from simtest.estimators.keypoints.model import cell_centers  # noqa: E402
 from simtest.estimators.keypoints.train import TrainConfig, build_model, train_keypoints  # noqa: E402
@@ -150,7 +150,7 @@ def test_checkpoint_round_trip_and_resume(trained_run, small_dataset):
 
 def test_estimator_by_name_runs_in_eval(trained_run, small_dataset, tmp_path):
     _, res = trained_run
-    est = load_estimator("keypoints", checkpoint=str(res.model_path), top_n=4)
+    est = load_estimator("keypoints-full", checkpoint=str(res.model_path), top_n=4)
     assert isinstance(est, KeypointEstimator)
     rep = evaluate(small_dataset, est, vsd=False, progress=False, max_images=2)
     assert rep.overall["num_image_exceptions"] == 0

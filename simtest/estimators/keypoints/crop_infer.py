@@ -1,0 +1,268 @@
+"""The keypoint estimator (``keypoints``): detect, zoom in, predict keypoints with confidences, fuse, PnP. RGB only.
+
+1. Detection, one box per object found: ``detect="rgb"`` (default) by the shipped RGB-only segmentation network
+   of this estimator (``weights/keypoints_detector_builtin-small_320x240.onnx``, trained by ``simtest train
+   segmentation`` without ``--depth-input``), ``detect="segicp"`` by segicp's shipped RGB-D network (depth then
+   serves the detection only), ``detect="gt"`` from the targets' ground-truth visible boxes (the estimator then
+   declares ``needs_gt_masks``: its runs are labelled ``(GT masks)``). Boxes are the bounding boxes of the
+   connected regions of each class (:meth:`simtest.estimators.segicp.infer.Segmenter.regions`).
+2. Per detection a square window ``margin`` times the box's longer side, resampled to ``crop_size`` pixels,
+   with intrinsics ``K' = M K`` (:func:`~simtest.estimators.keypoints.crops.crop_intrinsics`).
+3. The crop network (:mod:`.crop_model`) gives, for the detection's class, per cell an object-mask probability,
+   keypoint offsets and confidences ``c = softplus(z)``.
+4. On the cells with mask probability >= ``fg_threshold``, per keypoint the ``top_n`` most confident
+   predictions are averaged with their confidences as weights (``fusion="confidence"``, :func:`fuse_keypoints`),
+   or all of them with equal weights (``fusion="uniform"``).
+5. The fused keypoints go back to the full image (``M^-1``) and PnP with the full ``K`` gives the pose
+   (:func:`~simtest.estimators.keypoints.infer.solve_pnp`: EPnP + LM, SQPnP + LM or RANSAC).
+
+The observation's depth is never read (``detect="segicp"`` excepted, for the detection). torch is imported only
+for a ``.pt`` checkpoint without its current ONNX file (or ``runtime=torch``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from simtest.errors import ConfigError
+from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, warp_crop
+from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
+from simtest.estimators.training import check_device
+
+__all__ = ["CropKeypointEstimator", "CROP_FORMAT", "DETECTORS", "FUSIONS", "default_checkpoint",
+           "default_detector", "crop_maps"]
+
+#: ``format`` of crop-network checkpoints.
+CROP_FORMAT = "simtest-keypoints/2"
+DETECTORS = ("rgb", "segicp", "gt")
+FUSIONS = ("confidence", "uniform")
+CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
+DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
+
+
+def _weights() -> Path:
+    return Path(__file__).resolve().parent.parent / "weights"
+
+
+def default_checkpoint() -> Path:
+    """The shipped crop-network checkpoint (``builtin-small``, 320x240 training images; its ONNX file beside)."""
+    return _weights() / CHECKPOINT_NAME
+
+
+def default_detector() -> Path:
+    """The shipped RGB-only segmentation checkpoint used for detection (its ONNX file beside it)."""
+    return _weights() / DETECTOR_NAME
+
+
+def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any]) -> dict[str, np.ndarray]:
+    """One crop's maps for class ``label`` (1..C) from the raw outputs ``fg`` (C, h, w) and ``kp`` (C 3 J, h, w):
+    ``prob`` (h, w) mask probability, ``points`` (J, 2, h, w) keypoints in crop pixels, ``conf`` (J, h, w)."""
+    from simtest.estimators.onnx_net import softplus
+
+    J, stride = int(cfg["num_keypoints"]), int(cfg.get("stride", 4))
+    h, w = fg.shape[-2:]
+    c = int(label) - 1
+    k = kp.reshape(-1, 3 * J, h, w)[c].astype(np.float64)
+    gx = np.arange(w) * stride + (stride - 1) / 2.0
+    gy = np.arange(h) * stride + (stride - 1) / 2.0
+    centers = np.stack(np.meshgrid(gx, gy, indexing="xy"))  # (2, h, w): x, y
+    points = k[:2 * J].reshape(J, 2, h, w) * float(cfg["offset_scale"]) + centers[None]
+    return {"prob": 1.0 / (1.0 + np.exp(-fg[c].astype(np.float64))), "points": points,
+            "conf": softplus(k[2 * J:])}
+
+
+class CropKeypointEstimator:
+    """Zoom-in keypoint pose estimator (registered as ``keypoints``); see the module doc.
+
+    Args:
+        checkpoint: Crop-network checkpoint from ``simtest train keypoints`` (``.pt`` or its ``.onnx``); None:
+            the shipped one (``builtin-small``).
+        detect: ``rgb``, ``segicp`` or ``gt`` (see the module doc).
+        detector: Segmentation checkpoint for ``detect=rgb`` (None: the shipped RGB-only one).
+        fusion: ``confidence`` (top ``top_n`` per keypoint, confidence-weighted) or ``uniform`` (all object cells,
+            equal weights).
+        top_n, min_conf: Fused predictions per keypoint and their confidence floor (:func:`fuse_keypoints`).
+        pnp: ``epnp``, ``sqpnp`` or ``ransac`` (:func:`solve_pnp`).
+        fg_threshold: Mask probability from which a cell votes (if fewer than 4 cells pass, the 8 most probable).
+        min_region_pixels: Smallest detected region (pixels).
+        device: ``cpu`` or ``cuda`` (torch runtime only). threads: CPU threads (None: 1 for ONNX Runtime).
+        runtime: ``auto``, ``onnx`` or ``torch`` (:func:`simtest.estimators.onnx_net.resolve_runtime`).
+
+    Raises:
+        ConfigError: Bad options, a missing or unreadable checkpoint; at :meth:`estimate`, an object set other
+            than the checkpoint's.
+    """
+
+    #: The object set of the shipped checkpoint.
+    default_object_set = "builtin-small"
+
+    def __init__(self, checkpoint: str | Path | None = None, detect: str = "rgb", detector: str | None = None,
+                 fusion: str = "confidence", top_n: int = 16, min_conf: float = 0.0, pnp: str = "epnp",
+                 fg_threshold: float = 0.5, min_region_pixels: int = 40, device: str = "cpu",
+                 threads: int | None = None, runtime: str = "auto", *, model: Any = None,
+                 objects_record: dict[str, Any] | None = None) -> None:
+        for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS)):
+            if val not in ok:
+                raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
+        if int(top_n) < 1:
+            raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
+        check_device(device, "keypoints")
+        self.detect, self.fusion, self.pnp = detect, fusion, pnp
+        self.top_n, self.min_conf, self.fg_threshold = int(top_n), float(min_conf), float(fg_threshold)
+        self.device = device
+        #: Ground-truth boxes are given (and runs labelled ``(GT masks)``) only with ``detect=gt``.
+        self.needs_gt_masks = detect == "gt"
+        self.net = self.model = None
+        if model is not None:
+            if objects_record is None:
+                raise ConfigError("keypoints: a model given in memory needs its objects_record")
+            self.model, self.runtime, self.checkpoint = model.to(device).eval(), "torch", None
+            self.cfg, self.record = model.cfg.to_dict(), objects_record
+        else:
+            self._load(checkpoint, runtime, threads)
+        self.kp3d = {int(i): np.asarray(k, np.float64) for i, k in zip(self.record["obj_ids"], self.record["keypoints"])}
+        self.class_ids = [int(i) for i in self.record["obj_ids"]]
+        self.segmenter = None
+        if detect != "gt":
+            from simtest.estimators.segicp.infer import Segmenter
+
+            path = None if detect == "segicp" else (detector or default_detector())
+            if detect == "rgb" and detector is None and not Path(path).is_file():
+                raise ConfigError(f"keypoints: the shipped detector {str(path)!r} is missing; pass "
+                                  "--opt detector=SEGMENTATION_CHECKPOINT or --opt detect=gt")
+            self.segmenter = Segmenter(path, "cpu", int(min_region_pixels), threads, runtime="auto")
+            if detect == "rgb" and self.segmenter.depth_input:
+                raise ConfigError(f"keypoints: detector {self.segmenter.checkpoint} reads depth; detect=rgb needs an "
+                                  "RGB-only segmentation network (simtest train segmentation without --depth-input)")
+        self.last_failures: list[dict[str, Any]] = []
+        self._checked: set[int] = set()
+
+    def _load(self, checkpoint: str | Path | None, runtime: str, threads: int | None) -> None:
+        from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
+
+        shipped = checkpoint is None
+        path = default_checkpoint() if shipped else Path(checkpoint)
+        if shipped and not path.is_file():
+            raise ConfigError(f"keypoints: the shipped checkpoint {str(path)!r} is missing; train one with "
+                              "`simtest train keypoints` and pass --opt checkpoint=PATH")
+        self.runtime, path = resolve_runtime(path, runtime, "keypoints")
+        self.checkpoint = str(path)
+        if self.runtime == "onnx":
+            if self.device != "cpu":
+                raise ConfigError(f"keypoints: the ONNX runtime runs on the CPU; device={self.device!r} needs "
+                                  "runtime=torch and a .pt checkpoint")
+            self.net = OnnxNet(path, CROP_FORMAT, threads)
+            self.cfg, self.record = self.net.meta["net"], self.net.meta["objects"]
+            return
+        import torch
+
+        from simtest.estimators.keypoints.crop_model import CropKeypointNet, CropNetConfig
+
+        if threads is not None:
+            torch.set_num_threads(int(threads))
+        ckpt = load_checkpoint(path, fmt=CROP_FORMAT)
+        net = CropKeypointNet(CropNetConfig.from_dict(ckpt["net"]))
+        net.load_state_dict(ckpt["model"])
+        self.model, self.cfg, self.record = net.to(self.device).eval(), dict(ckpt["net"]), ckpt["objects"]
+
+    def __repr__(self) -> str:
+        return (f"CropKeypointEstimator(checkpoint={self.checkpoint!r}, detect={self.detect!r}, "
+                f"fusion={self.fusion!r}, runtime={self.runtime!r})")
+
+    def check_objects(self, objects: Any) -> None:
+        """Raise :class:`ConfigError` unless ``objects`` is the set the network was trained for."""
+        if id(objects) not in self._checked:
+            check_objects(self.record, objects, where=f"keypoints checkpoint {self.checkpoint or '(in memory)'}")
+            if self.segmenter is not None:
+                self.segmenter.check_objects(objects)
+            self._checked.add(id(objects))
+
+    def _run(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.net is not None:
+            fg, kp = self.net.run(x)
+            return fg, kp
+        import torch
+
+        with torch.inference_mode():
+            out = self.model(torch.from_numpy(x).to(self.device))
+        return out["fg"].cpu().numpy(), out["kp"].cpu().numpy()
+
+    def detections(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float]]:
+        """``(target index or None, obj_id, box [x, y, w, h], detection score)`` per object found."""
+        from simtest.io.bop import mask_bbox
+
+        out = []
+        if self.detect == "gt":
+            obs.require_targets("keypoints (detect=gt)")
+            for k, (oid, m) in enumerate(zip(obs.target_obj_ids, obs.masks)):
+                m = np.asarray(m, bool)
+                if m.any():
+                    out.append((k, int(oid), np.asarray(mask_bbox(m), np.float64), 1.0))
+                else:
+                    self.last_failures.append({"obj_id": int(oid), "reason": "empty ground-truth mask"})
+            return out
+        seen = obs if self.detect == "segicp" else replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
+        for oid, mask, p in self.segmenter.regions(seen):
+            out.append((None, int(oid), np.asarray(mask_bbox(mask), np.float64), float(p)))
+        return out
+
+    def estimate(self, observation: Observation) -> list[PoseEstimate]:
+        """Pose estimates (metres, camera frame) of the detected objects (see the module doc)."""
+        obs = observation
+        self.check_objects(obs.objects)
+        self.last_failures = []
+        dets = [d for d in self.detections(obs) if self._known(d[1])]
+        if not dets:
+            return []
+        S = int(self.cfg["crop_size"])
+        K = np.asarray(obs.K, np.float64)
+        rgb = np.asarray(obs.rgb, np.float32) / np.float32(255.0)
+        maps_M = [crop_intrinsics(K, crop_window_for_box(box, float(self.cfg["margin"])), S)[1] for _, _, box, _ in dets]
+        x = np.stack([warp_crop(rgb, M, S).transpose(2, 0, 1) for M in maps_M]).astype(np.float32)
+        fg, kp = self._run(np.ascontiguousarray(x))
+        out = []
+        for n, ((k, oid, box, dscore), M) in enumerate(zip(dets, maps_M)):
+            maps = crop_maps(fg[n], kp[n], self.class_ids.index(oid) + 1, self.cfg)
+            try:
+                R, t, score, info = self._pose(maps, M, oid, K)
+            except (ValueError, cv2.error) as exc:
+                self.last_failures.append({"obj_id": oid, "reason": f"PnP failed: {exc}"})
+                continue
+            info["box"] = [float(v) for v in box]
+            out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
+        return out
+
+    def _known(self, oid: int) -> bool:
+        if oid in self.kp3d:
+            return True
+        self.last_failures.append({"obj_id": oid, "reason": f"object {oid} not in the trained set"})
+        return False
+
+    def _pose(self, maps: dict[str, np.ndarray], M: np.ndarray, oid: int, K: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
+        prob = maps["prob"]
+        cells = prob >= self.fg_threshold
+        if cells.sum() < 4:
+            flat = np.argsort(-prob, axis=None, kind="stable")[:8]
+            cells = np.zeros_like(prob, bool)
+            cells.flat[flat] = True
+        pts = maps["points"][:, :, cells].transpose(2, 0, 1)  # (M, J, 2) crop pixels
+        conf = maps["conf"][:, cells].T  # (M, J)
+        if self.fusion == "confidence":
+            kp, kc = fuse_keypoints(pts, conf, self.top_n, self.min_conf)
+        else:
+            kp, kc = pts.mean(0), conf.mean(0)
+        Minv = np.linalg.inv(M)
+        kp_full = kp @ Minv[:2, :2].T + Minv[:2, 2]
+        R, t, rms = solve_pnp(kp_full, self.kp3d[oid], K, self.pnp)
+        mc = float(kc.mean())
+        return R, t, mc / (1.0 + mc) * float(prob[cells].mean()), {
+            "cells": int(cells.sum()), "reproj_rms_px": rms, "keypoints_2d": kp_full.tolist(),
+            "keypoint_conf": kc.tolist()}

@@ -1,0 +1,167 @@
+"""The crop network of the keypoint estimator (torch): one zoom-in crop of a detected object in, per stride-4
+cell and per object class an object-mask logit, the offsets of the ``J`` projected keypoints and their
+confidence logits out.
+
+The class heads are separate: for a crop of class ``c`` (from the detector) only class ``c``'s channels are read
+(:func:`select_class`), so one network serves every object and two objects in one crop do not compete.
+Cell ``(i, j)`` has its centre at crop pixel ``(4 j + 1.5, 4 i + 1.5)`` (OpenCV pixel centres); offsets are in
+units of ``offset_scale`` crop pixels; the confidence is ``c = softplus(z)`` as in :mod:`.loss`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from simtest.estimators.blocks import Residual, conv_bn_relu
+from simtest.estimators.keypoints.loss import C_MAX, confidence
+from simtest.estimators.keypoints.model import cell_centers
+from simtest.estimators.training import init_conv_weights
+
+__all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "crop_targets", "crop_loss"]
+
+
+@dataclass(frozen=True)
+class CropNetConfig:
+    """Architecture and crop geometry of :class:`CropKeypointNet` (stored in checkpoints and ONNX files).
+
+    Attributes:
+        num_classes: Object classes. num_keypoints: Keypoints per object.
+        widths: Channels of the encoder stages at strides 2, 4, 8, 16. decoder: Decoder channels at 8 and 4.
+        offset_scale: Crop pixels per unit of the predicted offsets. stride: Output stride (4).
+        crop_size: Crop side the network is trained on (pixels). margin: Crop window side / box side.
+        coords: Append the cells' crop coordinates (x, y in [-1, 1]) to the stride-16 features and to the heads'
+            input, so the offsets from each cell (linear in its position) are easy to regress.
+    """
+
+    num_classes: int
+    num_keypoints: int = 8
+    widths: tuple[int, int, int, int] = (16, 32, 64, 96)
+    decoder: tuple[int, int] = (64, 48)
+    offset_scale: float = 32.0
+    stride: int = 4
+    crop_size: int = 128
+    margin: float = 1.3
+    coords: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["widths"], d["decoder"] = list(self.widths), list(self.decoder)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "CropNetConfig":
+        d = dict(d)
+        d["widths"], d["decoder"] = tuple(d["widths"]), tuple(d["decoder"])
+        return CropNetConfig(**d)
+
+
+class CropKeypointNet(nn.Module):
+    """Encoder (strides 2..16, dilated last stage) and a decoder with skips back to stride 4.
+
+    ``forward(x)`` takes ``(B, 3, S, S)`` RGB in [0, 1] (S a multiple of 16) and returns ``fg`` (B, C, S/4, S/4)
+    object-mask logits and ``kp`` (B, C * 3 J, S/4, S/4): per class ``c`` the ``2 J`` offsets
+    ``(dx_0, dy_0, ...)`` then the ``J`` confidence logits, at channels ``[3 J c, 3 J (c + 1))``.
+    """
+
+    MEAN = (0.485, 0.456, 0.406)
+    STD = (0.229, 0.224, 0.225)
+
+    def __init__(self, cfg: CropNetConfig) -> None:
+        super().__init__()
+        if cfg.stride != 4:
+            raise ValueError(f"only stride 4 is built, got {cfg.stride}")
+        self.cfg = cfg
+        w1, w2, w3, w4 = cfg.widths
+        d8, d4 = cfg.decoder
+        self.stem = nn.Sequential(conv_bn_relu(3, w1, 2), conv_bn_relu(w1, w1))
+        self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
+        self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
+        e = 2 if cfg.coords else 0
+        self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        self.s16b = nn.Sequential(conv_bn_relu(w4 + e, w4), Residual(w4, dilation=4))
+        self.up8 = nn.Sequential(conv_bn_relu(w4 + w3, d8), Residual(d8))
+        self.up4 = nn.Sequential(conv_bn_relu(d8 + w2, d4), Residual(d4))
+        C, J = cfg.num_classes, cfg.num_keypoints
+        self.fg_head = nn.Sequential(conv_bn_relu(d4 + e, d4), nn.Conv2d(d4, C, 1))
+        self.kp_head = nn.Sequential(conv_bn_relu(d4 + e, d4), nn.Conv2d(d4, 3 * J * C, 1))
+        self.register_buffer("mean", torch.tensor(self.MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
+
+    def init_weights(self, generator: torch.Generator) -> None:
+        """Deterministic initialisation from ``generator`` (Kaiming convolutions, small heads)."""
+        init_conv_weights(self, generator)
+        for head in (self.fg_head[-1], self.kp_head[-1]):
+            nn.init.normal_(head.weight, std=0.01, generator=generator)
+            nn.init.zeros_(head.bias)
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        x = (x - self.mean) / self.std
+        f2 = self.stem(x)
+        f4 = self.s4(f2)
+        f8 = self.s8(f4)
+        f16 = self.s16b(self._with_coords(self.s16(f8)))
+        u8 = self.up8(torch.cat([F.interpolate(f16, size=f8.shape[-2:], mode="bilinear", align_corners=False), f8], 1))
+        u4 = self._with_coords(self.up4(torch.cat([F.interpolate(u8, size=f4.shape[-2:], mode="bilinear",
+                                                                 align_corners=False), f4], 1)))
+        return {"fg": self.fg_head(u4), "kp": self.kp_head(u4)}
+
+    def _with_coords(self, f: torch.Tensor) -> torch.Tensor:
+        """``f`` with two more channels, the x and y of each cell's centre in [-1, 1] (when ``cfg.coords``)."""
+        if not self.cfg.coords:
+            return f
+        B, _, h, w = f.shape
+        ys = torch.linspace(-1.0, 1.0, h, device=f.device, dtype=f.dtype).view(1, 1, h, 1).expand(B, 1, h, w)
+        xs = torch.linspace(-1.0, 1.0, w, device=f.device, dtype=f.dtype).view(1, 1, 1, w).expand(B, 1, h, w)
+        return torch.cat([f, xs, ys], 1)
+
+
+def select_class(out: dict[str, torch.Tensor], labels: torch.Tensor, num_keypoints: int
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(fg (B, h, w), offsets (B, J, 2, h, w), conf_logit (B, J, h, w))`` of each crop's class
+    (``labels`` (B,) 1..C)."""
+    B, _, h, w = out["fg"].shape
+    J = num_keypoints
+    idx = (labels.to(out["fg"].device).long() - 1).clamp_min(0)
+    fg = out["fg"][torch.arange(B, device=idx.device), idx]
+    kp = out["kp"].reshape(B, -1, 3 * J, h, w)[torch.arange(B, device=idx.device), idx]
+    return fg, kp[:, :2 * J].reshape(B, J, 2, h, w), kp[:, 2 * J:]
+
+
+def crop_targets(batch: dict[str, torch.Tensor], grid: tuple[int, int], stride: int, offset_scale: float,
+                 min_coverage: float = 0.3) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(fg cells (B, h, w) bool, offsets (B, J, 2, h, w))``: a cell is object when the target's visible mask
+    covers at least ``min_coverage`` of it; offsets from every cell centre to the crop keypoints, in units of
+    ``offset_scale`` pixels."""
+    h, w = grid
+    m = batch["fg"].to(torch.float32)[:, None]
+    cov = F.avg_pool2d(m, stride)[:, 0]
+    centers = cell_centers(h, w, stride, m.device)  # (2, h, w)
+    kp = batch["keypoints_2d"].to(device=m.device, dtype=torch.float32)  # (B, J, 2)
+    off = (kp[:, :, :, None, None] - centers[None, None]) / offset_scale
+    return cov >= min_coverage, off
+
+
+def crop_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg: CropNetConfig,
+              fg_weight: float = 1.0) -> dict[str, torch.Tensor]:
+    """``{"loss", "fg", "kp"}``: binary cross-entropy of the class's mask logits (positives weighted to half
+    the total) plus the keypoint loss ``sum_j c_j |g_j - e_j|_1 - log c_j`` averaged over object cells."""
+    fg_logit, offsets, conf_logit = select_class(out, batch["labels"], cfg.num_keypoints)
+    fg, g = crop_targets(batch, tuple(fg_logit.shape[-2:]), cfg.stride, cfg.offset_scale)
+    pos = fg.to(fg_logit.dtype)
+    npos = pos.sum().clamp_min(1.0)
+    nneg = (1.0 - pos).sum().clamp_min(1.0)
+    wts = pos * (0.5 / npos) + (1.0 - pos) * (0.5 / nneg)
+    lfg = (F.binary_cross_entropy_with_logits(fg_logit, pos, reduction="none") * wts).sum()
+    if bool(fg.any()):
+        e = offsets.permute(0, 3, 4, 1, 2)[fg]  # (M, J, 2)
+        t = g.permute(0, 3, 4, 1, 2)[fg]
+        c = confidence(conf_logit.permute(0, 2, 3, 1)[fg]).clamp(1e-6, C_MAX)
+        lkp = (c * (t - e).abs().sum(-1) - torch.log(c)).sum(-1).mean()
+    else:
+        lkp = offsets.sum() * 0.0 + conf_logit.sum() * 0.0
+    return {"loss": fg_weight * lfg + lkp, "fg": lfg.detach(), "kp": lkp.detach()}

@@ -1,0 +1,167 @@
+"""The zoom-in keypoint estimator: crop geometry, a network overfitted on one image, checkpoints, ONNX."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simtest.errors import ConfigError
+from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, warp_crop
+
+
+def _K() -> np.ndarray:
+    return np.array([[307.5, 0.0, 159.3], [0.0, 306.9, 121.7], [0.0, 0.0, 1.0]])
+
+
+def test_crop_intrinsics_map_crop_pixels_to_full_image_pixels_exactly():
+    rng = np.random.default_rng(0)
+    K = _K()
+    for box, size in [((37.25, 12.5, 90.0, 90.0), 128), ((-20.0, 100.3, 51.7, 51.7), (64, 64)),
+                      ((10.0, 20.0, 160.0, 80.0), (40, 80))]:
+        Kc, M = crop_intrinsics(K, box, size)
+        assert np.array_equal(M[2], [0.0, 0.0, 1.0])
+        np.testing.assert_allclose(Kc, M @ K, rtol=0, atol=1e-12)
+        # 3D points projected with K' are the points projected with K, mapped by M (and back by M^-1)
+        X = rng.uniform([-0.2, -0.2, 0.4], [0.2, 0.2, 1.2], size=(50, 3))
+        p = (X @ K.T)[:, :2] / X[:, 2:]
+        pc = (X @ Kc.T)[:, :2] / X[:, 2:]
+        back = np.c_[pc, np.ones(len(pc))] @ np.linalg.inv(M).T
+        np.testing.assert_allclose(back[:, :2], p, rtol=0, atol=1e-9)
+        # the window's edges land on the crop's edges (OpenCV: pixel i covers [i - 0.5, i + 0.5])
+        h, w = (size, size) if isinstance(size, int) else size
+        x0, y0, bw, bh = box
+        corners = np.array([[x0, y0, 1.0], [x0 + bw, y0 + bh, 1.0]]) @ M.T
+        np.testing.assert_allclose(corners[:, :2], [[-0.5, -0.5], [w - 0.5, h - 0.5]], rtol=0, atol=1e-12)
+    # the whole image as its own window is the identity
+    _, M = crop_intrinsics(K, (-0.5, -0.5, 320, 240), (240, 320))
+    np.testing.assert_allclose(M, np.eye(3), rtol=0, atol=1e-15)
+    with pytest.raises(ConfigError, match="positive"):
+        crop_intrinsics(K, (0, 0, 0, 10), 16)
+
+
+def test_warped_crop_samples_the_full_image_at_m_inverse():
+    H, W = 240, 320
+    ramp_u = np.tile(np.arange(W, dtype=np.float32), (H, 1))
+    ramp_v = np.tile(np.arange(H, dtype=np.float32)[:, None], (1, W))
+    img = np.stack([ramp_u, ramp_v, np.zeros_like(ramp_u)], -1)
+    box = crop_window_for_box((100, 60, 70, 50), margin=1.3)
+    assert box[2] == box[3] == pytest.approx(1.3 * 71)
+    _, M = crop_intrinsics(_K(), box, 128)
+    crop = warp_crop(img, M, 128)
+    vs, us = np.mgrid[0:128, 0:128]
+    full = np.stack([us.ravel(), vs.ravel(), np.ones(us.size)], 1) @ np.linalg.inv(M).T
+    # bilinear resampling of a linear image is exact up to OpenCV's 1/32-pixel interpolation grid
+    np.testing.assert_allclose(crop[..., 0].ravel(), full[:, 0], atol=1 / 32 + 1e-4)
+    np.testing.assert_allclose(crop[..., 1].ravel(), full[:, 1], atol=1 / 32 + 1e-4)
+    mask = np.zeros((H, W), bool)
+    mask[60:111, 100:171] = True
+    assert warp_crop(mask, M, 128).dtype == bool
+
+
+torch = pytest.importorskip("torch")
+
+from simtest.data import PoseDataset  # noqa: E402
+from simtest.estimators.base import Observation  # noqa: E402
+from simtest.estimators.keypoints.checkpoint import object_record, save_checkpoint  # noqa: E402
+from simtest.estimators.keypoints.crop_infer import CROP_FORMAT, CropKeypointEstimator  # noqa: E402
+from simtest.estimators.keypoints.crop_model import crop_loss  # noqa: E402
+from simtest.estimators.keypoints.crops import KeypointCrops, collate_crops  # noqa: E402
+from simtest.estimators.keypoints.train import build_crop_model  # noqa: E402
+from simtest.metrics.pose import add, add_s  # noqa: E402
+from simtest.objects.loaders import load_dataset_objects  # noqa: E402
+
+
+def _observation(ds: PoseDataset, i: int, objects) -> tuple[Observation, dict]:
+    s = ds.load_numpy(i)
+    keep = [k for k in range(len(s["masks"])) if s["masks"][k].sum() >= 200]
+    obs = Observation(rgb=s["rgb"], depth=np.zeros(s["rgb"].shape[:2], np.float32), K=s["K"],
+                      width=s["rgb"].shape[1], height=s["rgb"].shape[0], objects=objects,
+                      target_obj_ids=tuple(int(s["obj_ids"][k]) for k in keep),
+                      masks=tuple(s["masks"][k] for k in keep))
+    return obs, {"keep": keep, "R": s["R"], "t": s["t"], "obj_ids": s["obj_ids"]}
+
+
+@pytest.fixture(scope="module")
+def overfitted(small_dataset):
+    """A small crop network fitted to the crops of one image (no augmentation, no box jitter)."""
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=1)
+    crops = KeypointCrops(ds, size=64, min_pixels=200, jitter_scale=0.0, jitter_shift=0.0)
+    batch = collate_crops([crops[0]])
+    assert len(batch["labels"]) >= 1
+    torch.manual_seed(0)
+    net = build_crop_model(ds.num_classes, 8, seed=0, widths=(16, 24, 32, 48), decoder=(32, 32), crop_size=64)
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    net.train()
+    losses = []
+    for _ in range(300):
+        out = crop_loss(net(batch["rgb"]), batch, net.cfg)
+        opt.zero_grad()
+        out["loss"].backward()
+        opt.step()
+        losses.append(float(out["kp"]))
+    return net.eval(), objects, ds, losses
+
+
+def test_a_network_overfitted_on_one_image_recovers_its_poses(overfitted):
+    net, objects, ds, losses = overfitted
+    assert losses[-1] < losses[0] - 5.0, losses[::50]
+    est = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt")
+    assert est.needs_gt_masks  # ground-truth boxes: runs labelled (GT masks)
+    obs, gt = _observation(ds, 0, objects)
+    found = est.estimate(obs)
+    assert len(found) == len(gt["keep"])
+    ok = 0
+    for e in found:
+        k = gt["keep"][e.target_index]
+        obj = objects.get(int(gt["obj_ids"][k]))
+        err = (add_s if obj.is_symmetric else add)(e.R, e.t, gt["R"][k], gt["t"][k], obj.vertices)
+        ok += err < 0.1 * obj.diameter
+    assert ok >= max(1, int(0.75 * len(found))), (ok, len(found))
+    # uniform fusion runs on the same maps
+    uni = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", fusion="uniform")
+    assert len(uni.estimate(obs)) == len(found)
+
+
+def test_checkpoint_loading_refuses_another_object_set(overfitted, tmp_path):
+    from simtest.objects import load_object_set
+
+    net, objects, ds, _ = overfitted
+    ckpt = {"format": CROP_FORMAT, "net": net.cfg.to_dict(), "objects": object_record(objects),
+            "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": 0, "optimizer": None,
+            "history": [], "train": {}}
+    path = save_checkpoint(tmp_path / "model.pt", ckpt)
+    assert torch.load(path, weights_only=True)["format"] == CROP_FORMAT
+    est = CropKeypointEstimator(checkpoint=path, detect="gt", runtime="torch")
+    est.check_objects(objects)  # its own set passes
+    other = load_object_set("builtin")
+    with pytest.raises(ConfigError, match="trained for objects"):
+        est.check_objects(other)
+    obs, _ = _observation(ds, 0, other)
+    with pytest.raises(ConfigError, match="trained for objects"):
+        est.estimate(obs)
+    # the ONNX file of the checkpoint carries the record and refuses too
+    pytest.importorskip("onnxscript")
+    from simtest.estimators.onnx_export import export_checkpoint
+
+    export_checkpoint(path)
+    onnx_est = CropKeypointEstimator(checkpoint=path, detect="gt")
+    assert onnx_est.runtime == "onnx"
+    with pytest.raises(ConfigError, match="trained for objects"):
+        onnx_est.check_objects(other)
+    a = est.estimate(_observation(ds, 0, objects)[0])
+    b = onnx_est.estimate(_observation(ds, 0, objects)[0])
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        np.testing.assert_allclose(x.t, y.t, atol=1e-3)
+    # a whole-image checkpoint is not a crop checkpoint
+    with pytest.raises(ConfigError, match="simtest-keypoints/2"):
+        CropKeypointEstimator(checkpoint=save_checkpoint(tmp_path / "v1.pt", {**ckpt, "format": "simtest-keypoints/1"}),
+                              detect="gt", runtime="torch")
+
+
+def test_estimator_options_are_checked():
+    with pytest.raises(ConfigError, match="detect 'depth'"):
+        CropKeypointEstimator(detect="depth")
+    with pytest.raises(ConfigError, match="fusion 'median'"):
+        CropKeypointEstimator(fusion="median")
