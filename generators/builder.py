@@ -279,9 +279,14 @@ class SceneBuilder:
                                    diffuse=list(spec.ceiling), specular=[0.1] * 3, castshadow=shadows)
 
     def _add_map(self, ms: mujoco.MjSpec, name: str, image: np.ndarray) -> str:
-        """Add a 2D texture ``name`` from an (H, W) or (H, W, C) uint8 image (row 0 at the top)."""
-        pixels = np.ascontiguousarray(image, dtype=np.uint8)
-        channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+        """Add a 2D texture ``name`` from an (H, W) or (H, W, C) uint8 image (row 0 at the top); a grey map is
+        stored as RGB (MuJoCo's rasterizer uploads no 1-channel texture, and the pbr profile's depth and masks
+        render through it)."""
+        pixels = np.asarray(image, dtype=np.uint8)
+        if pixels.ndim == 2:
+            pixels = np.repeat(pixels[..., None], 3, axis=2)
+        pixels = np.ascontiguousarray(pixels)
+        channels = pixels.shape[2]
         ms.add_texture(name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=pixels.shape[1],
                        height=pixels.shape[0], nchannel=channels).data = pixels.tobytes()
         return name

@@ -59,8 +59,8 @@ def test_a_cc0_set_is_a_full_material_in_the_pbr_profile(small_config, texture_d
             break
     else:
         pytest.fail("no scene drew the CC0 set for its floor")
-    np.testing.assert_array_equal(_texture_pixels(scene.model, "floor_mat", mujoco.mjtTextureRole.mjTEXROLE_ROUGHNESS),
-                                  maps.roughness)
+    rough = _texture_pixels(scene.model, "floor_mat", mujoco.mjtTextureRole.mjTEXROLE_ROUGHNESS)
+    np.testing.assert_array_equal(rough, np.repeat(maps.roughness[..., None], 3, axis=2))  # grey stored as RGB
     np.testing.assert_array_equal(_texture_pixels(scene.model, "floor_mat", mujoco.mjtTextureRole.mjTEXROLE_NORMAL),
                                   maps.normal)
 
