@@ -69,7 +69,7 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
 
     A body that drops below the table top (it fell off) is parked at :data:`FAR_AWAY` as soon as it is seen,
     so it neither keeps the scene "moving" nor appears in images; fallen object instances, and those that end
-    outside the table's footprint, are marked inactive in ``scene.active`` and reported in ``removed``.
+    outside the table's footprint (the room's floor without a table), are marked inactive in ``scene.active`` and reported in ``removed``.
     """
     m, d = scene.model, scene.data
     bodies = _free_bodies(m)
@@ -104,6 +104,8 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
             break
     removed = []
     hx, hy = cfg.table_size[0] / 2, cfg.table_size[1] / 2
+    if cfg.table_height <= 0.0:  # no table: objects rest anywhere on the room's floor
+        hx = hy = cfg.room_half_size
     for i, b in enumerate(scene.instance_bodies):
         x, y, z = d.xpos[b]
         if b in parked or z < cfg.table_height - 0.005 or abs(x) > hx or abs(y) > hy:

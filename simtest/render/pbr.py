@@ -435,8 +435,9 @@ class PbrRenderer:
             mat = int(m.geom_matid[g])
             repeat = m.mat_texrepeat[mat].astype(np.float64) if mat >= 0 else np.ones(2)
             half = size.copy()
-            if gtype == _G.mjGEOM_PLANE:
+            if gtype == _G.mjGEOM_PLANE:  # its surface is z = 0 of its frame; size[2] is the grid spacing
                 half[:2] = np.where(half[:2] > 0, half[:2], INFINITE_PLANE)
+                half[2] = 0.0
             v, f, n, uv = box_arrays(half, repeat, top_only=gtype == _G.mjGEOM_PLANE)
             return [self._with_bsdf(mesh_from_arrays(mi, name, v @ R.T + t, f, n @ R.T, uv), bsdf)]
         if gtype == _G.mjGEOM_SPHERE:
