@@ -80,6 +80,7 @@ class RandomCorrupt:
             kw["severity"] = int(self.severities[picks[1] % len(self.severities)])
         if self.occlusion_levels and draws[1] < self.p_each:
             kw["occlusion"] = int(self.occlusion_levels[picks[2] % len(self.occlusion_levels)])
+            kw["occlusion_kind"] = "paste"  # a training sample carries no cutout library: noise and crop shapes
         if self.depth_noise and draws[2] < self.p_each:
             kw["depth_noise"] = self.depth_noise[picks[3] % len(self.depth_noise)]
         if not kw:

@@ -128,7 +128,7 @@ def test_transforms_deterministic_per_seed_and_epoch(small_dataset):
 def test_corrupt_spec_transform_updates_visible_masks(small_dataset):
     from simtest.corrupt import CorruptionSpec
 
-    ds = PoseDataset(small_dataset, transform=Compose((Corrupt(CorruptionSpec(occlusion=3)),)), seed=0)
+    ds = PoseDataset(small_dataset, transform=Compose((Corrupt(CorruptionSpec(occlusion=3, occlusion_kind="paste")),)), seed=0)
     clean = PoseDataset(small_dataset)
     s, g = ds[0], clean[0]
     assert int(s["masks"].sum()) < int(g["masks"].sum())
