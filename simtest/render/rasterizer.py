@@ -169,8 +169,14 @@ class Renderer:
         if rgb:
             mujoco.mjr_render(self._rect, self._scene, self._con)
             buf = np.empty((self.height, self.width, 3), dtype=np.uint8)
-            mujoco.mjr_readPixels(buf, None, self._rect, self._con)
+            # RGB and depth without segmentation: the colour pass's depth buffer is the same geometry (one pass
+            # instead of two; not with MSAA, whose resolved depth blends samples at edges)
+            zbuf = np.empty((self.height, self.width), dtype=np.float32) if depth and not seg and \
+                self.profile != "quality" else None
+            mujoco.mjr_readPixels(buf, zbuf, self._rect, self._con)
             out_rgb = np.ascontiguousarray(buf[::-1])
+            if zbuf is not None:
+                return Frame(out_rgb, self._linear_depth(zbuf[::-1]), None)
         if depth or seg:
             s, z = self._seg_and_depth()
             out_seg = s if seg else None

@@ -87,3 +87,19 @@ def test_no_gl_backend_error_names_the_system_packages(monkeypatch, small_config
     monkeypatch.setattr(render.mujoco, "GLContext", broken)
     with pytest.raises(RenderError, match=r"eglInitialize failed.*libegl1.*libosmesa6"):
         Renderer(scene.model, 32, 24)
+
+
+def test_rgb_with_depth_in_one_pass_gives_the_segmentation_pass_depth(small_config):
+    """RGB + depth without segmentation reads the colour pass's depth buffer: the same values, bit for bit, as
+    the segmentation pass's depth (the exact depth of every ground-truth file)."""
+    objects = load_object_set(small_config.objects)
+    scene, *_ = prepare_scene(small_config, objects, 0)
+    r = Renderer(scene.model, small_config.camera.width, small_config.camera.height)
+    for cam, _ in scene_cameras(small_config, scene):
+        scene.set_camera(cam)
+        one = r.render(scene.data, scene.camera_id, rgb=True, depth=True, seg=False)
+        two = r.render(scene.data, scene.camera_id, rgb=True, depth=True, seg=True)
+        np.testing.assert_array_equal(one.depth, two.depth)
+        np.testing.assert_array_equal(one.rgb, two.rgb)
+        assert one.seg is None and (one.depth > 0).mean() > 0.5
+    r.close()
