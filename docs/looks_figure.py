@@ -1,4 +1,4 @@
-"""Make docs/images/looks.png: 8 random views per row of the built-in set, rendered by the fast and the pbr profile,
+"""Make docs/images/looks.jpg: 8 random views per row of the built-in set, rendered by the fast and the pbr profile,
 with the default recipe and with ``--recipe bop-pbr``.
 
 Run from the repository root (needs the pbr extra): ``python docs/looks_figure.py [OUT.png]``. Each row is the
@@ -55,8 +55,8 @@ def figure(out: Path) -> None:
             rows.append(np.full((4, row.shape[1], 3), 255, dtype=np.uint8))
     grid = np.concatenate(rows[:-1], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(grid).resize((grid.shape[1] // 2, grid.shape[0] // 2), Image.LANCZOS).save(out, optimize=True)
+    Image.fromarray(grid).resize((grid.shape[1] // 2, grid.shape[0] // 2), Image.LANCZOS).save(out, quality=85, optimize=True)
 
 
 if __name__ == "__main__":
-    figure(Path(sys.argv[1] if len(sys.argv) > 1 else "docs/images/looks.png"))
+    figure(Path(sys.argv[1] if len(sys.argv) > 1 else "docs/images/looks.jpg"))
