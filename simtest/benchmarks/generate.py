@@ -271,7 +271,7 @@ def _one_worker(cfg: GenerateConfig, objects, tmp: Path, rounds: int = 2
 
 def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int = 10, scenes: int = 8,
                    frames_per_scene: int = 10, objects: str = "builtin", two_workers: bool = True,
-                   seed: int = 0) -> GenerateBench:
+                   seed: int = 0, overrides: dict | None = None) -> GenerateBench:
     """Measure the pipeline (1 and 2 workers), its CPU time and raw MuJoCo on the same scenes (fast profile).
 
     One worker and raw MuJoCo run twice each, in the order pipeline, raw, raw, pipeline (their ratio sees the
@@ -279,6 +279,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     collision hulls, which a first run computes) and one warm-up frame (GL context start-up) are outside the
     1-worker figures.
     The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
+    ``overrides``: further generation values (dotted keys), e.g. the plain look of earlier releases.
     """
     from simtest.render.gl import available_cores
     from simtest.generators.pipeline import load_objects, generate, prepare_scene
@@ -286,7 +287,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     cfg = GenerateConfig().replace(**{
         "objects": objects, "scenes": scenes, "frames_per_scene": frames_per_scene, "camera.width": width,
         "camera.height": height, "scene.objects_per_scene": [objects_per_scene, objects_per_scene],
-        "render.profile": "fast", "seed": seed})
+        "render.profile": "fast", "seed": seed, **(overrides or {})})
     objs = load_objects(cfg)
     for scene_id in range(scenes):  # caches outside the timings: the scenes' meshes, collision hulls, symmetries
         prepare_scene(cfg, objs, scene_id)

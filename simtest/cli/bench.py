@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="views (frames) per settled scene (default 10; BOP's PBR recipe uses 25)")
     g.add_argument("--objects", default="builtin")
     g.add_argument("--no-workers", action="store_true", help="skip the 2-worker measurement")
+    g.add_argument("--plain-looks", action="store_true",
+                   help="without the material library, object prints and environment (materials.families = [], "
+                        "materials.object_textures = false, lights.environment = constant), as earlier releases")
     g.add_argument("--profiles", help="instead: seconds per frame of these render profiles, 1 and 2 workers, "
                                       "e.g. fast,quality,pbr")
     g.add_argument("--sizes", help="image sizes for --profiles, e.g. 320x240,640x480 (default --width x --height)")
@@ -127,14 +130,19 @@ def _backend(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The generation values of the plain look (no material library, prints or environment).
+PLAIN_LOOKS = {"materials.families": [], "materials.object_textures": False, "lights.environment": "constant"}
+
+
 def _generate(args: argparse.Namespace) -> int:
     from simtest.benchmarks.generate import bench_generate
 
     if args.profiles:
         code = _profiles(args)
     else:
+        looks = PLAIN_LOOKS if args.plain_looks else None
         res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
-                             args.objects, two_workers=not args.no_workers)
+                             args.objects, two_workers=not args.no_workers, overrides=looks)
         print(res.table())
         code = 0
     if args.channels:
