@@ -122,3 +122,37 @@ def test_bop_pbr_recipe_builds_its_room(tmp_path):
     assert scene.spec.ceiling is not None and 0.15 <= np.mean(scene.spec.ceiling) <= 0.6
     generate(cfg, tmp_path / "bop", progress=False)
     assert len(list((tmp_path / "bop" / "train_pbr" / "000000" / "rgb").iterdir())) == 2
+
+
+def test_hdri_folder_lights_pbr_and_keeps_ground_truth(tmp_path):
+    pytest.importorskip("mitsuba")
+    import cv2
+
+    folder = tmp_path / "hdri"
+    folder.mkdir()
+    env = np.full((32, 64, 3), 0.3, np.float32)
+    env[4:8, 20:24] = 60.0  # a small bright source high in the sky
+    assert cv2.imwrite(str(folder / "sky.hdr"), env[..., ::-1].copy())
+    (folder / "notes.txt").write_text("not a map")
+    cfg = _config(**{"render.profile": "pbr", "render.pbr_spp": 1, "frames_per_scene": 1,
+                     "lights.hdri": str(folder)})
+    scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
+    assert scene.spec.environment.kind == "hdri" and scene.spec.environment.source.endswith("sky.hdr")
+    assert scene.model.nlight == 0  # the map alone lights the pbr profile
+    generate(cfg, tmp_path / "lit", progress=False)
+    generate(_config(**{**PLAIN, "frames_per_scene": 1}), tmp_path / "plain", progress=False)
+    assert _ground_truth_differs(tmp_path / "plain", tmp_path / "lit") == []
+    fast = _config(**{"frames_per_scene": 1, "lights.hdri": str(folder)})
+    scene, *_ = prepare_scene(fast, load_objects(fast), 0)
+    assert scene.model.nlight >= 1  # the rasterizer draws the map's dominant direction as a light
+
+
+def test_unknown_family_and_bad_weights_are_refused():
+    from simtest.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="materials.families"):
+        _config(**{"materials.families": ["wood", "lava"]})
+    with pytest.raises(ConfigError, match="family_weights"):
+        _config(**{"materials.families": ["wood", "tiles"], "materials.family_weights": [1.0]})
+    with pytest.raises(ConfigError, match="lights.hdri"):
+        sample_environment(_config(**{"lights.environment": "hdri"}), appearance_rng(child_rng(0, 0)))
