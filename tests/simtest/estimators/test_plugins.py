@@ -83,7 +83,7 @@ def test_example_estimator_runs_in_eval_by_file_path(small_dataset, tmp_path, ca
                  "--max-images", "3", "--no-vsd", "--quiet", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["num_failures"] == 0 and metrics["overall"]["num_estimates"] == metrics["overall"]["num_targets"]
-    assert metrics["overall"]["median_te_m"] < 0.03  # the depth centroid finds the objects within centimetres
+    assert metrics["overall"]["median_te_m"] < 0.05  # the depth centroid finds the objects within a few centimetres
     assert main(["eval", "--data", str(small_dataset), "--estimator", EXAMPLE, "--opt", "push_bak=1",
                  "--out", str(tmp_path / "bad"), "--quiet"]) == 2
     assert "valid options: push_back=0.5, min_points=10" in capsys.readouterr().err
