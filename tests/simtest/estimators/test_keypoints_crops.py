@@ -58,6 +58,22 @@ def test_warped_crop_samples_the_full_image_at_m_inverse():
     assert warp_crop(mask, M, 128).dtype == bool
 
 
+def test_the_shipped_estimator_needs_no_options_and_reads_no_depth(small_dataset):
+    """`simtest eval --estimator keypoints` on builtin-small: the shipped crop network and RGB-only detector, both
+    through ONNX Runtime; no ground truth is asked for; another object set is refused."""
+    from simtest.estimators import load_estimator
+    from simtest.evaluation.run import evaluate
+    from simtest.objects import load_object_set
+
+    est = load_estimator("keypoints")
+    assert est.runtime == "onnx" and est.segmenter.runtime == "onnx"
+    assert not est.needs_gt_masks and not est.segmenter.depth_input
+    rep = evaluate(small_dataset, est, vsd=False, progress=False, max_images=2)
+    assert rep.overall["num_image_exceptions"] == 0
+    with pytest.raises(ConfigError, match="trained for objects"):
+        est.check_objects(load_object_set("builtin"))
+
+
 torch = pytest.importorskip("torch")
 
 from simtest.data import PoseDataset  # noqa: E402
