@@ -309,9 +309,10 @@ class SceneBuilder:
         """Material ``{name}_mat`` of a library material (:func:`simtest.generators.looks.surface_maps`)."""
         maps = surface_maps(self.cfg, s.material)
         self._add_map(ms, f"{name}_tex", maps.albedo)
+        rough = float(maps.roughness.mean() / 255.0)  # the rasterizer's shininess; pbr reads the map
         mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False,
-                              specular=float(maps.specular), shininess=float(1.0 - maps.roughness.mean() / 255.0),
-                              metallic=float(maps.metallic), roughness=float(maps.roughness.mean() / 255.0))
+                              specular=float(maps.specular), shininess=1.0 - rough, metallic=float(maps.metallic),
+                              roughness=rough)
         mat.textures = self._pbr_roles(ms, name, f"{name}_tex", maps.roughness, maps.normal)
         return f"{name}_mat"
 
@@ -365,8 +366,8 @@ class SceneBuilder:
         floor_mat = self._texture_material(ms, "floor", spec.floor, 1.0)
         ms.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[r, r, 0.1],
                               material=floor_mat, group=2, friction=list(OBJECT_FRICTION))
-        wall_mat = floor_mat if spec.walls is spec.floor or spec.walls == spec.floor and spec.floor.material \
-            else self._texture_material(ms, "wall", spec.walls, 1.0)
+        shared = spec.floor.material is not None and spec.walls == spec.floor  # materials.room_material = "shared"
+        wall_mat = floor_mat if shared else self._texture_material(ms, "wall", spec.walls, 1.0)
         for k, (pos, size) in enumerate([([r, 0, wh / 2], [0.05, r, wh / 2]), ([-r, 0, wh / 2], [0.05, r, wh / 2]),
                                           ([0, r, wh / 2], [r, 0.05, wh / 2]), ([0, -r, wh / 2], [r, 0.05, wh / 2])]):
             ms.worldbody.add_geom(name=f"wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,

@@ -49,20 +49,34 @@ def test_a_box_resting_on_a_plane_is_seen_above_the_plane():
 
 
 def test_an_environment_map_lights_the_scene_from_its_direction():
-    """A map that is bright only toward +x lights the box's +x side: with the camera looking down (image +x =
-    world +x), the right edge of the box's top is no darker than its left, and the floor is lit."""
+    """The map's convention (z up, row 0 the zenith, azimuth from +x toward +y) reaches the path tracer: a map
+    bright only toward +x (near the horizon) lights the +x side of a sphere, and one bright toward +y its +y side;
+    a map without light leaves the scene dark; a map that is not (H, 2H, 3) is refused."""
     from simtest.render.pbr import PbrRenderer
 
-    model, data, cam = _scene(light=False)
+    sphere = '<geom name="ball" type="sphere" size="0.05" pos="0 0 0.15" rgba="0.8 0.8 0.8 1"/>'
+    model, data, cam = _scene(sphere, light=False)
     model.vis.headlight.ambient[:] = 0.0
-    env = np.full((16, 32, 3), 0.02, np.float32)
-    env[6:10, 0] = env[6:10, -1] = 40.0  # theta ~ 90 deg, phi ~ 0: toward +x, just above the horizon
-    env[:6] = 2.0  # a bright upper sky
-    dark = PbrRenderer(model, cam, spp=4, environment=(env * 0.0, 1.0)).render(data, "cam").rgb
-    lit = PbrRenderer(model, cam, spp=4, environment=(env, 1.0)).render(data, "cam").rgb
-    assert lit.mean() > dark.mean() + 20
+
+    def side_brightness(column: int) -> dict[str, float]:
+        env = np.full((16, 32, 3), 0.01, np.float32)
+        env[7:9, column] = 400.0  # theta ~ 90 deg: the horizon; column c: azimuth 2 pi (c + 0.5) / 32
+        rgb = PbrRenderer(model, cam, spp=16, environment=(env, 1.0)).render(data, "cam").rgb.astype(float)
+        out = {}
+        for name, p in (("+x", (0.035, 0.0, 0.15)), ("-x", (-0.035, 0.0, 0.15)), ("+y", (0.0, 0.035, 0.15)),
+                        ("-y", (0.0, -0.035, 0.15))):
+            uv, _ = cam.project_world(np.array([p]))
+            u, v = int(round(float(uv[0, 0]))), int(round(float(uv[0, 1])))
+            out[name] = float(rgb[v - 1:v + 2, u - 1:u + 2].mean())
+        return out
+
+    toward_x, toward_y = side_brightness(0), side_brightness(8)  # azimuth ~ 0 (+x) and ~ 90 deg (+y)
+    assert toward_x["+x"] > toward_x["-x"] + 20, toward_x
+    assert toward_y["+y"] > toward_y["-y"] + 20, toward_y
+    dark = PbrRenderer(model, cam, spp=4, environment=(np.zeros((16, 32, 3), np.float32), 1.0)).render(data, "cam")
+    assert dark.rgb.mean() < 5
     with pytest.raises(Exception, match="H, 2H, 3"):
-        PbrRenderer(model, cam, spp=1, environment=(env[:, :16], 1.0))
+        PbrRenderer(model, cam, spp=1, environment=(np.zeros((16, 16, 3), np.float32), 1.0))
 
 
 def test_an_emissive_panel_lights_the_floor():
