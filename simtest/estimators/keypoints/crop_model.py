@@ -10,8 +10,7 @@ units of ``offset_scale`` crop pixels; the confidence is ``c = softplus(z)`` as 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
 
 import torch
 from torch import nn
@@ -19,14 +18,14 @@ from torch.nn import functional as F
 
 from simtest.estimators.blocks import Residual, conv_bn_relu
 from simtest.estimators.keypoints.loss import C_MAX, confidence
-from simtest.estimators.keypoints.model import cell_centers
+from simtest.estimators.keypoints.model import KeypointNet, NetConfig, cell_centers
 from simtest.estimators.training import init_conv_weights
 
 __all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "crop_targets", "crop_loss"]
 
 
 @dataclass(frozen=True)
-class CropNetConfig:
+class CropNetConfig(NetConfig):
     """Architecture and crop geometry of :class:`CropKeypointNet` (stored in checkpoints and ONNX files).
 
     Attributes:
@@ -38,26 +37,10 @@ class CropNetConfig:
             input, so the offsets from each cell (linear in its position) are easy to regress.
     """
 
-    num_classes: int
-    num_keypoints: int = 8
-    widths: tuple[int, int, int, int] = (16, 32, 64, 96)
-    decoder: tuple[int, int] = (64, 48)
-    offset_scale: float = 32.0
-    stride: int = 4
+    # the whole-image network's fields (num_classes .. stride, same defaults), then the crop's
     crop_size: int = 128
     margin: float = 1.3
     coords: bool = True
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["widths"], d["decoder"] = list(self.widths), list(self.decoder)
-        return d
-
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> "CropNetConfig":
-        d = dict(d)
-        d["widths"], d["decoder"] = tuple(d["widths"]), tuple(d["decoder"])
-        return CropNetConfig(**d)
 
 
 class CropKeypointNet(nn.Module):
@@ -68,8 +51,7 @@ class CropKeypointNet(nn.Module):
     ``(dx_0, dy_0, ...)`` then the ``J`` confidence logits, at channels ``[3 J c, 3 J (c + 1))``.
     """
 
-    MEAN = (0.485, 0.456, 0.406)
-    STD = (0.229, 0.224, 0.225)
+    MEAN, STD = KeypointNet.MEAN, KeypointNet.STD  # ImageNet statistics, only to centre the input
 
     def __init__(self, cfg: CropNetConfig) -> None:
         super().__init__()

@@ -50,11 +50,11 @@ class NetConfig:
         d["widths"], d["decoder"] = list(self.widths), list(self.decoder)
         return d
 
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> "NetConfig":
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "NetConfig":
         d = dict(d)
         d["widths"], d["decoder"] = tuple(d["widths"]), tuple(d["decoder"])
-        return NetConfig(**d)
+        return cls(**d)
 
 
 class KeypointNet(nn.Module):
