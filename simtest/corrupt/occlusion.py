@@ -151,7 +151,9 @@ class _Shape:
         ah, aw = self.alpha.shape
         k = 2.0 * r / max(ah, aw)
         ph, pw = max(1, int(round(ah * k))), max(1, int(round(aw * k)))
-        a = cv2.resize(self.alpha.astype(np.uint8), (pw, ph), interpolation=cv2.INTER_NEAREST)
+        # bilinear then halved: a cutout scaled up keeps a smooth outline (nearest-neighbour gives stairs)
+        a = (cv2.resize(self.alpha.astype(np.uint8) * 255, (pw, ph), interpolation=cv2.INTER_LINEAR) >= 128) \
+            .astype(np.uint8)
         x0, y0 = int(round(cx - pw / 2)), int(round(cy - ph / 2))
         xs0, ys0 = max(x0, 0), max(y0, 0)
         xs1, ys1 = min(x0 + pw, w), min(y0 + ph, h)
