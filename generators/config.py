@@ -134,6 +134,9 @@ class MaterialConfig:
     families: tuple[str, ...] = field(default=MATERIAL_FAMILIES, metadata=_bounds(choices=MATERIAL_FAMILIES))
     family_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
     variants: int = field(default=12, metadata=_bounds(1, 100_000))  # seeds per family (each made once, cached)
+    # the first of those seeds: seeds first_variant .. first_variant + variants - 1 (a test set with looks no
+    # training set drew: e.g. 1000 against the default 0)
+    first_variant: int = field(default=0, metadata=_bounds(0, 1_000_000_000))
     texture_size: int = field(default=256, metadata=_bounds(32, 2048))  # pixels per side of a material's maps
     room_material: Literal["per_surface", "shared"] = field(
         default="per_surface", metadata=_bounds(choices=("per_surface", "shared")))  # shared: one for floor and walls

@@ -62,7 +62,7 @@ def sample_material(cfg: GenerateConfig, look: np.random.Generator) -> str | Non
         return None
     weights = np.asarray(mat.family_weights or [1.0] * len(mat.families), dtype=np.float64)
     family = mat.families[int(look.choice(len(mat.families), p=weights / weights.sum()))]
-    return f"{family}:{int(look.integers(mat.variants))}"
+    return f"{family}:{mat.first_variant + int(look.integers(mat.variants))}"
 
 
 def _folder(folder: str):
@@ -108,7 +108,7 @@ def sample_environment(cfg: GenerateConfig, look: np.random.Generator) -> Enviro
         files = environment_files(lc.hdri)
         source = files[int(look.integers(len(files)))]
     else:
-        source = str(int(look.integers(cfg.materials.variants)))
+        source = str(cfg.materials.first_variant + int(look.integers(cfg.materials.variants)))
     return EnvironmentSpec(kind, source, float(look.uniform(0.0, 2.0 * math.pi)),
                            float(look.uniform(*lc.environment_strength)))
 

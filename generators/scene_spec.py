@@ -216,7 +216,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         plain = not mat.object_textures and "skin" in obj.extra
         rgba = (object_colour(obj, mat.colour_jitter, mat.texture_jitter, look, plain)
                 if mat.randomize_object_colour else (*obj.extra["skin"]["base_rgb"], 1.0) if plain else obj.rgba)
-        skin_seed = int(look.integers(mat.variants)) if mat.object_textures and "skin" in obj.extra else None
+        skin_seed = mat.first_variant + int(look.integers(mat.variants)) if mat.object_textures and "skin" in obj.extra else None
         placements.append(ObjectPlacement(
             obj_id=int(oid), position=tuple(float(v) for v in pos), quat_wxyz=quat, rgba=rgba,
             specular=float(look.uniform(*mat.specular)), shininess=float(look.uniform(*mat.shininess)),

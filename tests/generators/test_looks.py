@@ -52,14 +52,15 @@ def looks_runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("looks")
     runs = {"default": _config(), "again": _config(), "plain": _config(**PLAIN),
             "other_families": _config(**{"materials.families": ["concrete", "fabric"],
-                                          "lights.environment": "studio"})}
+                                          "lights.environment": "studio"}),
+            "unseen_variants": _config(**{"materials.first_variant": 1000})}
     for name, cfg in runs.items():
         generate(cfg, root / name, progress=False)
     return root
 
 
 def test_ground_truth_is_identical_with_and_without_materials(looks_runs):
-    for other in ("plain", "other_families"):
+    for other in ("plain", "other_families", "unseen_variants"):
         assert _ground_truth_differs(looks_runs / "default", looks_runs / other) == [], other
     rgb = sorted((looks_runs / "default" / "train_pbr" / "000000" / "rgb").iterdir())
     assert any(not filecmp.cmp(f, looks_runs / "plain" / "train_pbr" / "000000" / "rgb" / f.name, shallow=False)
@@ -156,3 +157,24 @@ def test_unknown_family_and_bad_weights_are_refused():
         _config(**{"materials.families": ["wood", "tiles"], "materials.family_weights": [1.0]})
     with pytest.raises(ConfigError, match="lights.hdri"):
         sample_environment(_config(**{"lights.environment": "hdri"}), appearance_rng(child_rng(0, 0)))
+
+
+def test_first_variant_draws_looks_no_default_run_draws(looks_runs):
+    """``materials.first_variant`` shifts every appearance seed (materials, environment, prints) past the
+    default range, the same draws otherwise: a test set whose looks a training set never saw."""
+    import json
+
+    def looks(name):
+        spec = json.loads((looks_runs / name / "train_pbr" / "000000" / "scene_info.json").read_text())["spec"]
+        return spec
+
+    default, unseen = looks("default"), looks("unseen_variants")
+    seeds = [p["skin_seed"] for p in default["objects"] if p.get("skin_seed") is not None]
+    shifted = [p["skin_seed"] for p in unseen["objects"] if p.get("skin_seed") is not None]
+    assert seeds and shifted == [s + 1000 for s in seeds]
+    assert all(0 <= s < 12 for s in seeds)
+    text_default, text_unseen = json.dumps(default), json.dumps(unseen)
+    assert text_default != text_unseen
+    rgb = looks_runs / "default" / "train_pbr" / "000000" / "rgb"
+    assert any(not filecmp.cmp(f, looks_runs / "unseen_variants" / "train_pbr" / "000000" / "rgb" / f.name,
+                               shallow=False) for f in sorted(rgb.iterdir())), "the unseen looks changed no pixel"
