@@ -72,24 +72,66 @@ def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, 
     """
     if len(tris) == 0:
         return np.zeros((0, 0), dtype=bool), (0, 0)
-    p = uv[tris]
+    topology = EdgeTopology(tris)
+    return _fill(uv, tris, topology, np.arange(len(tris)), np.ones(len(tris), dtype=np.int64))
+
+
+class EdgeTopology:
+    """The undirected edges of a triangle mesh and, per face, which edges it uses in which direction.
+
+    A face ``(a, b, c)`` uses edges ``a -> b``, ``b -> c``, ``c -> a``; :attr:`face_edge` holds their indices into
+    :attr:`edges` (``lo < hi`` pairs, sorted) and :attr:`face_sign` +1 where the face runs ``lo -> hi``, else -1.
+    Summing the signs of a set of faces per edge gives each edge's net winding weight, without sorting the faces'
+    edges again for every view.
+    """
+
+    def __init__(self, faces: np.ndarray) -> None:
+        faces = np.asarray(faces, dtype=np.int64)
+        a = faces.reshape(-1)
+        b = faces[:, [1, 2, 0]].reshape(-1)
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        key = lo * (int(hi.max()) + 1 if len(hi) else 1) + hi
+        uniq, inv = np.unique(key, return_inverse=True)
+        first = np.zeros(len(uniq), dtype=np.int64)
+        first[inv[::-1]] = np.arange(len(inv))[::-1]
+        self.edges = np.stack([lo[first], hi[first]], axis=1)
+        self.face_edge = inv.reshape(-1, 3)
+        self.face_sign = np.where(a < b, 1, -1).reshape(-1, 3)
+
+
+def edge_topology(obj) -> EdgeTopology:
+    """The :class:`EdgeTopology` of ``obj.faces``, made once per object model (its mesh is read-only)."""
+    cache = _TOPOLOGY.get(id(obj))
+    if cache is None or cache[0] is not obj:
+        cache = (obj, EdgeTopology(obj.faces))
+        _TOPOLOGY[id(obj)] = cache
+    return cache[1]
+
+
+#: ``{id(object model): (the model, its EdgeTopology)}`` (the model kept so that its id stays its own).
+_TOPOLOGY: dict[int, tuple] = {}
+
+
+def _fill(uv: np.ndarray, faces: np.ndarray, topology: EdgeTopology, sel: np.ndarray, orient: np.ndarray
+          ) -> tuple[np.ndarray, tuple[int, int]]:
+    """:func:`rasterize_silhouette` of faces ``sel`` of ``faces`` (their edges in ``topology``), each turned by
+    ``orient`` (+1 as stored, -1 reversed) so that all have the same 2D orientation."""
+    if len(sel) == 0:
+        return np.zeros((0, 0), dtype=bool), (0, 0)
+    p = uv[faces[sel]]
     x0 = int(np.ceil(p[..., 0].min() - 1e-9))
     y0 = int(np.ceil(p[..., 1].min() - 1e-9))
     x1 = int(np.floor(p[..., 0].max() + 1e-9))
     y1 = int(np.floor(p[..., 1].max() + 1e-9))
     if x1 < x0 or y1 < y0:
         return np.zeros((0, 0), dtype=bool), (0, 0)
-    # Directed edges; an undirected edge used in both directions (shared by two triangles) cancels out.
-    a = np.concatenate([tris[:, 0], tris[:, 1], tris[:, 2]])
-    b = np.concatenate([tris[:, 1], tris[:, 2], tris[:, 0]])
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    key = lo.astype(np.int64) * (int(hi.max()) + 1) + hi
-    uniq, inv = np.unique(key, return_inverse=True)
-    net = np.bincount(inv, weights=np.where(a < b, 1.0, -1.0), minlength=len(uniq)).astype(np.int64)
-    keep = net != 0
-    first = np.zeros(len(uniq), dtype=np.int64)
-    first[inv[::-1]] = np.arange(len(inv))[::-1]
-    ea, eb, w = lo[first[keep]], hi[first[keep]], net[keep]  # edge lo -> hi with winding weight w
+    # Net winding weight per undirected edge lo -> hi; an edge used in both directions (shared by two of the
+    # faces) cancels out.
+    signs = topology.face_sign[sel] * orient[:, None]
+    net = np.bincount(topology.face_edge[sel].reshape(-1), weights=signs.reshape(-1),
+                      minlength=len(topology.edges)).astype(np.int64)
+    keep = np.flatnonzero(net)
+    ea, eb, w = topology.edges[keep, 0], topology.edges[keep, 1], net[keep]
     pa, pb = uv[ea], uv[eb]
     # Canonical direction per edge (upward in y) so equal edges give bit-identical crossings.
     up = pa[:, 1] <= pb[:, 1]
@@ -99,20 +141,20 @@ def rasterize_silhouette(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, 
     r0 = np.ceil(s[:, 1]).astype(np.int64)  # rows with s.y <= row < e.y (half-open: vertices count once)
     r1 = np.ceil(e[:, 1]).astype(np.int64)
     n = np.maximum(r1 - r0, 0)
-    sel = n > 0
-    s, e, w, r0, n = s[sel], e[sel], w[sel], r0[sel], n[sel]
+    sel_e = n > 0
+    s, e, w, r0, n = s[sel_e], e[sel_e], w[sel_e], r0[sel_e], n[sel_e]
     idx = np.repeat(np.arange(len(n)), n)
     rows = r0[idx] + (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
     t = (rows - s[idx, 1]) / (e[idx, 1] - s[idx, 1])
     xc = s[idx, 0] + t * (e[idx, 0] - s[idx, 0])
     col = np.clip(np.ceil(xc).astype(np.int64) - x0, 0, x1 - x0 + 1)
     H, W = y1 - y0 + 1, x1 - x0 + 1
-    # A winding number is at most the triangle count in size, a step between two pixels twice that: 16 bits
-    # hold both exactly below 2^14 triangles (and sum faster than 32).
-    dtype = np.int16 if len(tris) < 2**14 else np.int32
-    diff = np.zeros((H, W + 1), dtype=dtype)
-    np.add.at(diff, (rows - y0, col), w[idx].astype(dtype))
-    mask = np.cumsum(diff[:, :W], axis=1, dtype=dtype) != 0
+    # Winding steps summed per pixel (small integers: exact in float64), then summed along each row. A winding
+    # number is at most the triangle count in size, a step between two pixels twice that: 16 bits hold both
+    # exactly below 2^14 triangles (and sum faster than 32).
+    diff = np.bincount((rows - y0) * (W + 1) + col, weights=w[idx], minlength=H * (W + 1)).reshape(H, W + 1)
+    dtype = np.int16 if len(sel) < 2**14 else np.int32
+    mask = np.cumsum(diff[:, :W].astype(dtype), axis=1, dtype=dtype) != 0
     return mask, (x0, y0)
 
 
@@ -131,16 +173,16 @@ def _silhouette(scene: SimScene | SceneState, i: int, obj, camera: CameraModel, 
     T = T_cam_world @ Pose(R, t)
     uv, z = camera.project(T.apply(obj.vertices))
     faces = obj.faces
-    f = faces[np.all(z[faces] > near, axis=1)]
-    # Front faces (positive 2D orientation): for a closed mesh their union is the silhouette.
-    pa, pb, pc = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
+    pa, pb, pc = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
     area2 = (pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0])
-    if obj.is_watertight:
-        sil, origin = rasterize_silhouette(uv, f[area2 > 0])
+    in_front = np.all(z[faces] > near, axis=1)
+    if obj.is_watertight:  # front faces (positive 2D orientation): for a closed mesh their union is the silhouette
+        sel = np.flatnonzero(in_front & (area2 > 0))
+        orient = np.ones(len(sel), dtype=np.int64)
     else:  # open mesh: fill every face, each turned to the same orientation
-        g = f.copy()
-        g[area2 < 0] = g[area2 < 0][:, ::-1]
-        sil, origin = rasterize_silhouette(uv, g[area2 != 0])
+        sel = np.flatnonzero(in_front & (area2 != 0))
+        orient = np.where(area2[sel] > 0, 1, -1)
+    sil, origin = _fill(uv, faces, edge_topology(obj), sel, orient)
     return T, sil, origin
 
 

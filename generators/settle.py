@@ -76,32 +76,23 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
     dt = m.opt.timestep
     steps_max = int(np.ceil(cfg.settle_max_time / dt))
     quiet_steps = max(1, int(round(quiet_time / dt)))
-    check_every = 10
-    quiet = 0
-    speed = np.inf
-    step = 0
     floor_z = cfg.table_height - 0.02
     parked: set[int] = set()
     # Light rotational damping (time constant ~0.2 s) ends the slow rocking of curved objects (a banana on
     # its side) without changing where they come to rest; translation stays undamped so drops are free fall.
-    radius = {b: body_radius(m, b) for b, _, _ in bodies}
+    radius = np.array([body_radius(m, b) for b, _, _ in bodies])
     for b, _, vadr in bodies:
         m.dof_damping[vadr + 3:vadr + 6] = ROCKING_DAMPING * float(np.max(m.body_inertia[b]))
-    while step < steps_max:
-        mujoco.mj_step(m, d, nstep=check_every)  # the same steps as one call each, in one release of the GIL
-        step += check_every
-        speed = 0.0
-        for b, qadr, vadr in bodies:
-            if b in parked:
-                continue
-            if d.xpos[b][2] < floor_z:
-                _park_body(m, d, b, qadr, vadr, len(parked))
-                parked.add(b)
-                continue
-            speed = max(speed, body_speed(m, d, b, vadr, radius[b]))
-        quiet = quiet + check_every if speed < cfg.settle_velocity else 0
-        if quiet >= quiet_steps:
-            break
+    # MuJoCo's sleeping: a group of bodies at rest (below opt.sleep_tolerance) stops being simulated until
+    # something touches it, so the steps cost less as the pile comes to rest (about a quarter less CPU time per
+    # scene; rest poses within a few millimetres of full simulation). Only while settling: restored after.
+    flags = int(m.opt.enableflags)
+    m.opt.enableflags = flags | int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    try:
+        step, quiet, speed = _step_until_rest(m, d, bodies, radius, parked, floor_z, cfg.settle_velocity,
+                                              steps_max, quiet_steps)
+    finally:
+        m.opt.enableflags = flags
     removed = []
     hx, hy = cfg.table_size[0] / 2, cfg.table_size[1] / 2
     if cfg.table_height <= 0.0:  # no table: objects rest anywhere on the room's floor
@@ -114,6 +105,39 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
         park(scene, i)
     mujoco.mj_forward(m, d)
     return SettleResult(float(step * dt), bool(quiet >= quiet_steps), tuple(removed), float(speed))
+
+
+def _step_until_rest(m: mujoco.MjModel, d: mujoco.MjData, bodies: list[tuple[int, int, int]], radius: np.ndarray,
+                     parked: set[int], floor_z: float, velocity: float, steps_max: int, quiet_steps: int,
+                     check_every: int = 10) -> tuple[int, int, float]:
+    """Step in blocks of ``check_every`` until every free body not parked is below ``velocity`` (m/s, fastest
+    point: :func:`body_speed`) for ``quiet_steps`` steps, or ``steps_max``; bodies below ``floor_z`` are parked
+    as they are seen (added to ``parked``).
+
+    Returns:
+        ``(steps taken, quiet steps at the end, fastest point speed in the last check)``.
+    """
+    ids = np.array([b for b, _, _ in bodies], dtype=np.int64)
+    dofs = np.array([v for _, _, v in bodies], dtype=np.int64)[:, None] + np.arange(6)
+    live = np.ones(len(bodies), dtype=bool)
+    step = quiet = 0
+    speed = np.inf
+    while step < steps_max:
+        mujoco.mj_step(m, d, nstep=check_every)  # the same steps as one call each, in one release of the GIL
+        step += check_every
+        fallen = np.flatnonzero(live & (d.xpos[ids, 2] < floor_z))
+        for k in fallen:
+            b, qadr, vadr = bodies[k]
+            _park_body(m, d, b, qadr, vadr, len(parked))
+            parked.add(b)
+            live[k] = False
+        v = d.qvel[dofs[live]]
+        speed = float(np.max(np.linalg.norm(v[:, :3], axis=1) + np.linalg.norm(v[:, 3:], axis=1) * radius[live],
+                             initial=0.0))
+        quiet = quiet + check_every if speed < velocity else 0
+        if quiet >= quiet_steps:
+            break
+    return step, quiet, speed
 
 
 def _park_body(m: mujoco.MjModel, d: mujoco.MjData, body: int, qadr: int, vadr: int, k: int) -> None:

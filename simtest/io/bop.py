@@ -33,7 +33,7 @@ from simtest.io.coco import coco_annotation, coco_scene
 from simtest.io.dense import write_png16
 from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed, private_partial_dir,
                               write_new_file)
-from simtest.io.png import encode_mask_png
+from simtest.io.png import encode_depth_png, encode_mask_png
 
 __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
@@ -104,11 +104,14 @@ def _png(img: np.ndarray, mask: bool = False) -> bytes:
     """Fast lossless PNG: zlib level 1 with the cheapest filter that still compresses well.
 
     Masks (``mask``: non-zero = inside, written as 0/255): :func:`simtest.io.png.encode_mask_png` (no filter,
-    run-length strategy, through zlib-ng); colour and depth: OpenCV with the SUB filter (faster than adaptive
-    filtering, as small or smaller here).
+    run-length strategy, through zlib-ng); one-channel 16-bit images (depth):
+    :func:`simtest.io.png.encode_depth_png` (SUB filter, zlib-ng level 2); colour: OpenCV with the SUB filter
+    (faster than adaptive filtering, as small or smaller here).
     """
     if mask:
         return encode_mask_png(img)
+    if img.ndim == 2 and img.dtype == np.uint16:  # depth (and one-channel 16-bit channels)
+        return encode_depth_png(img)
     params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
     ok, buf = cv2.imencode(".png", img, params)
     if not ok:  # pragma: no cover
@@ -135,9 +138,9 @@ def _write_rgb_file(path: Path, rgb: np.ndarray, jpg_quality: int) -> None:
 
 
 def _write_depth_file(path: Path, depth_m: np.ndarray, depth_scale: float) -> None:
-    """Write planar depth (metres) as a BOP uint16 depth PNG (:func:`encode_depth`) into the scene's private
-    folder."""
-    write_new_file(path, _png(encode_depth(depth_m, depth_scale)))
+    """Write planar depth (metres) as a BOP uint16 depth PNG (:func:`encode_depth`,
+    :func:`simtest.io.png.encode_depth_png`) into the scene's private folder."""
+    write_new_file(path, encode_depth_png(encode_depth(depth_m, depth_scale)))
 
 
 def rgb_to_bgr(rgb: np.ndarray) -> np.ndarray:
