@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,15 +101,18 @@ class EdgeTopology:
 
 
 def edge_topology(obj) -> EdgeTopology:
-    """The :class:`EdgeTopology` of ``obj.faces``, made once per object model (its mesh is read-only)."""
-    cache = _TOPOLOGY.get(id(obj))
-    if cache is None or cache[0] is not obj:
-        cache = (obj, EdgeTopology(obj.faces))
-        _TOPOLOGY[id(obj)] = cache
-    return cache[1]
+    """The :class:`EdgeTopology` of ``obj.faces``, made once per object model (its mesh is read-only) and
+    dropped with the model."""
+    entry = _TOPOLOGY.get(id(obj))
+    if entry is None or entry[0]() is not obj:
+        key = id(obj)
+        entry = (weakref.ref(obj), EdgeTopology(obj.faces))
+        _TOPOLOGY[key] = entry
+        weakref.finalize(obj, _TOPOLOGY.pop, key, None)
+    return entry[1]
 
 
-#: ``{id(object model): (the model, its EdgeTopology)}`` (the model kept so that its id stays its own).
+#: ``{id(object model): (weak reference to the model, its EdgeTopology)}``.
 _TOPOLOGY: dict[int, tuple] = {}
 
 
