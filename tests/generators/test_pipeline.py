@@ -101,6 +101,10 @@ def test_settled_objects_rest_without_interpenetration(tiny_config):
         mujoco.mj_forward(m, d)
         for c in d.contact[:d.ncon]:
             assert c.dist > -0.003, f"penetration {c.dist * 1000:.1f} mm between geoms {c.geom1} and {c.geom2}"
+        # bodies slept while settling; afterwards the flag is off again and every body simulates (the grasp env
+        # steps the same model)
+        assert not m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+        assert d.nbody_awake == m.nbody
 
 
 def test_bad_config_values_name_the_field(tmp_path):
