@@ -10,6 +10,13 @@ With zero noise every metric must report a perfect score; with noise the errors 
   (``te`` is Maxwell distributed, mean ``1.596 sigma``) in ``"halfnormal"`` mode; a uniformly random
   direction of length exactly ``trans_noise_mm`` in ``"fixed"`` mode.
 * ``drop_rate``: probability of returning no estimate for a target (a miss).
+* ``keypoint_noise_px``: the keypoint + PnP family's error model instead of a pose perturbation at the source:
+  the object's ``keypoints`` (``"bbox"``: the 8 box corners; ``"fps"``: its farthest-point-sampled surface
+  points) projected with the ground-truth pose and ``K``, each coordinate moved by ``N(0, keypoint_noise_px^2)``
+  pixels, and the pose solved by EPnP + Levenberg-Marquardt, as the ``keypoints`` estimator does. It tells how
+  accurate a keypoint network must be for a given score (docs/training.md); rotation and translation noise, when
+  also given, apply on top. Its draws come from a stream of their own, ``default_rng([seed, scene_id, im_id,
+  2])``, so the other options' draws are unchanged.
 
 The random stream is ``np.random.default_rng([seed, scene_id, im_id])``: the same seed gives the same noise
 for an image however the images are ordered or split between runs.
@@ -39,6 +46,7 @@ from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 __all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix"]
 
 _MODES = ("halfnormal", "fixed")
+_KEYPOINTS = ("bbox", "fps")
 
 
 def random_unit_vector(rng: np.random.Generator) -> np.ndarray:
@@ -69,6 +77,9 @@ class OracleEstimator:
         false_positives: Mean number of false positives per image (Poisson), >= 0.
         duplicates: Probability in [0, 1] of a second estimate beside an estimate.
         random_scores: Random scores instead of constant ones (see the module doc).
+        keypoint_noise_px: Standard deviation (pixels) of the noise on projected ground-truth keypoints, whose
+            PnP solution then replaces the ground-truth pose; 0 (default) leaves the pose exact.
+        keypoints: The keypoints of ``keypoint_noise_px``: ``"bbox"`` (default) or ``"fps"``.
 
     Attributes:
         needs_gt: Always True: the evaluation passes ground-truth poses in ``Observation.gt_poses``.
@@ -80,7 +91,8 @@ class OracleEstimator:
 
     def __init__(self, rot_noise_deg: float = 0.0, trans_noise_mm: float = 0.0, seed: int = 0,
                  drop_rate: float = 0.0, rot_noise_mode: str = "halfnormal", false_positives: float = 0.0,
-                 duplicates: float = 0.0, random_scores: bool = False) -> None:
+                 duplicates: float = 0.0, random_scores: bool = False, keypoint_noise_px: float = 0.0,
+                 keypoints: str = "bbox") -> None:
         if not rot_noise_deg >= 0:
             raise ConfigError(f"oracle: rot_noise_deg must be >= 0 degrees, got {rot_noise_deg!r}")
         if not trans_noise_mm >= 0:
@@ -93,7 +105,12 @@ class OracleEstimator:
             raise ConfigError(f"oracle: false_positives must be >= 0 per image, got {false_positives!r}")
         if not 0.0 <= duplicates <= 1.0:
             raise ConfigError(f"oracle: duplicates must be in [0, 1], got {duplicates!r}")
+        if not keypoint_noise_px >= 0:
+            raise ConfigError(f"oracle: keypoint_noise_px must be >= 0 pixels, got {keypoint_noise_px!r}")
+        if keypoints not in _KEYPOINTS:
+            raise ConfigError(f"oracle: keypoints must be one of {', '.join(_KEYPOINTS)}, got {keypoints!r}")
         check_int_options("oracle", ("seed", seed, 0))
+        self.keypoint_noise, self.keypoints = float(keypoint_noise_px), keypoints
         self.false_positives, self.duplicates = float(false_positives), float(duplicates)
         self.random_scores = bool(random_scores)
         self.rot_noise = float(np.radians(rot_noise_deg))
@@ -106,7 +123,8 @@ class OracleEstimator:
         return (f"OracleEstimator(rot_noise_deg={np.degrees(self.rot_noise):g}, "
                 f"trans_noise_mm={self.trans_noise * 1000:g}, seed={self.seed}, drop_rate={self.drop_rate:g}, "
                 f"rot_noise_mode={self.mode!r}, false_positives={self.false_positives:g}, "
-                f"duplicates={self.duplicates:g}, random_scores={self.random_scores})")
+                f"duplicates={self.duplicates:g}, random_scores={self.random_scores}, "
+                f"keypoint_noise_px={self.keypoint_noise:g}, keypoints={self.keypoints!r})")
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """One estimate per target, from ``observation.gt_poses`` (and the extras of the module doc).
@@ -119,13 +137,18 @@ class OracleEstimator:
             raise ConfigError("oracle: the observation has no gt_poses / target_obj_ids; evaluate with "
                               "targets='gt-masks' (the oracle needs ground-truth targets)")
         rng = observation.rng(self.seed)
+        kp_rng = np.random.default_rng([self.seed, max(observation.scene_id, 0), max(observation.im_id, 0), 2]) \
+            if self.keypoint_noise > 0 else None
         out = []
         for k, (obj_id, (R_g, t_g)) in enumerate(zip(ids, observation.gt_poses)):
             # Draw every number whether or not it is used, so options do not shift the stream.
             drop = rng.random() < self.drop_rate
             axis, u_rot = random_unit_vector(rng), rng.normal()
             d_dir, d_gauss = random_unit_vector(rng), rng.normal(size=3)
-            if drop:
+            info: dict = {}
+            if kp_rng is not None:
+                R_g, t_g, info = self._keypoint_pose(observation, int(obj_id), R_g, t_g, kp_rng)
+            if drop or R_g is None:
                 continue
             if self.mode == "fixed":
                 angle, dt = self.rot_noise, d_dir * self.trans_noise
@@ -134,10 +157,28 @@ class OracleEstimator:
             R = axis_angle_matrix(axis, angle) @ np.asarray(R_g, dtype=np.float64)
             t = np.asarray(t_g, dtype=np.float64) + dt
             out.append(PoseEstimate(obj_id=int(obj_id), R=R, t=t, score=1.0, target_index=k,
-                                    info={"rot_noise_rad": float(angle), "trans_noise_m": float(np.linalg.norm(dt))}))
+                                    info={"rot_noise_rad": float(angle), "trans_noise_m": float(np.linalg.norm(dt)),
+                                          **info}))
         if self.false_positives or self.duplicates or self.random_scores:
             out = self._extras(observation, out)
         return out
+
+    def _keypoint_pose(self, obs: Observation, obj_id: int, R_g, t_g, rng: np.random.Generator):
+        """``(R, t, info)`` solved by PnP from the ground-truth keypoints projected with ``obs.K`` plus noise
+        (``R`` None when PnP fails: no estimate, as a real keypoint pipeline would give none)."""
+        from simtest.estimators.keypoints.infer import solve_pnp
+
+        obj = obs.objects.get(obj_id)
+        kp3 = np.asarray(obj.keypoints_bbox if self.keypoints == "bbox" else obj.keypoints_fps, dtype=np.float64)
+        cam = kp3 @ np.asarray(R_g, dtype=np.float64).T + np.asarray(t_g, dtype=np.float64)
+        uv = cam @ np.asarray(obs.K, dtype=np.float64).T
+        uv = uv[:, :2] / uv[:, 2:3]
+        uv += rng.normal(0.0, self.keypoint_noise, size=uv.shape)
+        try:
+            R, t, rms = solve_pnp(uv, kp3, obs.K)
+        except ValueError:
+            return None, None, {}
+        return R, t, {"keypoint_noise_px": self.keypoint_noise, "pnp_rms_px": float(rms)}
 
     def _extras(self, obs: Observation, out: list[PoseEstimate]) -> list[PoseEstimate]:
         """``out`` with random scores, duplicates and false positives (see the module doc), from the second

@@ -62,6 +62,28 @@ def test_oracle_noise_gives_expected_errors(small_dataset):
     assert 0.004 < np.mean([r["te"] for r in half.errors]) < 0.012
 
 
+def test_oracle_keypoint_noise_is_pnp_from_noisy_ground_truth_keypoints(small_dataset):
+    def run(**opts):
+        return evaluate(small_dataset, "oracle", estimator_options=opts, progress=False, vsd=False)
+
+    exact = run(keypoint_noise_px=1e-6)  # PnP from exact keypoints gives the pose back
+    assert exact.overall["num_matched"] == exact.overall["num_targets"]
+    assert max(r["re"] for r in exact.errors) < 1e-3 and max(r["te"] for r in exact.errors) < 1e-5
+    noisy, again = run(keypoint_noise_px=3.0, keypoints="fps"), run(keypoint_noise_px=3.0, keypoints="fps")
+    te = [r["te"] for r in noisy.errors if r["matched"]]
+    assert te == [r["te"] for r in again.errors if r["matched"]]  # seeded
+    assert np.median(te) > 1e-3  # pixels of noise are millimetres in depth
+    # its own stream: the other options' draws (here which targets are dropped) do not move
+    dropped = {(r["scene_id"], r["im_id"], r["gt_id"]) for r in run(drop_rate=0.5).errors if not r["matched"]}
+    both = {(r["scene_id"], r["im_id"], r["gt_id"]) for r in run(drop_rate=0.5, keypoint_noise_px=3.0).errors
+            if not r["matched"]}
+    assert dropped and dropped == both
+    with pytest.raises(Exception, match="keypoint_noise_px must be >= 0"):
+        run(keypoint_noise_px=-1.0)
+    with pytest.raises(Exception, match="keypoints must be one of bbox, fps"):
+        run(keypoint_noise_px=1.0, keypoints="corners")
+
+
 def test_raising_estimator_is_recorded_and_run_completes(small_dataset, tmp_path):
     rep = evaluate(small_dataset, Raising(), out_dir=tmp_path, progress=False, vsd=False)
     assert rep.num_images == 6
