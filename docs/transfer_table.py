@@ -2,7 +2,7 @@
 
 Run from the repository root (needs the pbr and train extras)::
 
-    python docs/transfer_table.py --out /tmp/transfer            # the README's table (about 1.5 h on 2 cores)
+    python docs/transfer_table.py --out /tmp/transfer            # the README's table (about 75 min on 2 cores)
     python docs/transfer_table.py --out /tmp/t --small           # the same steps at toy size (minutes)
 
 Every model sees the same scenes, the same number of images and the same optimisation steps; only the renderer of
