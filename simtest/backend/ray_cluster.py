@@ -159,10 +159,14 @@ def release() -> None:
         ray = _ray_module()
         if ray.is_initialized():
             ray.shutdown()
-    for k, v in list(_OUR_ENV.items()):  # the auth settings of a local instance end with it
-        if os.environ.get(k) == v:
-            del os.environ[k]
-        del _OUR_ENV[k]
+    if _OUR_ENV:
+        for k, v in list(_OUR_ENV.items()):  # the auth settings of a local instance end with it
+            if os.environ.get(k) == v:
+                del os.environ[k]
+            del _OUR_ENV[k]
+        # ... in Ray's core too, which read them when the instance started: a later ray.init() of the user's
+        # in this process would otherwise still ask for token authentication, without the token
+        _refresh_ray_config()
 
 
 def _condense_ray_errors() -> None:
