@@ -91,11 +91,9 @@ class EdgeTopology:
         a = faces.reshape(-1)
         b = faces[:, [1, 2, 0]].reshape(-1)
         lo, hi = np.minimum(a, b), np.maximum(a, b)
-        key = lo * (int(hi.max()) + 1 if len(hi) else 1) + hi
-        uniq, inv = np.unique(key, return_inverse=True)
-        first = np.zeros(len(uniq), dtype=np.int64)
-        first[inv[::-1]] = np.arange(len(inv))[::-1]
-        self.edges = np.stack([lo[first], hi[first]], axis=1)
+        base = int(hi.max()) + 1 if len(hi) else 1
+        uniq, inv = np.unique(lo * base + hi, return_inverse=True)  # sorted by (lo, hi)
+        self.edges = np.stack([uniq // base, uniq % base], axis=1)
         self.face_edge = inv.reshape(-1, 3)
         self.face_sign = np.where(a < b, 1, -1).reshape(-1, 3)
 
