@@ -40,6 +40,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate, check_int_options
 
@@ -171,8 +172,7 @@ class OracleEstimator:
         obj = obs.objects.get(obj_id)
         kp3 = np.asarray(obj.keypoints_bbox if self.keypoints == "bbox" else obj.keypoints_fps, dtype=np.float64)
         cam = kp3 @ np.asarray(R_g, dtype=np.float64).T + np.asarray(t_g, dtype=np.float64)
-        uv = cam @ np.asarray(obs.K, dtype=np.float64).T
-        uv = uv[:, :2] / uv[:, 2:3]
+        uv = np.stack(pinhole_pixels(np.asarray(obs.K, dtype=np.float64), cam), axis=1)
         uv += rng.normal(0.0, self.keypoint_noise, size=uv.shape)
         try:
             R, t, rms = solve_pnp(uv, kp3, obs.K)
