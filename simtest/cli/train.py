@@ -47,6 +47,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "full (whole images, the keypoints-full estimator)")
     p.add_argument("--margin", type=float, default=1.3,
                    help="keypoints --arch crop: crop side / object box side (default: 1.3)")
+    p.add_argument("--no-dense", dest="dense", action="store_false",
+                   help="keypoints --arch crop: no object-coordinate head (keypoint offsets only; default: both, "
+                        "the estimator then solves the pose from the dense correspondences)")
+    p.add_argument("--hypotheses", type=int, metavar="H",
+                   help="keypoints --arch crop: object-coordinate hypotheses per cell, trained winner-takes-all "
+                        "(default: 4)")
+    p.add_argument("--xyz-weight", type=float, metavar="W",
+                   help="keypoints --arch crop: weight of the object-coordinate loss (default: 3)")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -129,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 
     cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
-                      margin=args.margin, **common)
+                      margin=args.margin, dense=args.dense, **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

@@ -9,7 +9,8 @@ inputs and outputs:
 * keypoints (``simtest-keypoints/1``): ``input`` (N, 3, H, W) -> ``seg`` (N, C+1, H/4, W/4), ``offsets``
   (N, J, 2, H/4, W/4), ``conf_logit`` (N, J, H/4, W/4);
 * keypoint crops (``simtest-keypoints/2``): ``input`` (N, 3, S, S) crops -> ``fg`` (N, C, S/4, S/4) mask logits,
-  ``kp`` (N, C 3 J, S/4, S/4) per-class offsets and confidence logits
+  ``kp`` (N, C 3 J, S/4, S/4) per-class offsets and confidence logits and, for a dense network, ``xyz``
+  (N, 4 C, S/4, S/4) object coordinates and their confidence logits
   (:class:`simtest.estimators.keypoints.crop_model.CropKeypointNet`).
 """
 
@@ -61,7 +62,8 @@ def _network(ckpt: dict[str, Any]):
         crop_net.load_state_dict(ckpt["model"])
         S = int(crop_net.cfg.crop_size)
         example = torch.rand(2, 3, S, S, generator=torch.Generator().manual_seed(0))
-        return _Tuple(crop_net.eval(), ("fg", "kp")).eval(), example, ["fg", "kp"]
+        names = ["fg", "kp"] + (["xyz"] if crop_net.cfg.dense else [])
+        return _Tuple(crop_net.eval(), tuple(names)).eval(), example, names
 
     net = KeypointNet(NetConfig.from_dict(ckpt["net"]))
     net.load_state_dict(ckpt["model"])

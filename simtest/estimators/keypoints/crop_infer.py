@@ -16,6 +16,14 @@
 5. The fused keypoints go back to the full image (``M^-1``) and PnP with the full ``K`` gives the pose
    (:func:`~simtest.estimators.keypoints.infer.solve_pnp`: EPnP + LM, SQPnP + LM or RANSAC).
 
+A network with the object-coordinate head (``dense`` in its config; ``simtest train keypoints`` trains it by
+default) predicts per object cell the model-frame 3D point it sees and a confidence; with ``solver="dense"``
+(the default for such a network) those cells are the 2D-3D correspondences instead of the 8 fused keypoints:
+the cell centres mapped to the full image against their predicted points, the ``dense_keep`` most confident
+fraction of them (``fusion="confidence"``) or all (``fusion="uniform"``), solved by RANSAC EPnP (threshold
+``ransac_px`` full-image pixels) and LM on the inliers. Hundreds of correspondences average out the error of
+each one, which 8 keypoints cannot.
+
 The observation's depth is never read (``detect="segicp"`` excepted, for the detection). torch is imported only
 for a ``.pt`` checkpoint without its current ONNX file (or ``runtime=torch``).
 """
@@ -29,6 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
@@ -43,6 +52,7 @@ __all__ = ["CropKeypointEstimator", "CROP_FORMAT", "DETECTORS", "FUSIONS", "defa
 CROP_FORMAT = "simtest-keypoints/2"
 DETECTORS = ("rgb", "segicp", "gt")
 FUSIONS = ("confidence", "uniform")
+SOLVERS = ("auto", "dense", "keypoints")
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -61,9 +71,12 @@ def default_detector() -> Path:
     return _weights() / DETECTOR_NAME
 
 
-def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any]) -> dict[str, np.ndarray]:
+def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any], xyz: np.ndarray | None = None
+              ) -> dict[str, np.ndarray]:
     """One crop's maps for class ``label`` (1..C) from the raw outputs ``fg`` (C, h, w) and ``kp`` (C 3 J, h, w):
-    ``prob`` (h, w) mask probability, ``points`` (J, 2, h, w) keypoints in crop pixels, ``conf`` (J, h, w)."""
+    ``prob`` (h, w) mask probability, ``points`` (J, 2, h, w) keypoints in crop pixels, ``conf`` (J, h, w),
+    ``centers`` (2, h, w) the cells' centres (crop pixels); with ``xyz`` (4 H C, h, w) also ``xyz``
+    (H, 3, h, w) model-frame points (metres) and ``xyz_conf`` (H, h, w) of the ``H`` hypotheses."""
     from simtest.estimators.onnx_net import softplus
 
     J, stride = int(cfg["num_keypoints"]), int(cfg.get("stride", 4))
@@ -74,8 +87,13 @@ def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any]) -
     gy = np.arange(h) * stride + (stride - 1) / 2.0
     centers = np.stack(np.meshgrid(gx, gy, indexing="xy"))  # (2, h, w): x, y
     points = k[:2 * J].reshape(J, 2, h, w) * float(cfg["offset_scale"]) + centers[None]
-    return {"prob": 1.0 / (1.0 + np.exp(-fg[c].astype(np.float64))), "points": points,
-            "conf": softplus(k[2 * J:])}
+    out = {"prob": 1.0 / (1.0 + np.exp(-fg[c].astype(np.float64))), "points": points,
+           "conf": softplus(k[2 * J:]), "centers": centers}
+    if xyz is not None:
+        d = xyz.reshape(-1, int(cfg.get("hypotheses", 1)), 4, h, w)[c].astype(np.float64)
+        out["xyz"] = d[:, :3] * float(cfg["xyz_scale"][c])
+        out["xyz_conf"] = softplus(d[:, 3])
+    return out
 
 
 class CropKeypointEstimator:
@@ -94,6 +112,10 @@ class CropKeypointEstimator:
         min_region_pixels: Smallest detected region (pixels).
         device: ``cpu`` or ``cuda`` (torch runtime only). threads: CPU threads (None: 1 for ONNX Runtime).
         runtime: ``auto``, ``onnx`` or ``torch`` (:func:`simtest.estimators.onnx_net.resolve_runtime`).
+        solver: ``dense`` (object-coordinate correspondences, needs a dense network), ``keypoints`` (the fused
+            keypoints) or ``auto`` (dense when the network has the head).
+        dense_keep: ``solver=dense`` with ``fusion=confidence``: the fraction of object cells kept, most
+            confident first (at least 8). ransac_px: its RANSAC threshold, full-image pixels.
 
     Raises:
         ConfigError: Bad options, a missing or unreadable checkpoint; at :meth:`estimate`, an object set other
@@ -106,13 +128,19 @@ class CropKeypointEstimator:
     def __init__(self, checkpoint: str | Path | None = None, detect: str = "rgb", detector: str | None = None,
                  fusion: str = "confidence", top_n: int = 16, min_conf: float = 0.0, pnp: str = "epnp",
                  fg_threshold: float = 0.5, min_region_pixels: int = 40, device: str = "cpu",
-                 threads: int | None = None, runtime: str = "auto", *, model: Any = None,
+                 threads: int | None = None, runtime: str = "auto", solver: str = "auto",
+                 dense_keep: float = 0.5, ransac_px: float = 3.0, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
-        for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS)):
+        for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
+                              ("solver", solver, SOLVERS)):
             if val not in ok:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
+        if not 0.0 < float(dense_keep) <= 1.0 or not float(ransac_px) > 0.0:
+            raise ConfigError(f"keypoints: need 0 < dense_keep <= 1 and ransac_px > 0, got {dense_keep!r}, "
+                              f"{ransac_px!r}")
+        self.dense_keep, self.ransac_px = float(dense_keep), float(ransac_px)
         check_device(device, "keypoints")
         self.detect, self.fusion, self.pnp = detect, fusion, pnp
         self.top_n, self.min_conf, self.fg_threshold = int(top_n), float(min_conf), float(fg_threshold)
@@ -128,6 +156,11 @@ class CropKeypointEstimator:
         else:
             self._load(checkpoint, runtime, threads)
         self.kp3d = {int(i): np.asarray(k, np.float64) for i, k in zip(self.record["obj_ids"], self.record["keypoints"])}
+        has_dense = bool(self.cfg.get("dense", False))
+        if solver == "dense" and not has_dense:
+            raise ConfigError(f"keypoints: solver=dense needs a network with the object-coordinate head; "
+                              f"{self.checkpoint or '(in memory)'} has none (use solver=keypoints)")
+        self.solver = ("dense" if has_dense else "keypoints") if solver == "auto" else solver
         self.class_ids = [int(i) for i in self.record["obj_ids"]]
         self.segmenter = None
         if detect != "gt":
@@ -174,7 +207,7 @@ class CropKeypointEstimator:
 
     def __repr__(self) -> str:
         return (f"CropKeypointEstimator(checkpoint={self.checkpoint!r}, detect={self.detect!r}, "
-                f"fusion={self.fusion!r}, runtime={self.runtime!r})")
+                f"fusion={self.fusion!r}, solver={self.solver!r}, runtime={self.runtime!r})")
 
     def check_objects(self, objects: Any) -> None:
         """Raise :class:`ConfigError` unless ``objects`` is the set the network was trained for."""
@@ -184,15 +217,15 @@ class CropKeypointEstimator:
                 self.segmenter.check_objects(objects)
             self._checked.add(id(objects))
 
-    def _run(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _run(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The network's outputs by name (``fg``, ``kp`` and, for a dense network, ``xyz``)."""
         if self.net is not None:
-            fg, kp = self.net.run(x)
-            return fg, kp
+            return dict(zip(self.net.output_names, self.net.run(x)))
         import torch
 
         with torch.inference_mode():
             out = self.model(torch.from_numpy(x).to(self.device))
-        return out["fg"].cpu().numpy(), out["kp"].cpu().numpy()
+        return {k: v.cpu().numpy() for k, v in out.items()}
 
     def detections(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float]]:
         """``(target index or None, obj_id, box [x, y, w, h], detection score)`` per object found."""
@@ -226,10 +259,11 @@ class CropKeypointEstimator:
         rgb = np.asarray(obs.rgb, np.float32) / np.float32(255.0)
         maps_M = [crop_intrinsics(K, crop_window_for_box(box, float(self.cfg["margin"])), S)[1] for _, _, box, _ in dets]
         x = np.stack([warp_crop(rgb, M, S).transpose(2, 0, 1) for M in maps_M]).astype(np.float32)
-        fg, kp = self._run(np.ascontiguousarray(x))
+        res = self._run(np.ascontiguousarray(x))
         out = []
         for n, ((k, oid, box, dscore), M) in enumerate(zip(dets, maps_M)):
-            maps = crop_maps(fg[n], kp[n], self.class_ids.index(oid) + 1, self.cfg)
+            xyz = res["xyz"][n] if "xyz" in res else None
+            maps = crop_maps(res["fg"][n], res["kp"][n], self.class_ids.index(oid) + 1, self.cfg, xyz)
             try:
                 R, t, score, info = self._pose(maps, M, oid, K)
             except (ValueError, cv2.error) as exc:
@@ -253,6 +287,8 @@ class CropKeypointEstimator:
             flat = np.argsort(-prob, axis=None, kind="stable")[:8]
             cells = np.zeros_like(prob, bool)
             cells.flat[flat] = True
+        if self.solver == "dense":
+            return self._dense_pose(maps, cells, M, K)
         pts = maps["points"][:, :, cells].transpose(2, 0, 1)  # (M, J, 2) crop pixels
         conf = maps["conf"][:, cells].T  # (M, J)
         if self.fusion == "confidence":
@@ -266,3 +302,37 @@ class CropKeypointEstimator:
         return R, t, mc / (1.0 + mc) * float(prob[cells].mean()), {
             "cells": int(cells.sum()), "reproj_rms_px": rms, "keypoints_2d": kp_full.tolist(),
             "keypoint_conf": kc.tolist()}
+
+    def _dense_pose(self, maps: dict[str, np.ndarray], cells: np.ndarray, M: np.ndarray, K: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
+        """The pose from the object cells' predicted model points (``solver=dense``; see the module doc): per
+        hypothesis RANSAC EPnP + LM; the one with the most inliers (then the lowest inlier error) is kept."""
+        Minv = np.linalg.inv(M)
+        uv_all = maps["centers"][:, cells].T @ Minv[:2, :2].T + Minv[:2, 2]  # (M, 2) full-image pixels
+        best = None
+        for h in range(maps["xyz"].shape[0]):
+            xyz = maps["xyz"][h][:, cells].T  # (M, 3) metres
+            conf = maps["xyz_conf"][h][cells]
+            uv = uv_all
+            if self.fusion == "confidence" and len(conf) > 8:
+                keep = max(8, int(np.ceil(self.dense_keep * len(conf))))
+                sel = np.argsort(-conf, kind="stable")[:keep]
+                xyz, conf, uv = xyz[sel], conf[sel], uv[sel]
+            try:
+                R, t, _ = solve_pnp(uv, xyz, K, "ransac", self.ransac_px)
+            except (ValueError, cv2.error):
+                continue
+            pu, pv = pinhole_pixels(K, xyz @ R.T + t)
+            err = np.hypot(pu - uv[:, 0], pv - uv[:, 1])
+            inl = err <= self.ransac_px
+            rank = (int(inl.sum()), -float(np.mean(err[inl])) if inl.any() else -np.inf)
+            if best is None or rank > best[0]:
+                best = (rank, R, t, h, conf, len(xyz), float(np.sqrt(np.mean(err[inl] ** 2))) if inl.any() else np.inf)
+        if best is None:
+            raise ValueError("PnP failed for every object-coordinate hypothesis")
+        (n_inl, _), R, t, h, conf, n, rms = best
+        prob = maps["prob"][cells]
+        mc = float(np.mean(conf))
+        return R, t, mc / (1.0 + mc) * float(prob.mean()) * n_inl / max(n, 1), {
+            "cells": int(cells.sum()), "correspondences": int(n), "inliers": int(n_inl), "hypothesis": int(h),
+            "reproj_rms_px": rms}

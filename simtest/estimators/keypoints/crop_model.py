@@ -21,7 +21,8 @@ from simtest.estimators.keypoints.loss import C_MAX, confidence
 from simtest.estimators.keypoints.model import KeypointNet, NetConfig, cell_centers
 from simtest.estimators.training import init_conv_weights
 
-__all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "crop_targets", "crop_loss"]
+__all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "select_class_xyz", "crop_targets", "crop_loss",
+           "xyz_loss"]
 
 
 @dataclass(frozen=True)
@@ -35,12 +36,30 @@ class CropNetConfig(NetConfig):
         crop_size: Crop side the network is trained on (pixels). margin: Crop window side / box side.
         coords: Append the cells' crop coordinates (x, y in [-1, 1]) to the stride-16 features and to the heads'
             input, so the offsets from each cell (linear in its position) are easy to regress.
+        dense: Add the object-coordinate head: per cell and class the 3D point of the object surface the cell
+            sees, in the (symmetry-canonical) model frame, and a confidence logit; these dense 2D-3D
+            correspondences give the pose by PnP-RANSAC (:mod:`.crop_infer`).
+        xyz_scale: Per class, metres per unit of the predicted object coordinates (half the object's diameter).
+        hypotheses: Object-coordinate hypotheses per cell and class, trained winner-takes-all per crop: an
+            object that looks (nearly) the same in two poses (a mug with its handle hidden, a banana turned
+            over) gets one consistent map per pose instead of their average, which fits neither; inference
+            keeps the hypothesis PnP explains best.
     """
 
     # the whole-image network's fields (num_classes .. stride, same defaults), then the crop's
     crop_size: int = 128
     margin: float = 1.3
     coords: bool = True
+    dense: bool = False
+    xyz_scale: tuple[float, ...] = ()
+    hypotheses: int = 1
+
+    def __post_init__(self) -> None:
+        if self.dense and len(self.xyz_scale) != self.num_classes:
+            raise ValueError(f"a dense crop network needs one xyz_scale per class ({self.num_classes}), got "
+                             f"{self.xyz_scale!r}")
+        if self.hypotheses < 1:
+            raise ValueError(f"hypotheses must be >= 1, got {self.hypotheses!r}")
 
 
 class CropKeypointNet(nn.Module):
@@ -48,7 +67,10 @@ class CropKeypointNet(nn.Module):
 
     ``forward(x)`` takes ``(B, 3, S, S)`` RGB in [0, 1] (S a multiple of 16) and returns ``fg`` (B, C, S/4, S/4)
     object-mask logits and ``kp`` (B, C * 3 J, S/4, S/4): per class ``c`` the ``2 J`` offsets
-    ``(dx_0, dy_0, ...)`` then the ``J`` confidence logits, at channels ``[3 J c, 3 J (c + 1))``.
+    ``(dx_0, dy_0, ...)`` then the ``J`` confidence logits, at channels ``[3 J c, 3 J (c + 1))``; with
+    ``cfg.dense`` also ``xyz`` (B, 4 H C, S/4, S/4): per class and hypothesis the object coordinates
+    ``(x, y, z)`` in units of ``xyz_scale[c]`` and a confidence logit, at channels ``[4 (H c + k), 4 (H c + k + 1))``
+    (``H = cfg.hypotheses``, hypothesis ``k``).
     """
 
     MEAN, STD = KeypointNet.MEAN, KeypointNet.STD  # ImageNet statistics, only to centre the input
@@ -71,13 +93,16 @@ class CropKeypointNet(nn.Module):
         C, J = cfg.num_classes, cfg.num_keypoints
         self.fg_head = nn.Sequential(conv_bn_relu(d4 + e, d4), nn.Conv2d(d4, C, 1))
         self.kp_head = nn.Sequential(conv_bn_relu(d4 + e, d4), nn.Conv2d(d4, 3 * J * C, 1))
+        if cfg.dense:
+            self.xyz_head = nn.Sequential(conv_bn_relu(d4 + e, d4), Residual(d4), nn.Conv2d(d4, 4 * cfg.hypotheses * C, 1))
         self.register_buffer("mean", torch.tensor(self.MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
 
     def init_weights(self, generator: torch.Generator) -> None:
         """Deterministic initialisation from ``generator`` (Kaiming convolutions, small heads)."""
         init_conv_weights(self, generator)
-        for head in (self.fg_head[-1], self.kp_head[-1]):
+        heads = [self.fg_head[-1], self.kp_head[-1]] + ([self.xyz_head[-1]] if self.cfg.dense else [])
+        for head in heads:
             nn.init.normal_(head.weight, std=0.01, generator=generator)
             nn.init.zeros_(head.bias)
 
@@ -90,7 +115,10 @@ class CropKeypointNet(nn.Module):
         u8 = self.up8(torch.cat([F.interpolate(f16, size=f8.shape[-2:], mode="bilinear", align_corners=False), f8], 1))
         u4 = self._with_coords(self.up4(torch.cat([F.interpolate(u8, size=f4.shape[-2:], mode="bilinear",
                                                                  align_corners=False), f4], 1)))
-        return {"fg": self.fg_head(u4), "kp": self.kp_head(u4)}
+        out = {"fg": self.fg_head(u4), "kp": self.kp_head(u4)}
+        if self.cfg.dense:
+            out["xyz"] = self.xyz_head(u4)
+        return out
 
     def _with_coords(self, f: torch.Tensor) -> torch.Tensor:
         """``f`` with two more channels, the x and y of each cell's centre in [-1, 1] (when ``cfg.coords``)."""
@@ -128,10 +156,50 @@ def crop_targets(batch: dict[str, torch.Tensor], grid: tuple[int, int], stride: 
     return cov >= min_coverage, off
 
 
+def select_class_xyz(xyz: torch.Tensor, labels: torch.Tensor, hypotheses: int = 1
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(coords (B, H, 3, h, w), conf_logit (B, H, h, w))`` of each crop's class from the ``xyz`` output
+    (B, 4 H C, h, w) (``labels`` (B,) 1..C, ``H`` hypotheses)."""
+    B, _, h, w = xyz.shape
+    idx = (labels.to(xyz.device).long() - 1).clamp_min(0)
+    sel = xyz.reshape(B, -1, int(hypotheses), 4, h, w)[torch.arange(B, device=xyz.device), idx]
+    return sel[:, :, :3], sel[:, :, 3]
+
+
+#: Weight of the losing hypotheses in the relaxed winner-takes-all loss (keeps every hypothesis learning).
+WTA_RELAX = 0.05
+
+
+def xyz_loss(xyz: torch.Tensor, batch: dict[str, torch.Tensor], cfg: CropNetConfig) -> torch.Tensor:
+    """The object-coordinate loss ``c |g - e|_1 - log c`` (coordinates in units of the class's ``xyz_scale``,
+    ``c = softplus(z)``) averaged over each crop's cells with a target (``batch["xyz_valid"]``); with several
+    hypotheses the best one of each crop counts (relaxed winner-takes-all: the others with weight
+    :data:`WTA_RELAX` / (H - 1)); mean over the crops with targets."""
+    H = int(cfg.hypotheses)
+    e, z = select_class_xyz(xyz, batch["labels"], H)
+    valid = batch["xyz_valid"].to(e.device)
+    n = valid.flatten(1).sum(1)
+    has = n > 0
+    if not bool(has.any()):
+        return e.sum() * 0.0 + z.sum() * 0.0
+    scale = torch.as_tensor(cfg.xyz_scale, dtype=e.dtype, device=e.device)
+    idx = (batch["labels"].to(e.device).long() - 1).clamp_min(0)
+    g = batch["xyz"].to(device=e.device, dtype=e.dtype) / scale[idx].view(-1, 1, 1, 1)
+    err = (g[:, None] - e).abs().sum(2)  # (B, H, h, w)
+    c = confidence(z).clamp(1e-6, C_MAX)
+    cell = (c * err - torch.log(c)) * valid[:, None].to(e.dtype)
+    per = cell.flatten(2).sum(2)[has] / n[has, None].to(e.dtype)  # (B', H)
+    if H == 1:
+        return per[:, 0].mean()
+    best = per.min(1).values
+    return ((1.0 - WTA_RELAX) * best + WTA_RELAX * (per.sum(1) - best) / (H - 1)).mean()
+
+
 def crop_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg: CropNetConfig,
-              fg_weight: float = 1.0) -> dict[str, torch.Tensor]:
-    """``{"loss", "fg", "kp"}``: binary cross-entropy of the class's mask logits (positives weighted to half
-    the total) plus the keypoint loss ``sum_j c_j |g_j - e_j|_1 - log c_j`` averaged over object cells."""
+              fg_weight: float = 1.0, xyz_weight: float = 1.0) -> dict[str, torch.Tensor]:
+    """``{"loss", "fg", "kp"[, "xyz"]}``: binary cross-entropy of the class's mask logits (positives weighted to
+    half the total) plus the keypoint loss ``sum_j c_j |g_j - e_j|_1 - log c_j`` averaged over object cells,
+    plus, for a dense network, ``xyz_weight`` times :func:`xyz_loss`."""
     fg_logit, offsets, conf_logit = select_class(out, batch["labels"], cfg.num_keypoints)
     fg, g = crop_targets(batch, tuple(fg_logit.shape[-2:]), cfg.stride, cfg.offset_scale)
     pos = fg.to(fg_logit.dtype)
@@ -146,4 +214,9 @@ def crop_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg:
         lkp = (c * (t - e).abs().sum(-1) - torch.log(c)).sum(-1).mean()
     else:
         lkp = offsets.sum() * 0.0 + conf_logit.sum() * 0.0
-    return {"loss": fg_weight * lfg + lkp, "fg": lfg.detach(), "kp": lkp.detach()}
+    res = {"loss": fg_weight * lfg + lkp, "fg": lfg.detach(), "kp": lkp.detach()}
+    if cfg.dense:
+        lxyz = xyz_loss(out["xyz"], batch, cfg)
+        res["loss"] = res["loss"] + xyz_weight * lxyz
+        res["xyz"] = lxyz.detach()
+    return res

@@ -24,7 +24,7 @@ import numpy as np
 from simtest.errors import ConfigError
 
 __all__ = ["crop_intrinsics", "crop_window_for_box", "warp_crop", "jitter_box", "KeypointCrops", "collate_crops",
-           "DEFAULT_MARGIN", "DEFAULT_CROP_SIZE"]
+           "object_coords_image", "cell_object_coords", "DEFAULT_MARGIN", "DEFAULT_CROP_SIZE"]
 
 #: Side of the square crop window as a multiple of the detection box's longer side.
 DEFAULT_MARGIN = 1.3
@@ -116,17 +116,22 @@ class KeypointCrops:
     Item (numpy; ``n`` crops): ``rgb`` (n, 3, S, S) float32 in [0, 1], ``fg`` (n, S, S) bool (the target
     instance's visible mask in the crop), ``keypoints_2d`` (n, J, 2) crop pixels, ``labels`` (n,) 1..C,
     ``K`` (n, 3, 3) crop intrinsics. The jitter draws from the sample's own generator (seed, epoch, index).
+    With ``xyz_stride`` also the object-coordinate targets (:func:`cell_object_coords`): ``xyz`` (n, 3, S/s,
+    S/s) float32 metres in the symmetry-canonical model frame (``R_sym``, ``t_sym``) and ``xyz_valid``
+    (n, S/s, S/s) bool.
 
     Args:
         dataset: The image feed. size: Crop side (pixels). margin: Window side / box side.
         min_visib: Instances less visible than this (or with under ``min_pixels`` visible pixels) are skipped.
         max_crops: At most this many crops per image (the most visible first).
         seed: Seed of the box jitter. jitter_scale, jitter_shift: See :func:`jitter_box` (0: no jitter).
+        xyz_stride: Cell size (crop pixels) of the object-coordinate targets; None: none.
     """
 
     def __init__(self, dataset: Any, size: int = DEFAULT_CROP_SIZE, margin: float = DEFAULT_MARGIN,
                  min_visib: float = 0.1, min_pixels: int = 30, max_crops: int = 8, seed: int = 0,
-                 jitter_scale: float = 0.15, jitter_shift: float = 0.1) -> None:
+                 jitter_scale: float = 0.15, jitter_shift: float = 0.1, xyz_stride: int | None = None) -> None:
+        self.xyz_stride = None if xyz_stride is None else int(xyz_stride)
         self.jitter_scale, self.jitter_shift = float(jitter_scale), float(jitter_shift)
         self.dataset = dataset
         self.size = int(size)
@@ -160,6 +165,11 @@ class KeypointCrops:
         out = {"rgb": np.zeros((n, 3, S, S), np.float32), "fg": np.zeros((n, S, S), bool),
                "keypoints_2d": np.zeros((n, J, 2)), "labels": np.zeros(n, np.int64), "K": np.zeros((n, 3, 3))}
         kp = s["keypoints_2d"].numpy()
+        st = self.xyz_stride
+        if st is not None:
+            out["xyz"] = np.zeros((n, 3, S // st, S // st), np.float32)
+            out["xyz_valid"] = np.zeros((n, S // st, S // st), bool)
+            depth = s["depth"].numpy()[0]
         for c, k in enumerate(order):
             box = crop_window_for_box(jitter_box(s["boxes"][k].numpy(), rng, self.jitter_scale, self.jitter_shift),
                                       self.margin)
@@ -169,7 +179,40 @@ class KeypointCrops:
             out["keypoints_2d"][c] = kp[k] @ M[:2, :2].T + M[:2, 2]
             out["labels"][c] = int(s["labels"][k])
             out["K"][c] = Kc
+            if st is not None:
+                xyz = object_coords_image(depth, K, masks[k], s["R_sym"][k].numpy(), s["t_sym"][k].numpy())
+                out["xyz"][c], out["xyz_valid"][c] = cell_object_coords(warp_crop(xyz, M, S, nearest=True),
+                                                                        out["fg"][c], st)
         return out
+
+
+def object_coords_image(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, R: np.ndarray, t: np.ndarray
+                        ) -> np.ndarray:
+    """(H, W, 3) float32: at each pixel of ``mask`` with depth, the model-frame point ``R^T (X - t)`` of its
+    back-projected camera-frame surface point ``X`` (metres; ``depth`` planar, ``K`` the image's intrinsics);
+    zero elsewhere."""
+    from simtest.camera import backproject
+
+    sel = np.asarray(mask, bool) & (np.asarray(depth) > 0)
+    out = np.zeros(depth.shape + (3,), np.float32)
+    pts = backproject(depth, K, sel)
+    out[sel] = (pts - np.asarray(t, np.float64)) @ np.asarray(R, np.float64)
+    return out
+
+
+def cell_object_coords(xyz: np.ndarray, fg: np.ndarray, stride: int, min_coverage: float = 0.3
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Per ``stride`` x ``stride`` cell of a crop: the mean object coordinates of its ``fg`` pixels that have
+    them (``xyz`` (S, S, 3), zero where none) as (3, S/s, S/s) float32, and whether the cell has a target
+    (at least ``min_coverage`` of it covered by such pixels, the mask cells' rule)."""
+    S = fg.shape[0]
+    h = S // stride
+    have = (np.asarray(fg, bool) & np.any(xyz != 0, axis=-1))[:h * stride, :h * stride]
+    cnt = have.reshape(h, stride, h, stride).sum((1, 3))
+    tot = (xyz[:h * stride, :h * stride] * have[..., None]).reshape(h, stride, h, stride, 3).sum((1, 3))
+    valid = cnt >= min_coverage * stride * stride
+    mean = np.where(valid[..., None], tot / np.maximum(cnt, 1)[..., None], 0.0).astype(np.float32)
+    return mean.transpose(2, 0, 1), valid
 
 
 def collate_crops(items: Sequence[dict[str, Any]]) -> dict[str, Any]:

@@ -46,14 +46,11 @@ class NetConfig:
     stride: int = 4
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["widths"], d["decoder"] = list(self.widths), list(self.decoder)
-        return d
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "NetConfig":
-        d = dict(d)
-        d["widths"], d["decoder"] = tuple(d["widths"]), tuple(d["decoder"])
+        d = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}  # JSON and checkpoints give lists
         return cls(**d)
 
 

@@ -61,6 +61,9 @@ class TrainConfig:
         seg_weight: Weight of the segmentation loss against the keypoint loss.
         widths, decoder: Network channels (see :class:`~simtest.estimators.keypoints.model.NetConfig`).
         threads: torch CPU threads (None: torch's default).
+        dense: ``crop`` arch: train the object-coordinate head too (dense 2D-3D correspondences for PnP).
+        xyz_weight: Weight of the object-coordinate loss.
+        hypotheses: Object-coordinate hypotheses per cell (winner-takes-all; see ``CropNetConfig``).
     """
 
     data: str | tuple[str, ...]
@@ -87,6 +90,9 @@ class TrainConfig:
     data_weights: tuple[float, ...] | None = None
     arch: str = "full"
     margin: float = 1.3
+    dense: bool = True
+    xyz_weight: float = 3.0
+    hypotheses: int = 4
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
@@ -95,6 +101,8 @@ class TrainConfig:
         if self.arch == "crop" and self.crop is not None and (self.crop[0] != self.crop[1] or self.crop[0] % 16):
             raise ConfigError(f"keypoint training: crop arch needs a square crop, a multiple of 16 pixels, got "
                               f"{self.crop!r}")
+        if int(self.hypotheses) < 1:
+            raise ConfigError(f"keypoint training: hypotheses must be >= 1, got {self.hypotheses!r}")
         if not 1.0 <= float(self.margin) <= 3.0:
             raise ConfigError(f"keypoint training: margin must be in [1, 3], got {self.margin!r}")
 
@@ -117,14 +125,18 @@ def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32,
 
 
 def build_crop_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48),
-                     crop_size: int = 128, margin: float = 1.3):
-    """A freshly initialised crop network (:class:`~.crop_model.CropKeypointNet`), deterministic in ``seed``."""
+                     crop_size: int = 128, margin: float = 1.3, xyz_scale: tuple[float, ...] | None = None,
+                     hypotheses: int = 1):
+    """A freshly initialised crop network (:class:`~.crop_model.CropKeypointNet`), deterministic in ``seed``;
+    with ``xyz_scale`` (metres per coordinate unit, per class) it has the object-coordinate head."""
     import torch
 
     from simtest.estimators.keypoints.crop_model import CropKeypointNet, CropNetConfig
 
     cfg = CropNetConfig(num_classes=int(num_classes), num_keypoints=int(num_keypoints), widths=tuple(widths),
-                        decoder=tuple(decoder), crop_size=int(crop_size), margin=float(margin))
+                        decoder=tuple(decoder), crop_size=int(crop_size), margin=float(margin),
+                        dense=xyz_scale is not None, xyz_scale=tuple(float(v) for v in (xyz_scale or ())),
+                        hypotheses=int(hypotheses))
     with torch.random.fork_rng(devices=[]):
         net = CropKeypointNet(cfg)
     net.init_weights(torch.Generator().manual_seed(int(seed)))
@@ -174,7 +186,7 @@ def _losses(net, batch, cfg: TrainConfig):
     if cfg.arch == "crop":
         from simtest.estimators.keypoints.crop_model import crop_loss
 
-        return crop_loss(net(batch["rgb"]), batch, net.cfg, cfg.seg_weight)
+        return crop_loss(net(batch["rgb"]), batch, net.cfg, cfg.seg_weight, cfg.xyz_weight)
     from simtest.estimators.keypoints.loss import make_targets, total_loss
 
     x = pad16(batch["rgb"])
@@ -191,7 +203,7 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
     """One epoch of optimisation (cosine learning rate per step); returns the summed losses and the batch count."""
     from tqdm import tqdm
 
-    sums = {"loss": 0.0, "fg": 0.0, "kp": 0.0}
+    sums = {"loss": 0.0, "fg": 0.0, "kp": 0.0, **({"xyz": 0.0} if cfg.arch == "crop" and cfg.dense else {})}
     n = 0
     bar = tqdm(_loader(dataset, cfg, epoch), desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch",
                disable=not progress, dynamic_ncols=True, leave=False)
@@ -203,7 +215,7 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
             g["lr"] = lr_at(step, total_steps, cfg.lr)
         optimizer_step(net, opt, _losses(net, batch, cfg), sums)
         n += 1
-        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}", fg=f"{sums['fg'] / n:.3f}", kp=f"{sums['kp'] / n:.3f}")
+        bar.set_postfix({k: f"{v / n:.3f}" for k, v in sums.items()})
     bar.close()
     return sums, n
 
@@ -229,8 +241,11 @@ def _setup(cfg: TrainConfig):
     J, C = len(record["keypoints"][0]), len(record["obj_ids"])
     if cfg.arch == "crop":
         size = 128 if cfg.crop is None else int(cfg.crop[0])
-        dataset = KeypointCrops(dataset, size=size, margin=cfg.margin, seed=int(cfg.seed))
-        net = build_crop_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder, size, cfg.margin)
+        dataset = KeypointCrops(dataset, size=size, margin=cfg.margin, seed=int(cfg.seed),
+                                xyz_stride=4 if cfg.dense else None)
+        scale = tuple(0.5 * float(d) for d in record["diameters"]) if cfg.dense else None
+        net = build_crop_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder, size, cfg.margin, scale,
+                               cfg.hypotheses)
     else:
         net = build_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder)
     return record, objects, dataset, net.to(cfg.device)
@@ -297,8 +312,9 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
             rec.update(validate(net, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch))
             rec["val_seconds"] = time.perf_counter() - t1
         history.append(rec)
-        msg = (f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (mask {rec['fg']:.3f}, kp {rec['kp']:.3f}), "
-               f"{rec['train_seconds']:.0f} s")
+        xyz = f", xyz {rec['xyz']:.3f}" if "xyz" in rec else ""
+        msg = (f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (mask {rec['fg']:.3f}, kp {rec['kp']:.3f}"
+               f"{xyz}), {rec['train_seconds']:.0f} s")
         if "val_add_s_or_add_01d" in rec:
             msg += f"; val ADD(-S)-0.1d {100 * rec['val_add_s_or_add_01d']:.1f} %"
             if rec["val_add_s_or_add_01d"] > best:

@@ -102,11 +102,13 @@ def overfitted(small_dataset):
     """A small crop network fitted to the crops of one image (no augmentation, no box jitter)."""
     objects = load_dataset_objects(small_dataset)
     ds = PoseDataset(small_dataset, objects=objects, max_images=1)
-    crops = KeypointCrops(ds, size=64, min_pixels=200, jitter_scale=0.0, jitter_shift=0.0)
+    crops = KeypointCrops(ds, size=64, min_pixels=200, jitter_scale=0.0, jitter_shift=0.0, xyz_stride=4)
     batch = collate_crops([crops[0]])
     assert len(batch["labels"]) >= 1
     torch.manual_seed(0)
-    net = build_crop_model(ds.num_classes, 8, seed=0, widths=(16, 24, 32, 48), decoder=(32, 32), crop_size=64)
+    scale = tuple(0.5 * o.diameter for o in sorted(objects, key=lambda o: o.obj_id))
+    net = build_crop_model(ds.num_classes, 8, seed=0, widths=(16, 24, 32, 48), decoder=(32, 32), crop_size=64,
+                           xyz_scale=scale, hypotheses=2)
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
     net.train()
     losses = []
@@ -137,6 +139,72 @@ def test_a_network_overfitted_on_one_image_recovers_its_poses(overfitted):
     # uniform fusion runs on the same maps
     uni = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", fusion="uniform")
     assert len(uni.estimate(obs)) == len(found)
+
+
+@pytest.mark.parametrize("solver, fusion", [("dense", "confidence"), ("dense", "uniform"), ("keypoints", "confidence")])
+def test_both_solvers_of_the_overfitted_dense_network_recover_its_poses(overfitted, solver, fusion):
+    net, objects, ds, _ = overfitted
+    assert net.cfg.dense
+    est = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", solver=solver,
+                                fusion=fusion)
+    assert est.solver == solver
+    obs, gt = _observation(ds, 0, objects)
+    found = est.estimate(obs)
+    assert len(found) == len(gt["keep"])
+    ok = 0
+    for e in found:
+        k = gt["keep"][e.target_index]
+        obj = objects.get(int(gt["obj_ids"][k]))
+        err = (add_s if obj.is_symmetric else add)(e.R, e.t, gt["R"][k], gt["t"][k], obj.vertices)
+        ok += err < 0.1 * obj.diameter
+        if solver == "dense":
+            assert e.info["correspondences"] >= 8 and e.info["hypothesis"] in (0, 1)
+    assert ok >= max(1, int(0.75 * len(found))), (ok, len(found))
+
+
+def test_object_coordinate_targets_are_the_visible_surface_in_the_model_frame(small_dataset):
+    """Each crop cell's target, mapped by the canonical pose and projected with the crop's K, falls inside its
+    cell; each lies on the model surface (within the depth quantisation and the cell's extent)."""
+    import trimesh
+
+    from simtest.estimators.keypoints.crops import cell_object_coords, object_coords_image
+
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=2)
+    crops = KeypointCrops(ds, size=64, min_pixels=200, xyz_stride=4, seed=3)
+    s = ds[1]
+    item = crops[1]
+    assert item["xyz"].shape == (len(item["labels"]), 3, 16, 16) and item["xyz_valid"].any()
+    for c in range(len(item["labels"])):
+        valid = item["xyz_valid"][c]
+        pts = item["xyz"][c][:, valid].T.astype(np.float64)  # (M, 3) model frame
+        # which instance: the one whose canonical pose projects these points onto their cells
+        Kc = item["K"][c]
+        vs, us = np.nonzero(valid)
+        centers = np.stack([4 * us + 1.5, 4 * vs + 1.5], 1)
+        best = np.inf
+        for k in range(len(s["labels"])):
+            if int(s["labels"][k]) != int(item["labels"][c]):
+                continue
+            X = pts @ s["R_sym"][k].numpy().T + s["t_sym"][k].numpy()
+            uv = (X @ Kc.T)[:, :2] / X[:, 2:]
+            best = min(best, float(np.abs(uv - centers).max()))
+        assert best <= 2.5, best  # within the 4 x 4 cell (its pixels' mean lies inside it)
+        obj = objects.get(int(ds.class_ids[int(item["labels"][c]) - 1]))
+        surface = trimesh.Trimesh(obj.vertices, obj.faces, process=False).sample(20000, seed=0)
+        d = np.min(np.linalg.norm(pts[:, None, :] - surface[None], axis=-1), axis=1)
+        assert np.median(d) < 0.005 and np.percentile(d, 90) < 0.01, (np.median(d), np.percentile(d, 90))
+    # the per-pixel image: zero off the mask, the cell mean of the pixels that have coordinates
+    depth = np.zeros((4, 4), np.float32)
+    depth[1:3, 1:3] = 0.5
+    mask = np.zeros((4, 4), bool)
+    mask[1:, 1:] = True
+    img = object_coords_image(depth, np.eye(3), mask, np.eye(3), np.zeros(3))
+    assert np.array_equal(img[..., 2] > 0, depth > 0)
+    mean, ok = cell_object_coords(img, mask, 2, min_coverage=0.25)
+    assert ok.tolist() == [[True, True], [True, True]] and mean[2, 0, 0] == pytest.approx(0.5)
+    mean, ok = cell_object_coords(img, mask, 2, min_coverage=0.5)
+    assert ok.tolist() == [[False, False], [False, False]]
 
 
 def test_checkpoint_loading_refuses_another_object_set(overfitted, tmp_path):
