@@ -55,6 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: 4)")
     p.add_argument("--xyz-weight", type=float, metavar="W",
                    help="keypoints --arch crop: weight of the object-coordinate loss (default: 3)")
+    p.add_argument("--kp-weight", type=float, metavar="W",
+                   help="keypoints --arch crop: weight of the keypoint-offset loss (default: 1)")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -137,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 
     cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
-                      margin=args.margin, dense=args.dense, **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight"), **common)
+                      margin=args.margin, dense=args.dense, **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight", kp_weight="kp_weight"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

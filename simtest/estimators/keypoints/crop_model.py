@@ -196,10 +196,10 @@ def xyz_loss(xyz: torch.Tensor, batch: dict[str, torch.Tensor], cfg: CropNetConf
 
 
 def crop_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg: CropNetConfig,
-              fg_weight: float = 1.0, xyz_weight: float = 1.0) -> dict[str, torch.Tensor]:
+              fg_weight: float = 1.0, xyz_weight: float = 1.0, kp_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """``{"loss", "fg", "kp"[, "xyz"]}``: binary cross-entropy of the class's mask logits (positives weighted to
-    half the total) plus the keypoint loss ``sum_j c_j |g_j - e_j|_1 - log c_j`` averaged over object cells,
-    plus, for a dense network, ``xyz_weight`` times :func:`xyz_loss`."""
+    half the total) plus ``kp_weight`` times the keypoint loss ``sum_j c_j |g_j - e_j|_1 - log c_j`` averaged over
+    object cells, plus, for a dense network, ``xyz_weight`` times :func:`xyz_loss`."""
     fg_logit, offsets, conf_logit = select_class(out, batch["labels"], cfg.num_keypoints)
     fg, g = crop_targets(batch, tuple(fg_logit.shape[-2:]), cfg.stride, cfg.offset_scale)
     pos = fg.to(fg_logit.dtype)
@@ -214,7 +214,7 @@ def crop_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg:
         lkp = (c * (t - e).abs().sum(-1) - torch.log(c)).sum(-1).mean()
     else:
         lkp = offsets.sum() * 0.0 + conf_logit.sum() * 0.0
-    res = {"loss": fg_weight * lfg + lkp, "fg": lfg.detach(), "kp": lkp.detach()}
+    res = {"loss": fg_weight * lfg + kp_weight * lkp, "fg": lfg.detach(), "kp": lkp.detach()}
     if cfg.dense:
         lxyz = xyz_loss(out["xyz"], batch, cfg)
         res["loss"] = res["loss"] + xyz_weight * lxyz

@@ -64,6 +64,7 @@ class TrainConfig:
         dense: ``crop`` arch: train the object-coordinate head too (dense 2D-3D correspondences for PnP).
         xyz_weight: Weight of the object-coordinate loss.
         hypotheses: Object-coordinate hypotheses per cell (winner-takes-all; see ``CropNetConfig``).
+        kp_weight: ``crop`` arch: weight of the keypoint-offset loss.
     """
 
     data: str | tuple[str, ...]
@@ -93,6 +94,7 @@ class TrainConfig:
     dense: bool = True
     xyz_weight: float = 3.0
     hypotheses: int = 4
+    kp_weight: float = 1.0
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
@@ -186,7 +188,7 @@ def _losses(net, batch, cfg: TrainConfig):
     if cfg.arch == "crop":
         from simtest.estimators.keypoints.crop_model import crop_loss
 
-        return crop_loss(net(batch["rgb"]), batch, net.cfg, cfg.seg_weight, cfg.xyz_weight)
+        return crop_loss(net(batch["rgb"]), batch, net.cfg, cfg.seg_weight, cfg.xyz_weight, cfg.kp_weight)
     from simtest.estimators.keypoints.loss import make_targets, total_loss
 
     x = pad16(batch["rgb"])
