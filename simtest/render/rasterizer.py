@@ -9,7 +9,8 @@ savings that matter when every scene is a new model:
 * the smallest font atlas and a scene buffer sized to the model (font and buffer allocation dominated
   ``mujoco.Renderer``'s start-up);
 * depth and segmentation read from one pass (the segmentation pass fills the depth buffer too), so a full
-  frame is two GL passes instead of three.
+  frame is two GL passes instead of three; a depth-only request reads back the depth buffer alone, and RGB +
+  depth without segmentation is one pass (``fast`` profile).
 
 Shadows, reflections and MSAA are off in the ``fast`` profile and on in ``quality``.
 """
@@ -178,23 +179,27 @@ class Renderer:
             if zbuf is not None:
                 return Frame(out_rgb, self._linear_depth(zbuf[::-1]), None)
         if depth or seg:
-            s, z = self._seg_and_depth()
+            s, z = self._seg_and_depth(seg)
             out_seg = s if seg else None
             out_depth = self._linear_depth(z) if depth else None
         return Frame(out_rgb, out_depth, out_seg)
 
-    def _seg_and_depth(self) -> tuple[np.ndarray, np.ndarray]:
+    def _seg_and_depth(self, seg: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+        """The segmentation pass (flat id colours: no lighting or textures) and its depth buffer; without ``seg``
+        only the depth buffer is read back (a depth-only pass)."""
         scene = self._scene
         saved = scene.flags.copy()
         try:
             scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
             scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
             mujoco.mjr_render(self._rect, scene, self._con)
-            colour = np.empty((self.height, self.width, 3), dtype=np.uint8)
+            colour = np.empty((self.height, self.width, 3), dtype=np.uint8) if seg else None
             zbuf = np.empty((self.height, self.width), dtype=np.float32)
             mujoco.mjr_readPixels(colour, zbuf, self._rect, self._con)
         finally:
             np.copyto(scene.flags, saved)
+        if colour is None:
+            return None, zbuf[::-1]
         # The colour codes segid + 1 in 24 bits, R lowest (0 = background); codes above ngeom read as ngeom.
         lut = np.full(scene.ngeom + 1, -1, dtype=np.int32)
         for g in scene.geoms[:scene.ngeom]:
