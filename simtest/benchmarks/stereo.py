@@ -5,7 +5,7 @@ with the ``fast`` profile (RGB, depth, segmentation: what ``generate`` renders p
 preset; best of ``repeat`` runs per view, milliseconds, averaged over the views.
 
 Where the sensor's time goes: ``passes_ms`` is what its GL passes cost (measured as one depth-only pass and two
-full RGB + depth + segmentation passes of the same view: the projector, left and right IR renders),
+RGB + depth passes of the same view: the projector, left and right IR renders),
 ``sgbm_ms`` the matcher on the view's IR pair, and ``other_ms`` the rest (the two IR images, the texture
 threshold and the registration).
 """
@@ -51,7 +51,7 @@ def run(width: int = 640, height: int = 480, preset: str = "d435-stereo", repeat
             exact = renderer.render(scene.data, scene.camera_id, rgb=False, seg=False).depth
             view = sensor.sense_view(renderer, scene.data, scene.camera_id, cam, np.random.default_rng(0))
             valid.append(float((view.depth[exact > 0] > 0).mean()))
-            passes = [(False, False)] * sensor.projector + [(True, True)] * 2
+            passes = [(False, False)] * sensor.projector + [(True, False)] * 2
             passes_ms.append(_best_ms(lambda: [renderer.render(scene.data, scene.camera_id, rgb=rgb, seg=seg)
                                                for rgb, seg in passes], repeat))
             matcher = sensor.matcher(cam)

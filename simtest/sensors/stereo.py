@@ -4,10 +4,11 @@ One view (:meth:`StereoSensor.sense`):
 
 1. Three exact depth renders through the scene's :class:`~simtest.render.rasterizer.Renderer`, each by placing
    the scene's render camera (``data.cam_xpos`` / ``cam_xmat``, as ``SimScene.set_camera`` does) and restoring
-   the colour camera afterwards: the projector (for its shadow), the left IR camera and the right IR camera
-   (``rgb=True`` too when the albedo comes from the surface colour). The IR cameras and the projector use the
-   IR intrinsics ``K_ir`` (focal ``ir_focal_ratio x width``, principal point of the colour camera): the model
-   camera's focal length (``model.cam_intrinsic``) is scaled for these renders and restored.
+   the colour camera afterwards: the projector (depth only, for its shadow), the left IR camera and the right
+   IR camera (RGB and depth from one pass when the albedo comes from the surface colour; the materials darkened
+   by their reflectance for these two renders, see :class:`_DiffuseMaterials`). The IR cameras and the
+   projector use the IR intrinsics ``K_ir`` (focal ``ir_focal_ratio x width``, principal point of the colour
+   camera): the model camera's focal length (``model.cam_intrinsic``) is scaled for these renders and restored.
 2. Each IR pixel is back-projected to its world point; the point is lit by the projector when its depth seen
    from the projector matches the projector's own depth map (else it lies in the projector's shadow, the holes
    beside object edges); the lit intensity samples a seeded dot pattern where the point projects into the
@@ -67,6 +68,8 @@ class StereoSensor:
         albedo: ``"rgb"`` (luminance of the rendered colour: dark surfaces return little light) or a constant.
         mirror: Scale each geom's albedo by ``1 - reflectance`` of its material: light a mirror-like surface
             reflects specularly does not come back to the cameras (a MuJoCo mirror, ``reflectance`` 1, is black).
+            With ``albedo="rgb"`` the material colours are scaled for the IR renders (before MuJoCo's lighting
+            and its clamp to 1); with a constant albedo, per pixel through the IR renders' segmentation.
         noise: Sensor noise std (fraction of full scale 1.0).
         shadow_tolerance: Relative depth tolerance of the projector-visibility test.
         texture_threshold: Pixels whose left-IR local contrast (std over the matching block, fraction of full
@@ -161,13 +164,16 @@ class StereoSensor:
         K_ir = self.ir_K(camera)
         T_left, T_right, T_proj = self.poses(camera)
         use_rgb = self.albedo == "rgb"
-        diffuse = _diffuse_fraction(renderer.model) if self.mirror else None
+        # The mirror term: with the rendered colour, in the materials themselves (one RGB + depth pass per IR
+        # camera); with a constant albedo, per pixel through the segmentation.
+        diffuse = _diffuse_fraction(renderer.model) if self.mirror and not use_rgb else None
         pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
         with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
             proj_depth = at.render(T_proj, rgb=False).depth if self.projector else None
-            left = at.render(T_left, rgb=use_rgb, seg=self.mirror)
-            right = at.render(T_right, rgb=use_rgb, seg=self.mirror)
+            with _DiffuseMaterials(renderer.model, self.mirror and use_rgb):
+                left = at.render(T_left, rgb=use_rgb, seg=diffuse is not None)
+                right = at.render(T_right, rgb=use_rgb, seg=diffuse is not None)
         shape = (camera.height, camera.width)
         noise = [_gaussian(rng, shape) for _ in range(2)]  # left, then right
         ir_left, flat = self._left_image(left, T_left, K_ir, T_proj, proj_depth, pattern, noise[0], diffuse)
@@ -333,6 +339,47 @@ class _RenderAt:
         self.model.cam_intrinsic[self.cid] = self.intr
         self.data.cam_xpos[self.cid] = self.pos
         self.data.cam_xmat[self.cid] = self.mat
+
+
+class _DiffuseMaterials:
+    """The mirror term in the materials, for the IR renders: each material's colour (``mat_rgba``, and
+    ``geom_rgba`` where a geom's own colour overrides its material's) and specular scaled by
+    ``1 - reflectance``, reflectance 0 (light a mirror-like surface reflects specularly does not come back to the
+    cameras, and MuJoCo draws no reflection for it); every array restored exactly on exit. MuJoCo reads the
+    materials from the model at each ``mjv_updateScene``: nothing is uploaded."""
+
+    _DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)
+
+    def __init__(self, model, enabled: bool) -> None:
+        self.model, self.saved = model, []
+        self.enabled = bool(enabled) and bool(np.any(model.mat_reflectance > 0))
+
+    def __enter__(self) -> "_DiffuseMaterials":
+        if not self.enabled:
+            return self
+        m = self.model
+        self.saved = [(a, a.copy()) for a in (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba)]
+        try:
+            keep = np.clip(1.0 - m.mat_reflectance, 0.0, 1.0).astype(np.float32)
+            m.mat_rgba[:, :3] *= keep[:, None]
+            m.mat_specular *= keep
+            m.mat_reflectance[:] = 0.0
+            # mjv_updateScene draws a geom's own rgba instead of its material's when it is not the default
+            matid = np.asarray(m.geom_matid)
+            own = (matid >= 0) & np.any(m.geom_rgba != self._DEFAULT_RGBA, axis=1)
+            for g in np.nonzero(own)[0]:
+                rgba = m.geom_rgba[g]
+                rgba[:3] *= keep[matid[g]]
+                if np.array_equal(rgba, self._DEFAULT_RGBA):  # would read as "no colour of its own"
+                    rgba[0] = np.nextafter(np.float32(0.5), np.float32(0.0))
+        except BaseException:
+            self.__exit__()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for a, copy in self.saved:
+            np.copyto(a, copy)
 
 
 def _gaussian(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:

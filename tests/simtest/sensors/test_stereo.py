@@ -196,7 +196,15 @@ def test_mirror_like_object_loses_depth(make_scene):
     mirror = ObjectPlacement(13, (0.08, 0.0, tz + 0.1), (1.0, 0.0, 0.0, 0.0), BRIGHT, 0.5, 0.5, 1.0)
     sim = make(FLAT, [], (matte, mirror))
     cam = _camera(K, (0.0, -0.2, tz + 0.75), (0.0, 0.0, tz))
-    exact, view, _ = _sense(sim, cam)
+    m = sim.model
+    materials = [a.copy() for a in (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba)]
+    exact, view, after = _sense(sim, cam)
+    # the IR renders darken the materials by their reflectance; the model and the colour camera's render are
+    # restored byte for byte
+    for a, b in zip(materials, (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba)):
+        assert a.tobytes() == b.tobytes()
+    for x, y in ((exact.rgb, after.rgb), (exact.depth, after.depth), (exact.seg, after.seg)):
+        assert np.array_equal(x, y)
     on_matte = _valid_fraction(exact, view, cam, (-0.08, 0.0, tz + 0.2))
     on_mirror = _valid_fraction(exact, view, cam, (0.08, 0.0, tz + 0.2))
     assert on_matte > 0.9 and on_mirror < on_matte - 0.3, (on_matte, on_mirror)
@@ -205,3 +213,31 @@ def test_mirror_like_object_loses_depth(make_scene):
     with Renderer(sim.model, W, H) as r:
         v2 = plain.sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(0))
     assert _valid_fraction(exact, v2, cam, (0.08, 0.0, tz + 0.2)) > 0.9
+
+
+def test_materials_restored_when_an_ir_render_fails(make_scene):
+    make, K, tz = make_scene
+    mirror = ObjectPlacement(13, (0.0, 0.0, tz + 0.1), (1.0, 0.0, 0.0, 0.0), BRIGHT, 0.5, 0.5, 1.0)
+    sim = make(FLAT, [], (mirror,))
+    cam = _camera(K, (0.0, -0.2, tz + 0.75), (0.0, 0.0, tz))
+    sim.set_camera(cam)
+    m = sim.model
+    saved = [a.copy() for a in (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba, m.cam_intrinsic)]
+
+    class Failing:
+        """A renderer whose second pass (the left IR camera's) fails."""
+
+        def __init__(self, renderer):
+            self.model, self.renderer, self.calls = renderer.model, renderer, 0
+
+        def render(self, *args, **kwargs):
+            self.calls += 1
+            if self.calls == 2:
+                assert not np.any(m.mat_reflectance)  # inside the IR renders
+                raise RuntimeError("render failed")
+            return self.renderer.render(*args, **kwargs)
+
+    with Renderer(m, W, H) as r, pytest.raises(RuntimeError, match="render failed"):
+        stereo_preset("d435-stereo").sense_view(Failing(r), sim.data, sim.camera_id, cam, np.random.default_rng(0))
+    for a, b in zip(saved, (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba, m.cam_intrinsic)):
+        assert a.tobytes() == b.tobytes()
