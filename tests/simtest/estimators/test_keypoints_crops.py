@@ -148,6 +148,8 @@ def test_both_solvers_of_the_overfitted_dense_network_recover_its_poses(overfitt
     est = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", solver=solver,
                                 fusion=fusion)
     assert est.solver == solver
+    auto = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", solver=solver)
+    assert auto.fusion == ("uniform" if solver == "dense" else "confidence")  # fusion=auto
     obs, gt = _observation(ds, 0, objects)
     found = est.estimate(obs)
     assert len(found) == len(gt["keep"])
