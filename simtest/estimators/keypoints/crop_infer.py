@@ -42,7 +42,7 @@ from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
-from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, warp_crop
+from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
 from simtest.estimators.training import check_device
 
@@ -299,8 +299,7 @@ class CropKeypointEstimator:
             kp, kc = fuse_keypoints(pts, conf, self.top_n, self.min_conf)
         else:
             kp, kc = pts.mean(0), conf.mean(0)
-        Minv = np.linalg.inv(M)
-        kp_full = kp @ Minv[:2, :2].T + Minv[:2, 2]
+        kp_full = map_pixels(np.linalg.inv(M), kp)
         R, t, rms = solve_pnp(kp_full, self.kp3d[oid], K, self.pnp)
         mc = float(kc.mean())
         return R, t, mc / (1.0 + mc) * float(prob[cells].mean()), {
@@ -311,8 +310,7 @@ class CropKeypointEstimator:
                     ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
         """The pose from the object cells' predicted model points (``solver=dense``; see the module doc): per
         hypothesis RANSAC EPnP + LM; the one with the most inliers (then the lowest inlier error) is kept."""
-        Minv = np.linalg.inv(M)
-        uv_all = maps["centers"][:, cells].T @ Minv[:2, :2].T + Minv[:2, 2]  # (M, 2) full-image pixels
+        uv_all = map_pixels(np.linalg.inv(M), maps["centers"][:, cells].T)  # (M, 2) full-image pixels
         best = None
         for h in range(maps["xyz"].shape[0]):
             xyz = maps["xyz"][h][:, cells].T  # (M, 3) metres

@@ -23,8 +23,8 @@ import numpy as np
 
 from simtest.errors import ConfigError
 
-__all__ = ["crop_intrinsics", "crop_window_for_box", "warp_crop", "jitter_box", "KeypointCrops", "collate_crops",
-           "object_coords_image", "cell_object_coords", "DEFAULT_MARGIN", "DEFAULT_CROP_SIZE"]
+__all__ = ["crop_intrinsics", "crop_window_for_box", "warp_crop", "map_pixels", "jitter_box", "KeypointCrops",
+           "collate_crops", "object_coords_image", "cell_object_coords", "DEFAULT_MARGIN", "DEFAULT_CROP_SIZE"]
 
 #: Side of the square crop window as a multiple of the detection box's longer side.
 DEFAULT_MARGIN = 1.3
@@ -65,6 +65,13 @@ def crop_intrinsics(K: np.ndarray, box: Sequence[float], size: int | Sequence[in
     ax, ay = w / bw, h / bh
     M = np.array([[ax, 0.0, -ax * x0 - 0.5], [0.0, ay, -ay * y0 - 0.5], [0.0, 0.0, 1.0]])
     return M @ np.asarray(K, np.float64), M
+
+
+def map_pixels(M: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) through the affine pixel map ``M`` (3x3, last row ``0 0 1``): full image -> crop with the
+    ``M`` of :func:`crop_intrinsics`, crop -> full image with its inverse."""
+    M = np.asarray(M, np.float64)
+    return np.asarray(points, np.float64) @ M[:2, :2].T + M[:2, 2]
 
 
 def crop_window_for_box(box: Sequence[float], margin: float = DEFAULT_MARGIN, min_side: float = 16.0
@@ -176,7 +183,7 @@ class KeypointCrops:
             Kc, M = crop_intrinsics(K, box, S)
             out["rgb"][c] = warp_crop(rgb, M, S).transpose(2, 0, 1)
             out["fg"][c] = warp_crop(masks[k], M, S, nearest=True)
-            out["keypoints_2d"][c] = kp[k] @ M[:2, :2].T + M[:2, 2]
+            out["keypoints_2d"][c] = map_pixels(M, kp[k])
             out["labels"][c] = int(s["labels"][k])
             out["K"][c] = Kc
             if st is not None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from simtest.errors import ConfigError
-from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, warp_crop
+from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 
 
 def _K() -> np.ndarray:
@@ -27,6 +27,8 @@ def test_crop_intrinsics_map_crop_pixels_to_full_image_pixels_exactly():
         pc = (X @ Kc.T)[:, :2] / X[:, 2:]
         back = np.c_[pc, np.ones(len(pc))] @ np.linalg.inv(M).T
         np.testing.assert_allclose(back[:, :2], p, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(map_pixels(np.linalg.inv(M), pc), p, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(map_pixels(M, p), pc, rtol=0, atol=1e-9)
         # the window's edges land on the crop's edges (OpenCV: pixel i covers [i - 0.5, i + 0.5])
         h, w = (size, size) if isinstance(size, int) else size
         x0, y0, bw, bh = box
