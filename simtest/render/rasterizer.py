@@ -152,14 +152,23 @@ class Renderer:
         return camera_id(self.model, camera)
 
     def render(self, data: mujoco.MjData, camera: int | str, rgb: bool = True, depth: bool = True,
-               seg: bool = True) -> Frame:
+               seg: bool = True, size: tuple[int, int] | None = None) -> Frame:
         """Render the requested channels from fixed camera ``camera`` (id or name) at ``data``'s state.
 
         ``data.cam_xpos`` / ``cam_xmat`` are used as they are (a caller may place the camera there).
+        ``size``: ``(width, height)`` of a smaller image (at most the renderer's), drawn into a corner of the
+        buffer; the camera's intrinsics (``model.cam_sensorsize``, ``cam_intrinsic``) must then describe that
+        image (e.g. a window of the full one: :mod:`simtest.sensors.stereo`).
         """
         if self._con is None:
             raise RenderError("render() called after close()")
         check_fork()
+        rect = self._rect
+        if size is not None:
+            w, h = int(size[0]), int(size[1])
+            if not (0 < w <= self.width and 0 < h <= self.height):
+                raise RenderError(f"render size {size} must be within the renderer's {self.width}x{self.height}")
+            rect = mujoco.MjrRect(0, 0, w, h)
         self._cam.fixedcamid = self._camera_id(camera)
         self._ctx.make_current()
         # Renderers share the GL context: bind this one's offscreen buffer (another may have been made since).
@@ -168,34 +177,34 @@ class Renderer:
                                mujoco.mjtCatBit.mjCAT_ALL, self._scene)
         out_rgb = out_depth = out_seg = None
         if rgb:
-            mujoco.mjr_render(self._rect, self._scene, self._con)
-            buf = np.empty((self.height, self.width, 3), dtype=np.uint8)
+            mujoco.mjr_render(rect, self._scene, self._con)
+            buf = np.empty((rect.height, rect.width, 3), dtype=np.uint8)
             # RGB and depth without segmentation: the colour pass's depth buffer is the same geometry (one pass
             # instead of two; not with MSAA, whose resolved depth blends samples at edges)
-            zbuf = np.empty((self.height, self.width), dtype=np.float32) if depth and not seg and \
+            zbuf = np.empty((rect.height, rect.width), dtype=np.float32) if depth and not seg and \
                 self.profile != "quality" else None
-            mujoco.mjr_readPixels(buf, zbuf, self._rect, self._con)
+            mujoco.mjr_readPixels(buf, zbuf, rect, self._con)
             out_rgb = np.ascontiguousarray(buf[::-1])
             if zbuf is not None:
                 return Frame(out_rgb, self._linear_depth(zbuf[::-1]), None)
         if depth or seg:
-            s, z = self._seg_and_depth(seg)
+            s, z = self._seg_and_depth(seg, rect)
             out_seg = s if seg else None
             out_depth = self._linear_depth(z) if depth else None
         return Frame(out_rgb, out_depth, out_seg)
 
-    def _seg_and_depth(self, seg: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
-        """The segmentation pass (flat id colours: no lighting or textures) and its depth buffer; without ``seg``
-        only the depth buffer is read back (a depth-only pass)."""
+    def _seg_and_depth(self, seg: bool, rect) -> tuple[np.ndarray | None, np.ndarray]:
+        """The segmentation pass (flat id colours: no lighting or textures) and its depth buffer in ``rect``;
+        without ``seg`` only the depth buffer is read back (a depth-only pass)."""
         scene = self._scene
         saved = scene.flags.copy()
         try:
             scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
             scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
-            mujoco.mjr_render(self._rect, scene, self._con)
-            colour = np.empty((self.height, self.width, 3), dtype=np.uint8) if seg else None
-            zbuf = np.empty((self.height, self.width), dtype=np.float32)
-            mujoco.mjr_readPixels(colour, zbuf, self._rect, self._con)
+            mujoco.mjr_render(rect, scene, self._con)
+            colour = np.empty((rect.height, rect.width, 3), dtype=np.uint8) if seg else None
+            zbuf = np.empty((rect.height, rect.width), dtype=np.float32)
+            mujoco.mjr_readPixels(colour, zbuf, rect, self._con)
         finally:
             np.copyto(scene.flags, saved)
         if colour is None:
@@ -209,7 +218,7 @@ class Renderer:
         if scene.ngeom < 255:  # every code fits in R: one 256-entry lookup of one channel
             seg = lut[np.minimum(np.arange(256), scene.ngeom)][flipped[..., 0]]
         else:
-            rgbx = np.zeros((self.height, self.width, 4), dtype=np.uint8)
+            rgbx = np.zeros(flipped.shape[:2] + (4,), dtype=np.uint8)
             rgbx[..., :3] = flipped
             code = rgbx.view("<u4")[..., 0]
             seg = lut[np.minimum(code, scene.ngeom, out=code)]

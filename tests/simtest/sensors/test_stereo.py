@@ -241,3 +241,66 @@ def test_materials_restored_when_an_ir_render_fails(make_scene):
         stereo_preset("d435-stereo").sense_view(Failing(r), sim.data, sim.camera_id, cam, np.random.default_rng(0))
     for a, b in zip(saved, (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba, m.cam_intrinsic)):
         assert a.tobytes() == b.tobytes()
+
+
+def test_matching_window_agrees_with_the_whole_image(make_scene):
+    make, K, tz = make_scene
+    sim = make(CHECKER, [((0.03, 0.03, 0.1), (0.0, 0.0, tz + 0.1), BRIGHT)])
+    cam = _camera(K, (0.0, -0.3, tz + 0.6), (0.0, 0.0, tz))
+    sensor = stereo_preset("d435-stereo")
+    r0, r1, c0, c1 = sensor.match_window(cam)
+    assert (r1 - r0) * (c1 - c0) < 0.8 * W * H  # the colour camera sees a part of the wider IR view
+    whole = sensor.replace(match_margin=None)
+    assert whole.match_window(cam) == (0, H, 0, W)
+    sim.set_camera(cam)
+    with Renderer(sim.model, W, H) as r:
+        a = sensor.sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(5))
+        b = whole.sense_view(r, sim.data, sim.camera_id, cam, np.random.default_rng(5))
+    assert a.window == (r0, r1, c0, c1) and b.window == (0, H, 0, W)
+    # the IR pair is the same inside the window (the window's render is the crop of the whole one, its depth to
+    # float32 rounding, which moves some intensities across a quantisation step) and 0 outside
+    inside = np.zeros((H, W), dtype=bool)
+    inside[r0 + 1:r1 - 1, c0 + 1:c1 - 1] = True  # the depth gradients at the window's border are one-sided
+    for x, y in ((a.ir_left, b.ir_left), (a.ir_right, b.ir_right)):
+        diff = np.abs(x.astype(int) - y.astype(int))[inside]
+        assert diff.max() <= 2 and (diff == 0).mean() > 0.85, np.bincount(diff)
+        assert not x[:r0].any() and not x[r1:].any() and not x[:, :c0].any() and not x[:, c1:].any()
+    # the sensed depth agrees to a sub-pixel step of the matcher (1/16 px of disparity: z^2 / (16 f b)), but
+    # for SGBM's aggregation paths cut at the window's edge
+    assert (a.depth > 0).mean() > 0.5
+    step = b.depth.astype(np.float64) ** 2 / (16.0 * a.K_ir[0, 0] * sensor.baseline)
+    assert (np.abs(a.depth - b.depth) <= 1.01 * step + 1e-6).mean() > 0.99
+    assert ((a.depth > 0) == (b.depth > 0)).mean() > 0.995
+
+
+def test_window_render_is_the_crop_of_the_whole_render(make_scene):
+    from simtest.render.rasterizer import RenderError
+    from simtest.sensors.stereo import _RenderAt
+
+    make, K, tz = make_scene
+    sim = make(CHECKER, [((0.03, 0.03, 0.1), (0.0, 0.0, tz + 0.1), BRIGHT)])
+    cam = _camera(K, (0.05, -0.3, tz + 0.6), (0.0, 0.0, tz))
+    sim.set_camera(cam)
+    sensor = stereo_preset("d435-stereo")
+    left = sensor.poses(cam)[0]
+    window = (13, 101, 7, 190)
+    saved = [a.copy() for a in (sim.model.cam_intrinsic, sim.model.cam_sensorsize, sim.model.cam_resolution)]
+    with Renderer(sim.model, W, H) as r:
+        with _RenderAt(r, sim.data, sim.camera_id, cam, sensor.ir_K(cam)) as at:
+            whole = at.render(left, rgb=True, seg=True)
+            part = at.render(left, rgb=True, seg=True, window=window)
+            again = at.render(left, rgb=True, seg=True)
+        with pytest.raises(RenderError, match="render size"):
+            r.render(sim.data, sim.camera_id, size=(W + 1, H))
+    for a, b in zip(saved, (sim.model.cam_intrinsic, sim.model.cam_sensorsize, sim.model.cam_resolution)):
+        assert a.tobytes() == b.tobytes()
+    assert np.array_equal(whole.rgb, again.rgb)
+    r0, r1, c0, c1 = window
+    assert part.rgb.shape == (r1 - r0, c1 - c0, 3) and part.depth.shape == part.seg.shape == (r1 - r0, c1 - c0)
+    crop = whole.rgb[r0:r1, c0:c1].astype(int)
+    # another projection matrix: the interpolated shading moves some pixels by one 8-bit level, no more
+    assert np.abs(part.rgb - crop).max() <= 1 and np.abs(part.rgb - crop).mean() < 0.25
+    assert (part.seg == whole.seg[r0:r1, c0:c1]).mean() > 0.999
+    zc = whole.depth[r0:r1, c0:c1]
+    same = (part.seg == whole.seg[r0:r1, c0:c1]) & (zc > 0)
+    assert np.allclose(part.depth[same], zc[same], rtol=1e-4, atol=0.0)
