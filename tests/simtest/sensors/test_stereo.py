@@ -304,3 +304,18 @@ def test_window_render_is_the_crop_of_the_whole_render(make_scene):
     zc = whole.depth[r0:r1, c0:c1]
     same = (part.seg == whole.seg[r0:r1, c0:c1]) & (zc > 0)
     assert np.allclose(part.depth[same], zc[same], rtol=1e-4, atol=0.0)
+
+
+def test_figure_script_draws_the_sensors(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import cv2
+
+    script = Path(__file__).resolve().parents[3] / "examples" / "stereo_depth.py"
+    out = tmp_path / "stereo.png"
+    subprocess.run([sys.executable, str(script), str(out), "--width", "160", "--height", "120"], check=True,
+                   capture_output=True, timeout=300)
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape[1] >= 5 * 160 and img.shape[0] > 120
