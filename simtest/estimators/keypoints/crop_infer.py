@@ -9,7 +9,8 @@
 2. Per detection a square window ``margin`` times the box's longer side, resampled to ``crop_size`` pixels,
    with intrinsics ``K' = M K`` (:func:`~simtest.estimators.keypoints.crops.crop_intrinsics`). With ``recrop``
    (default 2) the crop is framed again from the box of the network's own object cells in it, as the
-   ground-truth visible boxes frame the training crops, and the network run on the new crop.
+   ground-truth visible boxes frame the training crops, and the network run on the new crop (not with
+   ``detect=gt``, whose boxes are those).
 3. The crop network (:mod:`.crop_model`) gives, for the detection's class, per cell an object-mask probability,
    keypoint offsets and confidences ``c = softplus(z)``.
 4. On the cells with mask probability >= ``fg_threshold``, per keypoint the ``top_n`` most confident
@@ -121,9 +122,10 @@ class CropKeypointEstimator:
         dense_keep: ``solver=dense`` with ``fusion=confidence``: the fraction of object cells kept, most
             confident first (at least 8). ransac_px: its RANSAC threshold, full-image pixels.
         recrop: Passes that frame each crop anew from the crop network's own object cells of the pass before
-            (0-3; default 2): the detector's box starts it, then the box of the cells with mask probability
-            >= ``fg_threshold`` mapped back to the full image (chosen on the validation set of
-            docs/training.md: 24.4, 26.4, 28.0, 26.4 % ADD(-S)-0.1d for 0-3 passes).
+            (0-3): the detector's box starts it, then the box of the cells with mask probability
+            >= ``fg_threshold`` mapped back to the full image. None (default): 2 with a detector (chosen on the
+            validation set of docs/training.md: 24.4, 26.4, 28.0, 26.4 % ADD(-S)-0.1d for 0-3 passes), 0 with
+            ``detect=gt`` (the ground-truth visible box already frames the crop as in training).
 
     Raises:
         ConfigError: Bad options, a missing or unreadable checkpoint; at :meth:`estimate`, an object set other
@@ -137,7 +139,7 @@ class CropKeypointEstimator:
                  fusion: str = "auto", top_n: int = 16, min_conf: float = 0.0, pnp: str = "epnp",
                  fg_threshold: float = 0.5, min_region_pixels: int = 40, device: str = "cpu",
                  threads: int | None = None, runtime: str = "auto", solver: str = "auto",
-                 dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int = 2, *, model: Any = None,
+                 dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int | None = None, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS)):
@@ -148,8 +150,10 @@ class CropKeypointEstimator:
         if not 0.0 < float(dense_keep) <= 1.0 or not float(ransac_px) > 0.0:
             raise ConfigError(f"keypoints: need 0 < dense_keep <= 1 and ransac_px > 0, got {dense_keep!r}, "
                               f"{ransac_px!r}")
-        if not (isinstance(recrop, int) and 0 <= recrop <= 3):
-            raise ConfigError(f"keypoints: recrop must be an integer 0-3, got {recrop!r}")
+        if recrop is None:
+            recrop = 0 if detect == "gt" else 2
+        if not (isinstance(recrop, int) and not isinstance(recrop, bool) and 0 <= recrop <= 3):
+            raise ConfigError(f"keypoints: recrop must be an integer 0-3 or none, got {recrop!r}")
         self.dense_keep, self.ransac_px, self.recrop = float(dense_keep), float(ransac_px), int(recrop)
         check_device(device, "keypoints")
         self.detect, self.fusion, self.pnp = detect, fusion, pnp

@@ -134,7 +134,7 @@ def _hits(found, gt, objects) -> int:
     return ok
 
 
-# recrop 0 but for the default: a network that memorised one image's ground-truth crops is asked about crops
+# recrop 0 but in one case: a network that memorised one image's ground-truth crops is asked about crops
 # framed by its own masks only once (the default estimator), the other solvers on the crops it memorised
 @pytest.mark.parametrize("solver, fusion, recrop", [("auto", "auto", 2), ("auto", "auto", 0),
                                                     ("dense", "confidence", 0), ("keypoints", "confidence", 0),
@@ -251,7 +251,7 @@ def test_estimator_options_are_checked():
         CropKeypointEstimator(solver="voting")
     with pytest.raises(ConfigError, match="dense_keep"):
         CropKeypointEstimator(dense_keep=0.0)
-    with pytest.raises(ConfigError, match="recrop must be an integer 0-3, got 5"):
+    with pytest.raises(ConfigError, match="recrop must be an integer 0-3 or none, got 5"):
         CropKeypointEstimator(recrop=5)
     from simtest.objects import load_object_set
 
@@ -261,4 +261,4 @@ def test_estimator_options_are_checked():
                               detect="gt", solver="dense")
     est = CropKeypointEstimator(model=plain, objects_record=object_record(load_object_set("builtin-small")),
                                 detect="gt")
-    assert (est.solver, est.fusion) == ("keypoints", "confidence")
+    assert (est.solver, est.fusion, est.recrop) == ("keypoints", "confidence", 0)  # gt boxes: no recrop
