@@ -30,10 +30,10 @@ def _best_ms(fn, repeat: int) -> float:
 
 def _passes(sensor, renderer, scene, cam, window) -> None:
     """The sensor's GL passes: the projector's depth and the IR pair's RGB + depth, each over its window."""
-    from simtest.sensors.stereo import _RenderAt
+    from simtest.sensors.ir_render import RenderAt
 
     left, right, proj = sensor.poses(cam)
-    with _RenderAt(renderer, scene.data, scene.camera_id, cam, sensor.ir_K(cam)) as at:
+    with RenderAt(renderer, scene.data, scene.camera_id, cam, sensor.ir_K(cam)) as at:
         if sensor.projector:
             at.render(proj, rgb=False, window=sensor.projector_window(cam))
         for T in (left, right):

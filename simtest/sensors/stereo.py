@@ -6,7 +6,7 @@ One view (:meth:`StereoSensor.sense`):
    the scene's render camera (``data.cam_xpos`` / ``cam_xmat``, as ``SimScene.set_camera`` does) and restoring
    the colour camera afterwards: the projector (depth only, for its shadow), the left IR camera and the right
    IR camera (RGB and depth from one pass when the albedo comes from the surface colour; the materials darkened
-   by their reflectance for these two renders, see :class:`_DiffuseMaterials`). The IR cameras and the
+   by their reflectance for these two renders, see :class:`~simtest.sensors.ir_render.DiffuseMaterials`). The IR cameras and the
    projector use the IR intrinsics ``K_ir`` (focal ``ir_focal_ratio x width``, principal point of the colour
    camera): the model camera's focal length (``model.cam_intrinsic``) is scaled for these renders and restored.
 2. Each IR pixel is back-projected to its world point; the point is lit by the projector when its depth seen
@@ -34,6 +34,8 @@ from simtest.camera import CameraModel, intrinsics_matrix, pinhole_pixels, pinho
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.rng import child_rng
+from simtest.sensors.ir_render import DiffuseMaterials, RenderAt
+from simtest.sensors.registration import register_depth
 
 __all__ = ["sensor_rng", "StereoSensor", "StereoView", "STEREO_PRESETS", "stereo_preset", "register_depth", "dot_pattern"]
 
@@ -200,10 +202,10 @@ class StereoSensor:
         K_win = K_ir.copy()
         K_win[0, 2] -= c0
         K_win[1, 2] -= r0
-        with _RenderAt(renderer, data, camera_id, camera, K_ir) as at:
+        with RenderAt(renderer, data, camera_id, camera, K_ir) as at:
             proj_win = self.projector_window(camera)
             proj_depth = at.render(T_proj, rgb=False, window=proj_win).depth if self.projector else None
-            with _DiffuseMaterials(renderer.model, self.mirror and use_rgb):
+            with DiffuseMaterials(renderer.model, self.mirror and use_rgb):
                 left_w = at.render(T_left, rgb=use_rgb, seg=diffuse is not None, window=window)
                 right_w = at.render(T_right, rgb=use_rgb, seg=diffuse is not None, window=window)
         # left, then right; drawn for the whole image, so a pixel's noise does not depend on the window
@@ -357,100 +359,6 @@ class StereoView:
     window: tuple[int, int, int, int]
 
 
-class _RenderAt:
-    """Renders the scene's render camera at other poses with the IR intrinsics, over the whole image or a window
-    of it; restores the camera (pose, ``cam_intrinsic``, ``cam_sensorsize``, ``cam_resolution``) on exit.
-
-    A window ``(r0, r1, c0, c1)`` is rendered as an image of its own: sensor size and resolution of the window's
-    pixels, the principal point moved by its corner (MuJoCo's principal offset is measured from the sensor centre
-    with pixel corners at integers, as in :func:`simtest.camera.mujoco_camera_intrinsics`), drawn into a corner of
-    the renderer's buffer. It equals the crop of the whole render (depth to float32 rounding; tested).
-    """
-
-    def __init__(self, renderer, data, camera_id: int, camera: CameraModel, K_ir: np.ndarray) -> None:
-        self.renderer, self.data, self.cid, self.camera = renderer, data, int(camera_id), camera
-        self.model = renderer.model
-        self.K_ir = np.asarray(K_ir, dtype=np.float64)
-
-    def __enter__(self) -> "_RenderAt":
-        m, c = self.model, self.cid
-        self.pos = self.data.cam_xpos[c].copy()
-        self.mat = self.data.cam_xmat[c].copy()
-        self.saved = [(a, a[c].copy()) for a in (m.cam_intrinsic, m.cam_sensorsize, m.cam_resolution)]
-        if not np.all(m.cam_sensorsize[c] > 0) or not np.all(m.cam_resolution[c] > 0):
-            raise ConfigError("the stereo sensor needs a camera given by focal_pixel/sensor_size "
-                              "(simtest.camera.mujoco_camera_intrinsics)")
-        self.pixel = np.asarray(m.cam_sensorsize[c], np.float64) / np.asarray(m.cam_resolution[c], np.float64)
-        return self
-
-    def _intrinsics(self, window: tuple[int, int, int, int]) -> None:
-        r0, r1, c0, c1 = window
-        w, h = c1 - c0, r1 - r0
-        (px, py), K, m, c = self.pixel, self.K_ir, self.model, self.cid
-        m.cam_intrinsic[c] = (K[0, 0] * px, K[1, 1] * py, (w / 2.0 - (K[0, 2] - c0 + 0.5)) * px,
-                              (h / 2.0 - (K[1, 2] - r0 + 0.5)) * py)
-        m.cam_sensorsize[c] = (w * px, h * py)
-        m.cam_resolution[c] = (w, h)
-
-    def render(self, T_world: Pose, rgb: bool, seg: bool = False, window: tuple[int, int, int, int] | None = None):
-        """The frame at ``T_world`` (OpenCV camera pose): the whole image, or ``window``'s pixels only."""
-        full = (0, self.camera.height, 0, self.camera.width)
-        window = full if window is None else tuple(int(x) for x in window)
-        self._intrinsics(window)
-        pos, R_mj = self.camera.with_pose(T_world).mujoco_pose()
-        self.data.cam_xpos[self.cid] = pos
-        self.data.cam_xmat[self.cid] = R_mj.reshape(-1)
-        size = None if window == full else (window[3] - window[2], window[1] - window[0])
-        return self.renderer.render(self.data, self.cid, rgb=rgb, depth=True, seg=seg, size=size)
-
-    def __exit__(self, *exc) -> None:
-        for a, copy in self.saved:
-            a[self.cid] = copy
-        self.data.cam_xpos[self.cid] = self.pos
-        self.data.cam_xmat[self.cid] = self.mat
-
-
-class _DiffuseMaterials:
-    """The mirror term in the materials, for the IR renders: each material's colour (``mat_rgba``, and
-    ``geom_rgba`` where a geom's own colour overrides its material's) and specular scaled by
-    ``1 - reflectance``, reflectance 0 (light a mirror-like surface reflects specularly does not come back to the
-    cameras, and MuJoCo draws no reflection for it); every array restored exactly on exit. MuJoCo reads the
-    materials from the model at each ``mjv_updateScene``: nothing is uploaded."""
-
-    _DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)
-
-    def __init__(self, model, enabled: bool) -> None:
-        self.model, self.saved = model, []
-        self.enabled = bool(enabled) and bool(np.any(model.mat_reflectance > 0))
-
-    def __enter__(self) -> "_DiffuseMaterials":
-        if not self.enabled:
-            return self
-        m = self.model
-        self.saved = [(a, a.copy()) for a in (m.mat_rgba, m.mat_specular, m.mat_reflectance, m.geom_rgba)]
-        try:
-            keep = np.clip(1.0 - m.mat_reflectance, 0.0, 1.0).astype(np.float32)
-            m.mat_rgba[:, :3] *= keep[:, None]
-            m.mat_specular *= keep
-            m.mat_reflectance[:] = 0.0
-            # mjv_updateScene draws a geom's own rgba instead of its material's when it is not the default
-            matid = np.asarray(m.geom_matid)
-            own = (matid >= 0) & np.any(m.geom_rgba != self._DEFAULT_RGBA, axis=1)
-            for g in np.nonzero(own)[0]:
-                rgba = m.geom_rgba[g]
-                rgba[:3] *= keep[matid[g]]
-                if np.array_equal(rgba, self._DEFAULT_RGBA):  # would read as "no colour of its own"
-                    rgba[0] = np.nextafter(np.float32(0.5), np.float32(0.0))
-        except BaseException:
-            self.__exit__()
-            raise
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for a, copy in self.saved:
-            np.copyto(a, copy)
-
-
 def _key(K: np.ndarray) -> tuple[float, ...]:
     return tuple(float(k) for k in np.asarray(K, dtype=np.float64).ravel())
 
@@ -584,80 +492,6 @@ def _dot_pattern(width: int, height: int, fraction: float, sigma: float, seed: i
     out = np.clip(blurred[1:-1, 1:-1] * (2 * np.pi * sigma ** 2), 0.0, 1.0).astype(np.float32)
     out.setflags(write=False)
     return out
-
-
-def _transform(T: Pose, p: np.ndarray) -> np.ndarray:
-    """``T.apply`` for many points, column by column (numpy's matmul with a 3-wide inner axis is slow)."""
-    R, t = T.R, T.t
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    return np.stack([R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i] for i in range(3)], axis=-1)
-
-
-def _rescale_depth(depth: np.ndarray, K_src: np.ndarray, K_dst: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Registration between cameras with one centre and orientation: no parallax, so each destination pixel
-    takes the source pixel its ray passes through (nearest), the same depth."""
-    import cv2
-
-    if np.array_equal(K_src, K_dst) and depth.shape == (height, width):
-        return np.asarray(depth, dtype=np.float32).copy()
-    mu, mv = _ray_maps(tuple(np.asarray(K_src, np.float64).ravel().tolist()),
-                       tuple(np.asarray(K_dst, np.float64).ravel().tolist()), int(width), int(height))
-    return cv2.remap(np.asarray(depth, dtype=np.float32), mu, mv, cv2.INTER_NEAREST,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-
-
-@lru_cache(maxsize=8)
-def _ray_maps(K_src: tuple[float, ...], K_dst: tuple[float, ...], width: int,
-              height: int) -> tuple[np.ndarray, np.ndarray]:
-    """The source pixel of each destination pixel's ray (one centre and orientation): ``cv2.remap`` maps."""
-    (fs, _, cxs, _, gs, cys, *_), (fd, _, cxd, _, gd, cyd, *_) = K_src, K_dst
-    u = (np.arange(width, dtype=np.float64) - cxd) / fd * fs + cxs
-    v = (np.arange(height, dtype=np.float64) - cyd) / gd * gs + cys
-    mu, mv = np.meshgrid(u.astype(np.float32), v.astype(np.float32))
-    mu.setflags(write=False)
-    mv.setflags(write=False)
-    return mu, mv
-
-
-def register_depth(depth: np.ndarray, K_src: np.ndarray, T_dst_src: Pose, K_dst: np.ndarray, width: int,
-                   height: int) -> np.ndarray:
-    """Depth-to-colour alignment: a depth image (metres, 0 = none) of a source camera seen by a destination
-    camera (``T_dst_src`` maps source-frame points into it; ``width`` x ``height`` pixels, ``K_dst``).
-
-    Each source pixel's footprint (its corners at its depth) is splatted into the destination image and the
-    nearest surface kept (z-buffer); destination pixels no source pixel covers stay 0. Cameras with one centre
-    and orientation (no parallax) take the exact shortcut: each destination ray's source pixel.
-    """
-    if np.allclose(T_dst_src.t, 0.0, atol=1e-9) and np.allclose(T_dst_src.R, np.eye(3), atol=1e-9):
-        return _rescale_depth(depth, K_src, K_dst, width, height)
-    d = np.asarray(depth, dtype=np.float64)
-    v, u = np.nonzero(d > 0)
-    z = d[v, u]
-    out = np.full(height * width, np.inf)
-    if z.size:
-        corners = []
-        for du, dv in ((-0.5, -0.5), (0.5, 0.5)):
-            p = _transform(T_dst_src, pinhole_points(K_src, u + du, v + dv, z))
-            zz = np.where(p[:, 2] > 1e-6, p[:, 2], np.nan)
-            corners.append(pinhole_pixels(K_dst, p, zz))
-        zc = _transform(T_dst_src, pinhole_points(K_src, u.astype(np.float64), v.astype(np.float64), z))[:, 2]
-        (ua, va), (ub, vb) = corners
-        good = np.isfinite(ua) & np.isfinite(ub) & np.isfinite(va) & np.isfinite(vb) & (zc > 0)
-        lo_u = np.ceil(np.minimum(ua, ub)[good] - 1e-9).astype(np.int64)
-        hi_u = np.floor(np.maximum(ua, ub)[good] - 1e-9).astype(np.int64)
-        lo_v = np.ceil(np.minimum(va, vb)[good] - 1e-9).astype(np.int64)
-        hi_v = np.floor(np.maximum(va, vb)[good] - 1e-9).astype(np.int64)
-        # A footprint smaller than a pixel still lands on the pixel of its centre.
-        hi_u, hi_v = np.maximum(hi_u, lo_u), np.maximum(hi_v, lo_v)
-        zg = zc[good]
-        span = int(min(8, max(1, (hi_u - lo_u).max(initial=0) + 1, (hi_v - lo_v).max(initial=0) + 1)))
-        for oy in range(span):
-            for ox in range(span):
-                uu, vv = lo_u + ox, lo_v + oy
-                ok = (uu <= hi_u) & (vv <= hi_v) & (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
-                np.minimum.at(out, vv[ok] * width + uu[ok], zg[ok])
-    out[~np.isfinite(out)] = 0.0
-    return out.reshape(height, width).astype(np.float32)
 
 
 #: The presets: an active D435-like sensor and the same rig without its projector.

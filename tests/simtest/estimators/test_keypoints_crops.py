@@ -134,11 +134,10 @@ def _hits(found, gt, objects) -> int:
     return ok
 
 
-# recrop 0 but in one case: a network that memorised one image's ground-truth crops is asked about crops
-# framed by its own masks only once (the default estimator), the other solvers on the crops it memorised
-@pytest.mark.parametrize("solver, fusion, recrop", [("auto", "auto", 2), ("auto", "auto", 0),
-                                                    ("dense", "confidence", 0), ("keypoints", "confidence", 0),
-                                                    ("keypoints", "uniform", 0)])
+# recrop 0 (the default with ground-truth boxes): a network that memorised one image's ground-truth crops is
+# asked about the crops it memorised; re-framing is tested on its own below
+@pytest.mark.parametrize("solver, fusion, recrop", [("auto", "auto", None), ("dense", "confidence", 0),
+                                                    ("keypoints", "confidence", 0), ("keypoints", "uniform", 0)])
 def test_a_network_overfitted_on_one_image_recovers_its_poses(overfitted, solver, fusion, recrop):
     net, objects, ds, losses = overfitted
     assert losses[-1] < losses[0] - 5.0, losses[::50]
@@ -155,6 +154,35 @@ def test_a_network_overfitted_on_one_image_recovers_its_poses(overfitted, solver
         assert all(e.info["correspondences"] >= 8 and e.info["hypothesis"] in (0, 1) for e in found)
     ok = _hits(found, gt, objects)
     assert ok >= max(1, int(0.75 * len(found))), (ok, len(found))
+
+
+def test_recrop_frames_the_crop_by_the_networks_own_object_cells(overfitted):
+    """The box of the overfitted network's object cells, mapped back to the full image, is the ground-truth
+    visible box it was trained on, up to a few cells; with fewer than 4 object cells the box stays."""
+    from simtest.io.bop import mask_bbox
+
+    net, objects, ds, _ = overfitted
+    est = CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt")
+    assert est.recrop == 0  # ground-truth boxes already frame the crop as in training
+    assert CropKeypointEstimator(model=net, objects_record=object_record(objects), detect="gt", recrop=2).recrop == 2
+    obs, gt = _observation(ds, 0, objects)
+    K = np.asarray(obs.K, np.float64)
+    rgb = np.asarray(obs.rgb, np.float32) / np.float32(255.0)
+    boxes = [np.asarray(mask_bbox(m), np.float64) for m in obs.masks]
+    crops = est._crops(rgb, K, boxes, list(obs.target_obj_ids))
+
+    def iou(a, b):
+        ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+        iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+        return ix * iy / (a[2] * a[3] + b[2] * b[3] - ix * iy)
+
+    cell = 4.0 * (1.3 * max(boxes[0][2:]) / 64.0)  # a cell's side in full-image pixels, about
+    found = [est._mask_box(maps, M, box) for (maps, M), box in zip(crops, boxes)]
+    good = [iou(f, b) > 0.6 and np.abs(f - b).max() <= 3 * cell for f, b in zip(found, boxes)]
+    assert sum(good) >= max(1, int(0.75 * len(boxes))), (found, boxes)
+    # fewer than 4 object cells: the box stays
+    maps = dict(crops[0][0], prob=np.zeros_like(crops[0][0]["prob"]))
+    assert np.array_equal(est._mask_box(maps, crops[0][1], boxes[0]), boxes[0])
 
 
 def test_object_coordinate_targets_are_the_visible_surface_in_the_model_frame(small_dataset):

@@ -97,7 +97,9 @@ def test_training_writes_the_onnx_file_and_keypoints_run_it_with_the_torch_maps(
     rb = evaluate(small_dataset, b, vsd=False, progress=False, max_images=2)
     assert [e.obj_id for e in ra.estimates] == [e.obj_id for e in rb.estimates]
     for ea, eb in zip(ra.estimates, rb.estimates):
-        assert np.abs(ea.t - eb.t).max() < 1e-3  # metres: the same PnP solution up to float32 noise
+        # metres: the same PnP solution up to the runtimes' float32 noise (relative: a one-epoch network may put
+        # an object hundreds of metres away)
+        np.testing.assert_allclose(ea.t, eb.t, rtol=1e-4, atol=1e-3)
 
 
 def test_a_stale_onnx_file_is_not_used_and_the_errors_name_the_fix(kp_run, tmp_path):

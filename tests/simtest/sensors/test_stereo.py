@@ -275,7 +275,7 @@ def test_matching_window_agrees_with_the_whole_image(make_scene):
 
 def test_window_render_is_the_crop_of_the_whole_render(make_scene):
     from simtest.render.rasterizer import RenderError
-    from simtest.sensors.stereo import _RenderAt
+    from simtest.sensors.ir_render import RenderAt
 
     make, K, tz = make_scene
     sim = make(CHECKER, [((0.03, 0.03, 0.1), (0.0, 0.0, tz + 0.1), BRIGHT)])
@@ -286,7 +286,7 @@ def test_window_render_is_the_crop_of_the_whole_render(make_scene):
     window = (13, 101, 7, 190)
     saved = [a.copy() for a in (sim.model.cam_intrinsic, sim.model.cam_sensorsize, sim.model.cam_resolution)]
     with Renderer(sim.model, W, H) as r:
-        with _RenderAt(r, sim.data, sim.camera_id, cam, sensor.ir_K(cam)) as at:
+        with RenderAt(r, sim.data, sim.camera_id, cam, sensor.ir_K(cam)) as at:
             whole = at.render(left, rgb=True, seg=True)
             part = at.render(left, rgb=True, seg=True, window=window)
             again = at.render(left, rgb=True, seg=True)
