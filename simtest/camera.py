@@ -16,7 +16,8 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
 __all__ = ["CameraModel", "backproject", "R_MJ_CV", "intrinsics_matrix", "default_intrinsics", "D435_FOCAL_PX",
-           "mujoco_camera_intrinsics", "pinhole_pixels", "pinhole_points"]
+           "mujoco_camera_intrinsics", "mujoco_model_intrinsics", "pinhole_pixels", "pinhole_points",
+           "window_intrinsics"]
 
 #: Rotation from the OpenCV camera frame to the MuJoCo camera frame (and back: it is its own inverse).
 R_MJ_CV = np.diag([1.0, -1.0, -1.0])
@@ -88,6 +89,25 @@ def mujoco_camera_intrinsics(K: np.ndarray, width: int, height: int) -> dict[str
         # Any positive sensor size works: MuJoCo converts pixels to lengths with sensor_size / resolution.
         "sensor_size": [width * 1e-5, height * 1e-5],
     }
+
+
+def mujoco_model_intrinsics(K: np.ndarray, width: int, height: int) -> tuple[list[float], list[float], list[int]]:
+    """The compiled model's camera fields for the OpenCV intrinsics ``K``: ``(cam_intrinsic, cam_sensorsize,
+    cam_resolution)``, what MuJoCo compiles :func:`mujoco_camera_intrinsics` into (focal length and principal
+    offset as lengths on the sensor); written into ``model.cam_*`` they make the next render use ``K``."""
+    spec = mujoco_camera_intrinsics(K, width, height)
+    px, py = (s / r for s, r in zip(spec["sensor_size"], spec["resolution"]))
+    (fx, fy), (ox, oy) = spec["focal_pixel"], spec["principal_pixel"]
+    return [fx * px, fy * py, ox * px, oy * py], list(spec["sensor_size"]), [int(width), int(height)]
+
+
+def window_intrinsics(K: np.ndarray, window: tuple[int, int, int, int]) -> np.ndarray:
+    """The intrinsics of the window ``(r0, r1, c0, c1)`` (rows ``r0:r1``, columns ``c0:c1``) of an image with
+    intrinsics ``K``: the principal point moved by the window's corner."""
+    out = np.array(K, dtype=np.float64)
+    out[0, 2] -= window[2]
+    out[1, 2] -= window[0]
+    return out
 
 
 @dataclass(frozen=True)

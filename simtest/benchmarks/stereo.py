@@ -4,8 +4,9 @@ One generated scene (the default config at ``width`` x ``height``, scene 0, sett
 with the ``fast`` profile (RGB, depth, segmentation: what ``generate`` renders per view) and sensed by a stereo
 preset; best of ``repeat`` runs per view, milliseconds, averaged over the views.
 
-Where the sensor's time goes: ``passes_ms`` is what its GL passes cost (the projector's depth-only pass over its
-window and the left and right IR RGB + depth passes over the matching window), ``sgbm_ms`` the matcher on the view's IR pair
+Where the sensor's time goes: ``passes_ms`` is what its GL passes cost (:meth:`StereoSensor.render_ir`: the
+projector's depth-only pass over its window and the left and right IR RGB + depth passes over the matching
+window), ``sgbm_ms`` the matcher on the view's IR pair
 (the window), and ``other_ms`` the rest (the sensor noise, the two IR images, the texture threshold and the
 registration).
 """
@@ -26,18 +27,6 @@ def _best_ms(fn, repeat: int) -> float:
         fn()
         best = min(best, time.perf_counter() - t0)
     return 1000.0 * best
-
-
-def _passes(sensor, renderer, scene, cam, window) -> None:
-    """The sensor's GL passes: the projector's depth and the IR pair's RGB + depth, each over its window."""
-    from simtest.sensors.ir_render import RenderAt
-
-    left, right, proj = sensor.poses(cam)
-    with RenderAt(renderer, scene.data, scene.camera_id, cam, sensor.ir_K(cam)) as at:
-        if sensor.projector:
-            at.render(proj, rgb=False, window=sensor.projector_window(cam))
-        for T in (left, right):
-            at.render(T, rgb=True, window=window)
 
 
 def run(width: int = 640, height: int = 480, preset: str = "d435-stereo", repeat: int = 3,
@@ -63,7 +52,7 @@ def run(width: int = 640, height: int = 480, preset: str = "d435-stereo", repeat
             exact = renderer.render(scene.data, scene.camera_id, rgb=False, seg=False).depth
             view = sensor.sense_view(renderer, scene.data, scene.camera_id, cam, np.random.default_rng(0))
             valid.append(float((view.depth[exact > 0] > 0).mean()))
-            passes_ms.append(_best_ms(lambda: _passes(sensor, renderer, scene, cam, view.window), repeat))
+            passes_ms.append(_best_ms(lambda: sensor.render_ir(renderer, scene.data, scene.camera_id, cam), repeat))
             matcher = sensor.matcher(cam)
             r0, r1, c0, c1 = view.window
             pair = [np.ascontiguousarray(a[r0:r1, c0:c1]) for a in (view.ir_left, view.ir_right)]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simtest.camera import CameraModel
+from simtest.camera import CameraModel, mujoco_model_intrinsics, window_intrinsics
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
@@ -18,10 +18,9 @@ class RenderAt:
     """Renders the scene's render camera at other poses with the IR intrinsics, over the whole image or a window
     of it; restores the camera (pose, ``cam_intrinsic``, ``cam_sensorsize``, ``cam_resolution``) on exit.
 
-    A window ``(r0, r1, c0, c1)`` is rendered as an image of its own: sensor size and resolution of the window's
-    pixels, the principal point moved by its corner (MuJoCo's principal offset is measured from the sensor centre
-    with pixel corners at integers, as in :func:`simtest.camera.mujoco_camera_intrinsics`), drawn into a corner of
-    the renderer's buffer. It equals the crop of the whole render (depth to float32 rounding; tested).
+    A window ``(r0, r1, c0, c1)`` is rendered as an image of its own (:func:`simtest.camera.window_intrinsics`
+    written into the model by :func:`simtest.camera.mujoco_model_intrinsics`), drawn into a corner of the
+    renderer's buffer. It equals the crop of the whole render (depth to float32 rounding; tested).
     """
 
     def __init__(self, renderer, data, camera_id: int, camera: CameraModel, K_ir: np.ndarray) -> None:
@@ -34,30 +33,23 @@ class RenderAt:
         self.pos = self.data.cam_xpos[c].copy()
         self.mat = self.data.cam_xmat[c].copy()
         self.saved = [(a, a[c].copy()) for a in (m.cam_intrinsic, m.cam_sensorsize, m.cam_resolution)]
-        if not np.all(m.cam_sensorsize[c] > 0) or not np.all(m.cam_resolution[c] > 0):
+        if not np.all(m.cam_sensorsize[c] > 0):
             raise ConfigError("the stereo sensor needs a camera given by focal_pixel/sensor_size "
                               "(simtest.camera.mujoco_camera_intrinsics)")
-        self.pixel = np.asarray(m.cam_sensorsize[c], np.float64) / np.asarray(m.cam_resolution[c], np.float64)
         return self
-
-    def _intrinsics(self, window: tuple[int, int, int, int]) -> None:
-        r0, r1, c0, c1 = window
-        w, h = c1 - c0, r1 - r0
-        (px, py), K, m, c = self.pixel, self.K_ir, self.model, self.cid
-        m.cam_intrinsic[c] = (K[0, 0] * px, K[1, 1] * py, (w / 2.0 - (K[0, 2] - c0 + 0.5)) * px,
-                              (h / 2.0 - (K[1, 2] - r0 + 0.5)) * py)
-        m.cam_sensorsize[c] = (w * px, h * py)
-        m.cam_resolution[c] = (w, h)
 
     def render(self, T_world: Pose, rgb: bool, seg: bool = False, window: tuple[int, int, int, int] | None = None):
         """The frame at ``T_world`` (OpenCV camera pose): the whole image, or ``window``'s pixels only."""
         full = (0, self.camera.height, 0, self.camera.width)
         window = full if window is None else tuple(int(x) for x in window)
-        self._intrinsics(window)
+        w, h = window[3] - window[2], window[1] - window[0]
+        m, c = self.model, self.cid
+        m.cam_intrinsic[c], m.cam_sensorsize[c], m.cam_resolution[c] = mujoco_model_intrinsics(
+            window_intrinsics(self.K_ir, window), w, h)
         pos, R_mj = self.camera.with_pose(T_world).mujoco_pose()
         self.data.cam_xpos[self.cid] = pos
         self.data.cam_xmat[self.cid] = R_mj.reshape(-1)
-        size = None if window == full else (window[3] - window[2], window[1] - window[0])
+        size = None if window == full else (w, h)
         return self.renderer.render(self.data, self.cid, rgb=rgb, depth=True, seg=seg, size=size)
 
     def __exit__(self, *exc) -> None:

@@ -30,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from simtest.camera import CameraModel, intrinsics_matrix, pinhole_pixels, pinhole_points
+from simtest.camera import CameraModel, intrinsics_matrix, pinhole_pixels, pinhole_points, window_intrinsics
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.rng import child_rng
@@ -136,8 +136,7 @@ class StereoSensor:
     # --- geometry --------------------------------------------------------------------------------------
     def ir_K(self, camera: CameraModel) -> np.ndarray:
         """The IR cameras' (and projector's) intrinsics at the colour camera's image size."""
-        f = self.ir_focal_ratio * camera.width
-        return intrinsics_matrix(f, f, camera.K[0, 2], camera.K[1, 2])
+        return _ir_K(self.ir_focal_ratio, camera.K, camera.width)
 
     def poses(self, camera: CameraModel) -> tuple[Pose, Pose, Pose]:
         """``T_world`` of the left IR camera, the right IR camera and the projector (OpenCV frames)."""
@@ -199,23 +198,14 @@ class StereoSensor:
         pattern = dot_pattern(camera.width, camera.height, self.dot_fraction, self.dot_sigma, self.pattern_seed) \
             if self.projector else None
         r0, r1, c0, c1 = window = self.match_window(camera)
-        K_win = K_ir.copy()
-        K_win[0, 2] -= c0
-        K_win[1, 2] -= r0
-        with RenderAt(renderer, data, camera_id, camera, K_ir) as at:
-            proj_win = self.projector_window(camera)
-            proj_depth = at.render(T_proj, rgb=False, window=proj_win).depth if self.projector else None
-            with DiffuseMaterials(renderer.model, self.mirror and use_rgb):
-                left_w = at.render(T_left, rgb=use_rgb, seg=diffuse is not None, window=window)
-                right_w = at.render(T_right, rgb=use_rgb, seg=diffuse is not None, window=window)
+        proj_win = self.projector_window(camera)
+        proj_depth, left_w, right_w = self.render_ir(renderer, data, camera_id, camera)
         # left, then right; drawn for the whole image, so a pixel's noise does not depend on the window
         noise = [_gaussian(rng, (camera.height, camera.width))[r0:r1, c0:c1] for _ in range(2)]
         if pattern is not None:
             pr0, pr1, pc0, pc1 = proj_win
             pattern = pattern[pr0:pr1, pc0:pc1]
-        K_proj = K_ir.copy()
-        K_proj[0, 2] -= proj_win[2]
-        K_proj[1, 2] -= proj_win[0]
+        K_win, K_proj = window_intrinsics(K_ir, window), window_intrinsics(K_ir, proj_win)
         ir_left, flat = self._left_image(left_w, T_left, K_win, K_proj, T_proj, proj_depth, pattern, noise[0],
                                          diffuse)
         ir = [ir_left, self._ir_image(right_w, T_right, K_win, K_proj, T_proj, proj_depth, pattern, noise[1],
@@ -233,6 +223,23 @@ class StereoSensor:
         T_col_ir = camera.T_cam_world @ T_left
         depth = register_depth(depth_ir, K_ir, T_col_ir, camera.K, camera.width, camera.height)
         return StereoView(depth, ir[0], ir[1], depth_ir, _uncrop(left_w.depth, full, window), K_ir, window)
+
+    def render_ir(self, renderer, data, camera_id: int, camera: CameraModel):
+        """The sensor's GL passes through the scene's ``renderer``: ``(projector depth, left frame, right
+        frame)``, the projector's depth-only pass over :meth:`projector_window` (None without the projector)
+        and the IR cameras' RGB + depth passes over :meth:`match_window` (segmentation too with a constant
+        albedo and ``mirror``); the render camera and the materials are restored afterwards."""
+        use_rgb = self.albedo == "rgb"
+        seg = self.mirror and not use_rgb
+        T_left, T_right, T_proj = self.poses(camera)
+        window = self.match_window(camera)
+        with RenderAt(renderer, data, camera_id, camera, self.ir_K(camera)) as at:
+            proj = at.render(T_proj, rgb=False, window=self.projector_window(camera)).depth if self.projector \
+                else None
+            with DiffuseMaterials(renderer.model, self.mirror and use_rgb):
+                left = at.render(T_left, rgb=use_rgb, seg=seg, window=window)
+                right = at.render(T_right, rgb=use_rgb, seg=seg, window=window)
+        return proj, left, right
 
     def _left_image(self, frame, T_world_ir: Pose, K_win: np.ndarray, K_proj: np.ndarray, T_proj: Pose, proj_depth,
                     pattern, noise: np.ndarray, diffuse: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -348,7 +355,8 @@ class StereoSensor:
 class StereoView:
     """One sensed view: ``depth`` in the colour camera (metres, 0 = none), the 8-bit IR pair, the matched depth
     in the left IR frame, the exact left-IR depth, the IR intrinsics, and the matching window ``(r0, r1, c0,
-    c1)`` (:meth:`StereoSensor.match_window`): the IR pair and the matched depth are 0 outside it."""
+    c1)`` (:meth:`StereoSensor.match_window`): the IR pair, the matched and the exact left-IR depth are 0 outside
+    it."""
 
     depth: np.ndarray
     ir_left: np.ndarray
@@ -357,6 +365,12 @@ class StereoView:
     exact_ir: np.ndarray
     K_ir: np.ndarray
     window: tuple[int, int, int, int]
+
+
+def _ir_K(focal_ratio: float, K: np.ndarray, width: int) -> np.ndarray:
+    """IR intrinsics: focal ``focal_ratio x width``, the colour camera's principal point."""
+    f = focal_ratio * width
+    return intrinsics_matrix(f, f, K[0, 2], K[1, 2])
 
 
 def _key(K: np.ndarray) -> tuple[float, ...]:
@@ -390,7 +404,7 @@ def _windows(sensor: StereoSensor, K: tuple[float, ...], width: int,
     if sensor.match_margin is None:
         return whole, whole
     Kc = np.asarray(K).reshape(3, 3)
-    K_ir = intrinsics_matrix(sensor.ir_focal_ratio * width, sensor.ir_focal_ratio * width, Kc[0, 2], Kc[1, 2])
+    K_ir = _ir_K(sensor.ir_focal_ratio, Kc, width)
     z = np.repeat([sensor.min_depth, sensor.max_depth], 4)
     # the left IR camera is the colour camera moved by left_offset, same orientation
     u, v = _corners(whole)

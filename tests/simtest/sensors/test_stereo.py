@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simtest.camera import CameraModel, intrinsics_matrix, look_at_pose
+from simtest.camera import CameraModel, intrinsics_matrix, look_at_pose, mujoco_model_intrinsics
 from simtest.errors import ConfigError
 from simtest.generators.builder import SceneBuilder
 from simtest.generators.config import GenerateConfig
@@ -285,6 +285,11 @@ def test_window_render_is_the_crop_of_the_whole_render(make_scene):
     left = sensor.poses(cam)[0]
     window = (13, 101, 7, 190)
     saved = [a.copy() for a in (sim.model.cam_intrinsic, sim.model.cam_sensorsize, sim.model.cam_resolution)]
+    # what MuJoCo compiled the scene's camera into is what RenderAt writes for the colour intrinsics
+    intr, size, res = mujoco_model_intrinsics(cam.K, W, H)
+    c = sim.camera_id
+    assert np.allclose(sim.model.cam_intrinsic[c], intr, rtol=1e-6, atol=1e-12)
+    assert np.allclose(sim.model.cam_sensorsize[c], size) and list(sim.model.cam_resolution[c]) == res
     with Renderer(sim.model, W, H) as r:
         with RenderAt(r, sim.data, sim.camera_id, cam, sensor.ir_K(cam)) as at:
             whole = at.render(left, rgb=True, seg=True)
