@@ -272,10 +272,11 @@ class CropKeypointEstimator:
             return []
         K = np.asarray(obs.K, np.float64)
         rgb = np.asarray(obs.rgb, np.float32) / np.float32(255.0)
-        boxes = [box for _, _, box, _ in dets]
-        for _ in range(self.recrop + 1):
-            crops = self._crops(rgb, K, boxes, [oid for _, oid, _, _ in dets])
+        boxes, oids = [box for _, _, box, _ in dets], [oid for _, oid, _, _ in dets]
+        crops = self._crops(rgb, K, boxes, oids)
+        for _ in range(self.recrop):
             boxes = [self._mask_box(maps, M, box) for (maps, M), box in zip(crops, boxes)]
+            crops = self._crops(rgb, K, boxes, oids)
         out = []
         for (maps, M), (k, oid, box, dscore) in zip(crops, dets):
             try:
