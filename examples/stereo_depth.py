@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 
-import cv2
 import numpy as np
 
 from simtest.corrupt.depth_presets import apply_depth_noise
@@ -19,15 +18,8 @@ from simtest.generators.config import GenerateConfig
 from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
 from simtest.render.rasterizer import Renderer
 from simtest.sensors.stereo import stereo_preset
+from simtest.viz.channels import colourize_depth
 from simtest.viz.sheet import hstack, save_png, titled
-
-
-def colour(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Turbo colours of ``depth`` (metres) between ``lo`` and ``hi``; 0 (no depth) black."""
-    g = np.clip((depth - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
-    out = cv2.applyColorMap(g, cv2.COLORMAP_TURBO)[..., ::-1].copy()
-    out[depth <= 0] = 0
-    return out
 
 
 def caption(depth: np.ndarray, exact: np.ndarray) -> str:
@@ -55,9 +47,10 @@ def main() -> None:
     exact = frame.depth
     sensed["realsense-d435 (image space)"] = apply_depth_noise(exact, "realsense-d435", np.random.default_rng(0),
                                                                cam.K, frame.rgb)
-    lo, hi = np.percentile(exact[exact > 0], [1, 99])
-    panels = [titled(frame.rgb, "RGB"), titled(colour(exact, lo, hi), "exact depth", [f"{lo:.2f}-{hi:.2f} m"])]
-    panels += [titled(colour(d, lo, hi), name, [caption(d, exact)]) for name, d in sensed.items()]
+    scale = tuple(float(x) for x in np.percentile(exact[exact > 0], [1, 99]))
+    panels = [titled(frame.rgb, "RGB"),
+              titled(colourize_depth(exact, scale).image, "exact depth", [f"{scale[0]:.2f}-{scale[1]:.2f} m"])]
+    panels += [titled(colourize_depth(d, scale).image, name, [caption(d, exact)]) for name, d in sensed.items()]
     print(save_png(args.out, hstack(panels)))
 
 

@@ -40,15 +40,16 @@ class Colourized:
     caption: str
 
 
-def colourize_depth(depth_m: np.ndarray) -> Colourized:
+def colourize_depth(depth_m: np.ndarray, range_m: tuple[float, float] | None = None) -> Colourized:
     """Depth (H, W), metres, 0 = missing, as the turbo colour map from the 1st to the 99th percentile of the
-    valid depths (near = blue, far = red); missing pixels black."""
+    valid depths, or over ``range_m`` (e.g. another image's, for one scale across images; near = blue, far =
+    red); missing pixels black."""
     d = np.asarray(depth_m, dtype=np.float32)
     valid = d > 0
     out = np.zeros((*d.shape, 3), dtype=np.uint8)
     if not valid.any():
         return Colourized(out, "depth: no valid pixel")
-    lo, hi = np.percentile(d[valid], [1, 99])
+    lo, hi = np.percentile(d[valid], [1, 99]) if range_m is None else range_m
     hi = max(float(hi), float(lo) + 1e-6)
     g = np.clip((d - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
     col = cv2.applyColorMap(g, cv2.COLORMAP_TURBO)[..., ::-1]
