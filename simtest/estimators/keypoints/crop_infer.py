@@ -309,8 +309,7 @@ class CropKeypointEstimator:
         stride = int(self.cfg.get("stride", 4))
         c = maps["centers"][:, cells]  # (2, n) cell centres, crop pixels
         half = (stride - 1) / 2.0
-        lo = map_pixels(np.linalg.inv(M), (c.min(axis=1) - half)[None])[0]
-        hi = map_pixels(np.linalg.inv(M), (c.max(axis=1) + half)[None])[0]
+        lo, hi = map_pixels(np.linalg.inv(M), np.stack([c.min(axis=1) - half, c.max(axis=1) + half]))
         return np.array([lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]], np.float64)
 
     def _known(self, oid: int) -> bool:

@@ -256,9 +256,7 @@ def test_checkpoint_loading_refuses_another_object_set(overfitted, tmp_path):
     assert onnx_est.runtime == "onnx"
     with pytest.raises(ConfigError, match="trained for objects"):
         onnx_est.check_objects(other)
-    # the same poses to 1 mm from the same crops (recrop=0: a mask cell that flips between the runtimes at the
-    # 0.5 threshold would frame the next crop a cell differently)
-    est.recrop = onnx_est.recrop = 0
+    assert est.recrop == onnx_est.recrop == 0  # ground-truth boxes: both runtimes see the same crops
     a = est.estimate(_observation(ds, 0, objects)[0])
     b = onnx_est.estimate(_observation(ds, 0, objects)[0])
     assert len(a) == len(b)
