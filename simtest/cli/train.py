@@ -68,6 +68,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-images", type=int, metavar="N", help="segmentation: train on the first N images only")
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
+    p.add_argument("--init", metavar="CHECKPOINT",
+                   help="keypoints: start from this checkpoint's weights (same network and objects; fresh optimiser "
+                        "and schedule), e.g. to fine-tune the shipped network on more data")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu)")
     p.add_argument("--workers", type=int, help="data-loading worker processes (default: 1 keypoints, 0 "
                                                "segmentation)")
@@ -114,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
 
     prepare_out_dir(args.out, overwrite=args.overwrite, resume=args.resume, can_resume=True, clear=True,
-                    protect=list(args.data) + ([args.val] if args.val else []), what="run folder")
+                    protect=list(args.data) + [p for p in (args.val, args.init) if p], what="run folder")
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -135,11 +138,14 @@ def run(args: argparse.Namespace) -> int:
     if args.widths is not None:
         common["widths"] = parse_ints(args.widths, 4, "--widths")
     if args.model == "segmentation":
+        if args.init is not None:
+            raise ConfigError("--init is a keypoints option; segmentation runs start from random weights")
         return _run_segmentation(args, common)
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 
     cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
-                      margin=args.margin, dense=args.dense, **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight", kp_weight="kp_weight"), **common)
+                      margin=args.margin, dense=args.dense, init=args.init,
+                      **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight", kp_weight="kp_weight"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

@@ -65,6 +65,10 @@ class TrainConfig:
         xyz_weight: Weight of the object-coordinate loss.
         hypotheses: Object-coordinate hypotheses per cell (winner-takes-all; see ``CropNetConfig``).
         kp_weight: ``crop`` arch: weight of the keypoint-offset loss.
+        init: A checkpoint of this estimator (``model.pt``, ``best.pt`` or ``last.pt`` of an earlier run, same
+            architecture and object set) whose weights start the run instead of a random initialisation (warm
+            start: fine-tuning on other data, a second schedule); the optimiser and the schedule start afresh.
+            Its SHA-256 is recorded in the checkpoints.
     """
 
     data: str | tuple[str, ...]
@@ -95,6 +99,7 @@ class TrainConfig:
     xyz_weight: float = 3.0
     hypotheses: int = 4
     kp_weight: float = 1.0
+    init: str | None = None
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
@@ -253,6 +258,32 @@ def _setup(cfg: TrainConfig):
     return record, objects, dataset, net.to(cfg.device)
 
 
+def _warm_start(net, cfg: TrainConfig, objects: Any, fmt: str) -> str:
+    """Load ``cfg.init``'s weights into ``net`` (``TrainConfig.init``); returns the file's SHA-256.
+
+    Raises:
+        ConfigError: A missing or unreadable file, another format (the other ``arch``), another object set or
+            another network configuration (naming the fields that differ).
+    """
+    import hashlib
+
+    from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+
+    path = Path(cfg.init)
+    if not path.is_file():
+        raise ConfigError(f"keypoint training: init checkpoint {str(path)!r} does not exist")
+    ck = load_checkpoint(path, fmt=fmt)
+    check_objects(ck["objects"], objects, where=f"init checkpoint {path}")
+    mine = net.cfg.to_dict()
+    diff = sorted(k for k in set(mine) | set(ck["net"]) if mine.get(k) != ck["net"].get(k))
+    if diff:
+        raise ConfigError(f"keypoint training: init checkpoint {path} has another network: "
+                          + "; ".join(f"{k} {ck['net'].get(k)!r} there, {mine.get(k)!r} here" for k in diff)
+                          + " (give the options it was trained with)")
+    net.load_state_dict(ck["model"])
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,
                     log: Callable[[str], None] = print) -> TrainResult:
     """Train the keypoint network on ``cfg.data``; see the module doc for outputs and resuming.
@@ -281,6 +312,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
         raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
                           "output folder")
     record, objects, dataset, net = _setup(cfg)
+    init_sha = _warm_start(net, cfg, objects, fmt) if cfg.init is not None else None
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict[str, Any]] = []
     start_epoch = 0
@@ -301,7 +333,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
         return {"format": fmt, "net": net.cfg.to_dict(), "objects": record,
                 "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": int(epoch),
                 "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
-                "train": cfg.to_dict()}
+                "train": {**cfg.to_dict(), **({"init_sha256": init_sha} if init_sha else {})}}
 
     net.train()
     for epoch in range(start_epoch, cfg.epochs):

@@ -1,4 +1,4 @@
-"""``simtest train``: a mixture of datasets with stated weights, the zoom-in keypoint network, resume."""
+"""``simtest train``: a mixture of datasets with stated weights, the zoom-in keypoint network, resume, warm start."""
 
 from __future__ import annotations
 
@@ -29,6 +29,17 @@ def test_train_keypoints_on_a_mixture_and_resume(small_dataset, tmp_path, capsys
     capsys.readouterr()
     assert main(argv[:6] + ["--data-weights", "1", "--out", str(tmp_path / "bad")]) == 2
     assert "--data-weights must be 2" in capsys.readouterr().err
+    # warm start from that run: same network, recorded; another network is refused with the differing field
+    warm = [a if a != str(out) else str(tmp_path / "warm") for a in argv]
+    warm[warm.index("--epochs") + 1] = "1"
+    assert main(warm + ["--init", str(out / "model.pt")]) == 0
+    assert torch.load(tmp_path / "warm" / "model.pt", weights_only=True)["train"]["init"] == str(out / "model.pt")
+    capsys.readouterr()
+    assert main(warm + ["--init", str(out / "model.pt"), "--hypotheses", "2", "--out", str(tmp_path / "w2")]) == 2
+    assert "hypotheses 4 there, 2 here" in capsys.readouterr().err
+    assert main(["train", "segmentation", "--data", str(small_dataset), "--out", str(tmp_path / "seg"),
+                 "--init", str(out / "model.pt"), "--quiet"]) == 2
+    assert "--init is a keypoints option" in capsys.readouterr().err
 
 
 def test_train_segmentation_on_a_mixture(small_dataset, tmp_path):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -146,6 +148,42 @@ def test_checkpoint_round_trip_and_resume(trained_run, small_dataset):
     assert res3.history[:2] == res.history
     with pytest.raises(ConfigError, match="already holds a run"):
         train_keypoints(cfg3, resume=False, progress=False, log=lambda s: None)
+
+
+def test_warm_start_loads_the_weights_and_refuses_another_network(trained_run, tmp_path):
+    cfg, res = trained_run
+    ck = load_checkpoint(res.model_path)
+    # a learning rate of 1e-12 keeps the weights where they started: they must be the init checkpoint's
+    warm = TrainConfig(**{**cfg.__dict__, "out": str(tmp_path / "warm"), "epochs": 1, "lr": 1e-12, "seed": 7,
+                          "init": str(res.model_path)})
+    res_w = train_keypoints(warm, progress=False, log=lambda s: None)
+    ck_w = torch.load(res_w.model_path, weights_only=True)
+    # batch-norm statistics move in training mode whatever the learning rate; the parameters must not
+    params = {k for k in ck["model"] if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))}
+    assert params and all(torch.allclose(ck_w["model"][k], ck["model"][k], atol=1e-9) for k in params)
+    assert ck_w["train"]["init_sha256"] == hashlib.sha256(res.model_path.read_bytes()).hexdigest()
+    assert ck_w["train"]["init"] == str(res.model_path)
+    # a cold start with the same settings does not begin there
+    cold = TrainConfig(**{**warm.__dict__, "out": str(tmp_path / "cold"), "init": None})
+    ck_c = torch.load(train_keypoints(cold, progress=False, log=lambda s: None).model_path, weights_only=True)
+    assert not all(torch.allclose(ck_c["model"][k], ck["model"][k], atol=1e-6) for k in params)
+    assert "init_sha256" not in ck_c["train"]
+    # another network configuration names the field
+    with pytest.raises(ConfigError, match=r"another network: decoder \[16, 16\] there, \[16, 8\] here.*options it was trained"):
+        train_keypoints(TrainConfig(**{**warm.__dict__, "out": str(tmp_path / "d"), "decoder": (16, 8)}),
+                        progress=False, log=lambda s: None)
+    # another object set (a changed mesh) and a missing file
+    bad = dict(ck)
+    bad["objects"] = {**ck["objects"], "mesh_hashes": ["0" * 40] + list(ck["objects"]["mesh_hashes"][1:]),
+                      "bbox_corners": [np.add(ck["objects"]["bbox_corners"][0], 0.01).tolist()]
+                      + list(ck["objects"]["bbox_corners"][1:])}
+    torch.save(bad, tmp_path / "other_objects.pt")
+    with pytest.raises(ConfigError, match="mesh differs"):
+        train_keypoints(TrainConfig(**{**warm.__dict__, "out": str(tmp_path / "o"),
+                                       "init": str(tmp_path / "other_objects.pt")}), progress=False, log=lambda s: None)
+    with pytest.raises(ConfigError, match="does not exist"):
+        train_keypoints(TrainConfig(**{**warm.__dict__, "out": str(tmp_path / "m"), "init": str(tmp_path / "no.pt")}),
+                        progress=False, log=lambda s: None)
 
 
 def test_estimator_by_name_runs_in_eval(trained_run, small_dataset, tmp_path):
