@@ -116,6 +116,8 @@ def _given(args: argparse.Namespace, **names: str) -> dict:
 def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
 
+    if args.model == "segmentation" and args.init is not None:  # before the run folder is touched
+        raise ConfigError("--init is a keypoints option; segmentation runs start from random weights")
     prepare_out_dir(args.out, overwrite=args.overwrite, resume=args.resume, can_resume=True, clear=True,
                     protect=list(args.data) + [p for p in (args.val, args.init) if p], what="run folder")
     try:
@@ -138,8 +140,6 @@ def run(args: argparse.Namespace) -> int:
     if args.widths is not None:
         common["widths"] = parse_ints(args.widths, 4, "--widths")
     if args.model == "segmentation":
-        if args.init is not None:
-            raise ConfigError("--init is a keypoints option; segmentation runs start from random weights")
         return _run_segmentation(args, common)
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 

@@ -265,23 +265,19 @@ def _warm_start(net, cfg: TrainConfig, objects: Any, fmt: str) -> str:
         ConfigError: A missing or unreadable file, another format (the other ``arch``), another object set or
             another network configuration (naming the fields that differ).
     """
-    import hashlib
-
     from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+    from simtest.estimators.onnx_net import file_sha256
 
-    path = Path(cfg.init)
-    if not path.is_file():
-        raise ConfigError(f"keypoint training: init checkpoint {str(path)!r} does not exist")
-    ck = load_checkpoint(path, fmt=fmt)
-    check_objects(ck["objects"], objects, where=f"init checkpoint {path}")
+    ck = load_checkpoint(cfg.init, fmt=fmt)
+    check_objects(ck["objects"], objects, where=f"init checkpoint {cfg.init}")
     mine = net.cfg.to_dict()
     diff = sorted(k for k in set(mine) | set(ck["net"]) if mine.get(k) != ck["net"].get(k))
     if diff:
-        raise ConfigError(f"keypoint training: init checkpoint {path} has another network: "
+        raise ConfigError(f"keypoint training: init checkpoint {cfg.init} has another network: "
                           + "; ".join(f"{k} {ck['net'].get(k)!r} there, {mine.get(k)!r} here" for k in diff)
                           + " (give the options it was trained with)")
     net.load_state_dict(ck["model"])
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return file_sha256(cfg.init)
 
 
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,
@@ -312,14 +308,17 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
         raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
                           "output folder")
     record, objects, dataset, net = _setup(cfg)
-    init_sha = _warm_start(net, cfg, objects, fmt) if cfg.init is not None else None
+    resuming = resume and last_path.exists()
+    # a resumed run takes its weights from last.pt; the init checkpoint only starts a new one
+    init_sha = _warm_start(net, cfg, objects, fmt) if cfg.init is not None and not resuming else None
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict[str, Any]] = []
     start_epoch = 0
     best = -1.0
-    if resume and last_path.exists():
+    if resuming:
         ck = load_checkpoint(last_path, fmt=fmt)
         check_objects(ck["objects"], objects, where=f"checkpoint {last_path}")
+        init_sha = ck["train"].get("init_sha256")
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         history = list(ck["history"])

@@ -154,15 +154,24 @@ def test_warm_start_loads_the_weights_and_refuses_another_network(trained_run, t
     cfg, res = trained_run
     ck = load_checkpoint(res.model_path)
     # a learning rate of 1e-12 keeps the weights where they started: they must be the init checkpoint's
+    init = tmp_path / "init.pt"
+    init.write_bytes(res.model_path.read_bytes())
     warm = TrainConfig(**{**cfg.__dict__, "out": str(tmp_path / "warm"), "epochs": 1, "lr": 1e-12, "seed": 7,
-                          "init": str(res.model_path)})
+                          "init": str(init)})
     res_w = train_keypoints(warm, progress=False, log=lambda s: None)
     ck_w = torch.load(res_w.model_path, weights_only=True)
     # batch-norm statistics move in training mode whatever the learning rate; the parameters must not
     params = {k for k in ck["model"] if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))}
     assert params and all(torch.allclose(ck_w["model"][k], ck["model"][k], atol=1e-9) for k in params)
-    assert ck_w["train"]["init_sha256"] == hashlib.sha256(res.model_path.read_bytes()).hexdigest()
-    assert ck_w["train"]["init"] == str(res.model_path)
+    sha = hashlib.sha256(init.read_bytes()).hexdigest()
+    assert ck_w["train"]["init_sha256"] == sha and ck_w["train"]["init"] == str(init)
+    # resuming continues from last.pt: the init file is not read again, its hash stays recorded
+    init.unlink()
+    res_r = train_keypoints(TrainConfig(**{**warm.__dict__, "epochs": 2}), resume=True, progress=False,
+                            log=lambda s: None)
+    assert [h["epoch"] for h in res_r.history] == [0, 1]
+    assert torch.load(res_r.model_path, weights_only=True)["train"]["init_sha256"] == sha
+    init.write_bytes(res.model_path.read_bytes())
     # a cold start with the same settings does not begin there
     cold = TrainConfig(**{**warm.__dict__, "out": str(tmp_path / "cold"), "init": None})
     ck_c = torch.load(train_keypoints(cold, progress=False, log=lambda s: None).model_path, weights_only=True)
