@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simtest.generators.annotate import rasterize_silhouette
+from simtest.render.silhouette import rasterize_silhouette
 
 
 def _inside(uv: np.ndarray, tris: np.ndarray, width: int, height: int) -> np.ndarray:
