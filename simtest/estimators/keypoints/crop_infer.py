@@ -246,7 +246,7 @@ class CropKeypointEstimator:
 
     def __repr__(self) -> str:
         return (f"CropKeypointEstimator(checkpoint={self.checkpoint!r}, detect={self.detect!r}, "
-                f"fusion={self.fusion!r}, solver={self.solver!r}, runtime={self.runtime!r})")
+                f"fusion={self.fusion!r}, solver={self.solver!r}, refine={self.refine!r}, runtime={self.runtime!r})")
 
     def check_objects(self, objects: Any) -> None:
         """Raise :class:`ConfigError` unless ``objects`` is the set the network was trained for."""
