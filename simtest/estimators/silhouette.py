@@ -4,8 +4,8 @@ An RGB-only estimator that solves PnP from predicted 2D-3D correspondences recov
 image position of an object well, its depth worse: a few percent of error along the ray shifts every model
 point by that fraction of the distance, more than the 10 % of the diameter ADD allows for small objects. The
 object's outline pins its depth: at 1 m, 1 % farther shrinks a 100-pixel silhouette by a pixel. Here the
-rotation stays, and the translation ``t`` is searched (image shift ``du, dv`` of the projected origin and a
-depth factor ``s``) to maximise the soft intersection over union between the model's exact silhouette
+translation ``t`` is searched (image shift ``du, dv`` of the projected origin and a depth factor ``s``), and with
+``step_deg > 0`` three small camera-frame rotations about the object's origin too, to maximise the soft intersection over union between the model's exact silhouette
 (:func:`simtest.render.silhouette.object_silhouette`, the annotator's rasterizer) and a predicted mask
 probability, counted only where the mask can be trusted: inside the image and outside the masks of the
 other objects found (which may hide part of this one). A pattern search (halving steps) keeps it
@@ -45,10 +45,14 @@ class SilhouetteFit:
 
 def soft_iou(sil: np.ndarray, prob: np.ndarray, valid: np.ndarray) -> float:
     """Soft IoU of a bool silhouette and a probability map over the ``valid`` pixels (0 when both are empty)."""
-    s = sil & valid
     p = np.where(valid, prob, 0.0)
-    inter = float(p[s].sum())
-    union = float(p.sum()) + float(s.sum()) - inter
+    return _soft_iou(sil & valid, p, float(p.sum()))
+
+
+def _soft_iou(sil: np.ndarray, p: np.ndarray, p_sum: float) -> float:
+    """:func:`soft_iou` with the silhouette already limited to the valid pixels and ``p`` zero outside them."""
+    inter = float(p[sil].sum())
+    union = p_sum + float(sil.sum()) - inter
     return inter / union if union > 0 else 0.0
 
 
@@ -67,7 +71,8 @@ def cell_coverage_mask(sil: np.ndarray, stride: int, min_coverage: float) -> np.
 def fit_translation(obj, R: np.ndarray, t: np.ndarray, K: np.ndarray, prob: np.ndarray, valid: np.ndarray,
                     max_scale: float = 0.15, cells: tuple[int, float] | None = None, min_gain: float = 0.0, step_px: float = 2.0, step_scale: float = 0.02,
                     min_step_px: float = 0.125, step_deg: float = 0.0) -> SilhouetteFit:
-    """Refine the translation of pose ``(R, t)`` of ``obj`` so its silhouette matches ``prob``.
+    """Refine pose ``(R, t)`` of ``obj`` so its silhouette matches ``prob``: the translation, and with
+    ``step_deg > 0`` small rotations as well.
 
     Args:
         obj: The :class:`~simtest.objects.ObjectModel` (mesh in metres).
@@ -80,14 +85,16 @@ def fit_translation(obj, R: np.ndarray, t: np.ndarray, K: np.ndarray, prob: np.n
             then compared through :func:`cell_coverage_mask`); None: ``prob`` is a pixel mask.
         min_gain: Keep the fit only when it raises the IoU by more than this.
         step_px, step_scale: First steps of the pattern search (pixels, relative depth).
-        min_step_px: The search stops when the pixel step falls below this (the depth step shrinks with it).
+        min_step_px: The search stops when the pixel step falls below this (the other steps shrink with it).
+        step_deg: First rotation step, degrees (0: the rotation stays).
 
     Returns:
-        A :class:`SilhouetteFit`; ``t`` is the input when the fit was not applied.
+        A :class:`SilhouetteFit`; ``R`` and ``t`` are the input's when the fit was not applied.
 
     Raises:
         ConfigError: Mismatched shapes or bad bounds.
     """
+    from simtest.camera import pinhole_pixels, pinhole_points
     from simtest.render.silhouette import object_silhouette
 
     prob = np.asarray(prob, np.float64)
@@ -102,13 +109,13 @@ def fit_translation(obj, R: np.ndarray, t: np.ndarray, K: np.ndarray, prob: np.n
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64).reshape(3)
     H, W = prob.shape
-    u0, v0 = (K[:2] @ (t / t[2]))
-    Kinv = np.linalg.inv(K)
+    p_valid = np.where(valid, prob, 0.0)  # constant over the search
+    p_sum = float(p_valid.sum())
+    u0, v0 = pinhole_pixels(K, t)
     n_eval = 0
 
     def trans(x: np.ndarray) -> np.ndarray:
-        z = t[2] * float(np.exp(x[2]))
-        return z * (Kinv @ np.array([u0 + x[0], v0 + x[1], 1.0]))
+        return pinhole_points(K, u0 + x[0], v0 + x[1], t[2] * float(np.exp(x[2])))
 
     def rot(x: np.ndarray) -> np.ndarray:
         if not x[3:].any():
@@ -121,7 +128,7 @@ def fit_translation(obj, R: np.ndarray, t: np.ndarray, K: np.ndarray, prob: np.n
         sil = object_silhouette(obj, rot(x), trans(x), K, W, H)
         if cells is not None:
             sil = cell_coverage_mask(sil, *cells)
-        return soft_iou(sil, prob, valid)
+        return _soft_iou(sil & valid, p_valid, p_sum)
 
     x = np.zeros(6)
     best = before = score(x)
