@@ -50,7 +50,7 @@ def _categories(dataset_dir: Path) -> dict[int, str]:
     return {int(k): str(v.get("category") or f"obj_{k}") for k, v in read_json(path).items()}
 
 
-def chromaticity_spread(dataset_dir: str | Path, split: str = "train_pbr") -> dict:
+def chromaticity_spread(dataset_dir: str | Path, split: str | None = None) -> dict:
     """The rg-chromaticity spread inside the objects of a dataset split.
 
     Definition: for every annotated instance of every image with at least :data:`MIN_VISIBLE` pixels in its

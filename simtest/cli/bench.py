@@ -101,7 +101,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          help="rg-chromaticity spread inside the objects' visible masks of a dataset (flat-coloured "
                               "objects about 0.02, printed or textured ones 0.04-0.2)")
     ap.add_argument("dataset", help="BOP dataset folder")
-    ap.add_argument("--split", default="train_pbr", help="split folder (default train_pbr)")
+    ap.add_argument("--split", default=None, help="split folder (default: the dataset's only split)")
     ap.set_defaults(func=_appearance)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 

@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "how many; detection (BOP24): it is told nothing, returns any number of scored estimates "
                         "(100 kept per image) and is scored by AP_MSSD, AP_MSPD and their mean, plus top-1 "
                         "classification per category")
-    p.add_argument("--split", default="train_pbr", help="split folder (default: train_pbr)")
+    p.add_argument("--split", default=None, help="split folder (default: the dataset's only split)")
     p.add_argument("--labels", metavar="DIR",
                    help="withheld labels of an unlabelled split (DIR/SPLIT/SCENE/scene_gt.json); default "
                         "DATASET/withheld when the dataset was generated with --unlabelled")

@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("path", metavar="PATH", help="dataset folder, evaluation folder or grasp run folder")
     p.add_argument("--out", metavar="FILE.png|DIR",
                    help="PNG contact sheet, or a folder for one PNG per card (default: ./show_<name>.png)")
-    p.add_argument("--split", default="train_pbr", help="split folder of a dataset (default: train_pbr)")
+    p.add_argument("--split", default=None, help="split folder of a dataset (default: the dataset's only split)")
     p.add_argument("--scene", type=int, metavar="N", help="only this scene id (default: every scene)")
     sel = p.add_mutually_exclusive_group()
     sel.add_argument("--image", type=int, metavar="K", help="only image id K (of --scene, else of the first "

@@ -29,9 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "profiles, same objects)")
     p.add_argument("--data-weights", metavar="W,W", help="mixture weights, one per --data (normalised; default: "
                                                          "proportional to the datasets' image counts)")
-    p.add_argument("--split", default="train_pbr", help="training split folder (default: train_pbr)")
+    p.add_argument("--split", default=None, help="training split folder (default: the dataset's only split)")
     p.add_argument("--val", metavar="DATASET", help="validation BOP dataset (ADD(-S)-0.1d after every epoch)")
-    p.add_argument("--val-split", default="train_pbr", help="validation split folder (default: train_pbr)")
+    p.add_argument("--val-split", default=None, help="validation split folder (default: the dataset's only split)")
     p.add_argument("--val-images", type=int, metavar="N", help="validate on the first N images only")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoints and history)")
     p.add_argument("--epochs", type=int, help="epochs (default: 20 keypoints, 12 segmentation)")

@@ -127,7 +127,7 @@ class PoseDataset(ImageFeed):
         ConfigError: Bad keypoint type, crop or seed.
     """
 
-    def __init__(self, root: str | Path, split: str = "train_pbr", scenes: Sequence[int] | None = None, *,
+    def __init__(self, root: str | Path, split: str | None = None, scenes: Sequence[int] | None = None, *,
                  objects: Any = None, keypoints: str = "bbox", transform: Callable | None = None, seed: int = 0,
                  min_visib_fract: float = 0.0, crop: tuple[int, int] | None = None, crop_jitter: float = 0.25,
                  symmetry_canonical: bool = True, amodal_masks: bool = False, rgb_dtype: str = "float32",
@@ -138,7 +138,7 @@ class PoseDataset(ImageFeed):
             raise ConfigError(f"unknown keypoint type {keypoints!r}; valid: {', '.join(KEYPOINT_TYPES)}")
         seed, crop = check_feed_options(seed, rgb_dtype, crop)
         self.root = str(Path(root))
-        self.split = split
+        self.split = bop.resolve_split(self.root, split)
         self.keypoints = keypoints
         self.transform = transform
         self.seed = int(seed)
@@ -169,12 +169,18 @@ class PoseDataset(ImageFeed):
             i: (np.asarray(by_id[i].symmetry_transforms(), np.float64) if by_id[i].is_symmetric else np.eye(4)[None])
             for i in self.class_ids}
 
-        split_dir = bop.dataset_split_dir(self.root, split)
+        split_dir = bop.dataset_split_dir(self.root, self.split)
         dirs = select_scene_dirs(split_dir, scenes)
         if dirs and not (dirs[0] / "scene_gt.json").is_file():
-            raise DatasetError(f"{dirs[0]} has no scene_gt.json: split {split!r} is unlabelled; read its images "
+            raise DatasetError(f"{dirs[0]} has no scene_gt.json: split {self.split!r} is unlabelled; read its images "
                                "with simtest.data.mixing.UnlabelledDataset (labels withheld by generate --unlabelled "
                                "are in DATASET/withheld/, for evaluation)")
+        lacking = [d for d in dirs if not (d / "depth").is_dir() or not (d / "mask_visib").is_dir()]
+        if lacking:
+            raise DatasetError(f"{lacking[0]} has no {'depth' if not (lacking[0] / 'depth').is_dir() else 'mask_visib'}"
+                               f"/ folder ({len(lacking)} of {len(dirs)} scenes lack depth/ or mask_visib/): training "
+                               "samples need depth and visible masks, as simtest generate writes them (a real BOP "
+                               "test set without them can be evaluated, not trained on)")
         entries: list[ImageEntry] = []
         for d in dirs:
             for im_id, info in sorted(bop.read_scene(d, gt_obj_ids).items()):

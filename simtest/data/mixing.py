@@ -70,13 +70,13 @@ class UnlabelledDataset(ImageFeed):
         ConfigError: Bad seed, crop, dtype or scene ids.
     """
 
-    def __init__(self, root: str | Path, split: str = "train_pbr", scenes: Sequence[int] | None = None, *,
+    def __init__(self, root: str | Path, split: str | None = None, scenes: Sequence[int] | None = None, *,
                  transform: Callable | None = None, seed: int = 0, crop: tuple[int, int] | None = None,
                  rgb_dtype: str = "float32", max_images: int | None = None) -> None:
         from simtest.io import bop
 
         self.seed, crop = check_feed_options(seed, rgb_dtype, crop)
-        self.root, self.split, self.transform, self.crop, self.rgb_dtype = str(root), split, transform, crop, rgb_dtype
+        self.root, self.split, self.transform, self.crop, self.rgb_dtype = str(root), bop.resolve_split(root, split), transform, crop, rgb_dtype
         self.epoch = 0
         split_dir = bop.dataset_split_dir(root, split)
         dirs = select_scene_dirs(split_dir, scenes)
@@ -259,7 +259,7 @@ def parse_weights(text: str | None, n: int, flag: str = "--data-weights") -> tup
     return vals
 
 
-def labelled_mixture(roots: Sequence[str], split: str = "train_pbr", weights: Sequence[float] | None = None,
+def labelled_mixture(roots: Sequence[str], split: str | None = None, weights: Sequence[float] | None = None,
                      seed: int = 0, **dataset_options: Any) -> Any:
     """The labelled training feed of one or several BOP datasets.
 

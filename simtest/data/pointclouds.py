@@ -73,7 +73,7 @@ class PointCloudSequence:
         DatasetError: Missing split, images or masks.
     """
 
-    def __init__(self, root: str | Path, split: str = "train_pbr", scene: int = 0, *, num_points: int | None = 1024,
+    def __init__(self, root: str | Path, split: str | None = None, scene: int = 0, *, num_points: int | None = 1024,
                  min_points: int = 1, seed: int = 0) -> None:
         from simtest.objects.loaders import load_dataset_objects
 

@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 __all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
            "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
            "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL",
-           "GT_INIT_LABEL", "needs_gt_init", "reset_estimator", "check_int_options"]
+           "GT_INIT_LABEL", "needs_gt_init", "needs_depth", "reset_estimator", "check_int_options"]
 
 #: Entry-point group under which installed packages register estimators by name.
 ENTRY_POINT_GROUP = "simtest.estimators"
@@ -62,6 +62,13 @@ def gt_access(estimator: Any) -> tuple[bool, bool]:
     and boxes (``needs_gt_masks`` or ``needs_gt``), and their ground-truth poses (``needs_gt``)."""
     poses = bool(getattr(estimator, "needs_gt", False))
     return poses or bool(getattr(estimator, "needs_gt_masks", False)), poses
+
+
+def needs_depth(estimator: Any) -> bool:
+    """Whether an (instantiated) estimator reads ``Observation.depth``: its ``needs_depth`` attribute, True when
+    it has none (a plug-in that does not say may read depth). On a dataset without depth, RGB-only estimators
+    (``needs_depth = False``) are given ``depth=None`` and the others are refused before the run."""
+    return bool(getattr(estimator, "needs_depth", True))
 
 
 def needs_gt_init(estimator: Any) -> bool:
@@ -93,7 +100,8 @@ class Observation:
 
     Attributes:
         rgb: (H, W, 3) uint8.
-        depth: (H, W) float32 planar depth in metres, 0 = missing.
+        depth: (H, W) float32 planar depth in metres, 0 = missing; ``None`` when the dataset has no depth (then
+            only estimators declaring ``needs_depth = False`` run, :func:`needs_depth`).
         K: 3x3 intrinsics (pixels, OpenCV).
         width, height: Image size (pixels).
         objects: The :class:`~simtest.objects.ObjectSet` estimates refer to: ``objects.get(obj_id)`` gives the
@@ -102,7 +110,8 @@ class Observation:
         target_obj_ids: Objects to estimate, one entry per instance, as BOP's localisation task names them
             (``None``: whatever the estimator finds, as always in the detection task).
         masks: Per-target ground-truth visible masks (H, W) bool, same order as ``target_obj_ids``; only for
-            estimators declaring ``needs_gt_masks`` (or ``needs_gt``), ``None`` otherwise.
+            estimators declaring ``needs_gt_masks`` (or ``needs_gt``, when the dataset has masks), ``None``
+            otherwise.
         boxes: Per-target ground-truth visible boxes [x, y, w, h] (pixels); given with ``masks``.
         gt_poses: Ground-truth ``(R, t)`` per target; only for ``needs_gt`` (the ``oracle``), ``None`` otherwise;
             in the detection task their object ids are ``gt_obj_ids`` (``needs_targets = False`` oracles).
@@ -116,7 +125,7 @@ class Observation:
     """
 
     rgb: np.ndarray
-    depth: np.ndarray
+    depth: np.ndarray | None
     K: np.ndarray
     width: int
     height: int

@@ -85,10 +85,12 @@ class OracleEstimator:
     Attributes:
         needs_gt: Always True: the evaluation passes ground-truth poses in ``Observation.gt_poses``.
         needs_targets: False: in the detection task it runs from ``gt_poses`` and ``gt_obj_ids``.
+        needs_depth: False: it reads no image at all.
     """
 
     needs_gt = True
     needs_targets = False
+    needs_depth = False
 
     def __init__(self, rot_noise_deg: float = 0.0, trans_noise_mm: float = 0.0, seed: int = 0,
                  drop_rate: float = 0.0, rot_noise_mode: str = "halfnormal", false_positives: float = 0.0,

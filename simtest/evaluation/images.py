@@ -46,12 +46,12 @@ def observation(ref: ImageRef, objects, targets: str, width: int, height: int, n
                  initialised: set[int] | None = None,
                  task: str = "localization") -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
     """The estimator's view of one image: ground-truth masks and boxes only with ``gt_masks``, poses only with
-    ``needs_gt`` (see the module doc). With ``initialised`` (a ``needs_gt_init`` estimator: the ``gt_id`` of the
+    ``needs_gt`` (see the module doc); ``depth`` is None when the scene has no ``depth/``. With ``initialised`` (a ``needs_gt_init`` estimator: the ``gt_id`` of the
     scene's targets already given a pose), the targets' track ids, and the ground-truth pose of each target not
     in it (then added). In the ``"detection"`` task no target id, count, mask or box is given; a ``needs_gt``
     estimator (an oracle with ``needs_targets = False``) gets ``gt_poses`` and ``gt_obj_ids`` of the targets."""
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
-    depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"])
+    depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]) if ref.has_depth else None
     tg = image_targets(ref, VISIB_GT_MIN)
     kw: dict[str, Any] = {}
     if task == "detection":
@@ -60,8 +60,9 @@ def observation(ref: ImageRef, objects, targets: str, width: int, height: int, n
             kw["gt_obj_ids"] = tuple(g.obj_id for _, g in tg)
     elif targets == "gt-masks":
         kw["target_obj_ids"] = tuple(g.obj_id for _, g in tg)
-        if gt_masks or needs_gt:
-            kw["masks"] = tuple(bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) for j, _ in tg)
+        if gt_masks or needs_gt:  # where the dataset has none, the run refused estimators that need them
+            if ref.has_masks:
+                kw["masks"] = tuple(bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) for j, _ in tg)
             kw["boxes"] = tuple(tuple(int(v) for v in g.bbox_visib) for _, g in tg)
         if needs_gt:
             kw["gt_poses"] = tuple((g.T_cam_obj.R.copy(), g.T_cam_obj.t.copy()) for _, g in tg)

@@ -52,6 +52,7 @@ traceback) and ``metrics.md`` (Markdown tables, units in the column headers).
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,21 +61,24 @@ from typing import Any
 import numpy as np
 
 from simtest.backend import Backend, RunStats, preflight
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, load_estimator,
-                                     needs_gt_init)
+                                     needs_depth, needs_gt_init)
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.evaluation.detection import keep_top_per_image, score_detection
 from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards, targets_needed
 from simtest.evaluation.tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
 from simtest.io.bop_results import read_bop_results, write_bop_results
-from simtest.io.dataset import image_size, select_images
+from simtest.io.bop import resolve_split
+from simtest.io.dataset import DataNotes, image_size, select_images
 from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_dir
 from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.registry import NDEG_MCM, definitions
 from simtest.objects.loaders import load_dataset_objects
 from simtest.evaluation.scoring import aggregate_by_category, has_categories, score_estimates
 from simtest.evaluation.tables import failure_counts, format_table, overall_table
+
+log = logging.getLogger(__name__)
 
 __all__ = ["EvalReport", "evaluate", "score_results", "score_estimates", "load_dataset_objects", "TARGET_MODES",
            "TASKS", "NDEG_MCM", "format_table", "overall_table", "failure_counts"]
@@ -159,7 +163,7 @@ METRIC_DEFINITIONS = definitions()
 
 # ---------------------------------------------------------------------------------------------------------
 # Running an estimator
-def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str = "train_pbr",
+def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split: str | None = None,
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
@@ -173,7 +177,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         dataset_dir: BOP dataset root (with ``models/`` or a manifest naming the object set).
         estimator: A name (``oracle``, ``icp``, ``umeyama``), ``"module:attr"``, an instance with
             ``estimate(observation)`` or a callable; see :func:`simtest.estimators.load_estimator`.
-        split: Split folder (``train_pbr``).
+        split: Split folder (``train_pbr``, ``test``); None: the dataset's only split.
         targets: ``"gt-masks"``: tell the estimator the targets' object ids, and their ground-truth visible
             masks and boxes if it declares ``needs_gt_masks`` (the run is then labelled ``NAME (GT masks)``);
             ``"none"``: nothing, the estimator finds objects itself (one that cannot, e.g. ``icp``, fails).
@@ -183,7 +187,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         max_images: Evaluate only the first N images.
         progress: Show a tqdm progress bar.
         out_dir: Write ``results.csv``, ``metrics.json``, ``errors.csv``, ``failures.csv``, ``metrics.md``.
-        vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240.
+        vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240. Skipped,
+            with a note in ``metrics.md``, when the dataset has no depth.
         estimator_options: Options for a named estimator (ignored for instances).
         timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit); an image over the
             limit is recorded as a ``timeout`` failure and the run goes on with the next image.
@@ -214,7 +219,13 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         EstimatorError: With ``fail_fast``, the estimator's first fault.
         DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
             ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
-            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``.
+            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``. A dataset
+            without ``depth/`` for an estimator that reads depth (``needs_depth``, the default of plug-ins that
+            do not say), or without ``mask_visib/`` for one given ground-truth masks (``needs_gt_masks``).
+
+    A real BOP test set is read as distributed (:func:`simtest.io.dataset.select_images`): its only split,
+    rounded rotations repaired, the images its ``test_targets_bop19.json`` lists; what was repaired or skipped
+    is written in ``metrics.md`` (and ``settings["data_notes"]``).
 
     Estimator faults never end the run: an image where the estimator raises (kind ``exception``), calls
     ``sys.exit`` (``exit``), exceeds ``timeout`` (``timeout``) or returns something other than a list
@@ -227,6 +238,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     _check_task(task)
     root = Path(dataset_dir)
+    split = resolve_split(root, split)
     preflight(backend or Backend())  # before the output is touched
     _check_out(out_dir, root, overwrite)
     est = load_estimator(estimator, **(estimator_options or {}))
@@ -241,7 +253,10 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
     known = set(objects.ids)
-    refs = select_images(root, split, scenes, max_images, known, labels)
+    notes = DataNotes()
+    refs = select_images(root, split, scenes, max_images, known, labels, notes)
+    _check_inputs(estimator, est, notes, gt_masks)
+    vsd = _vsd_possible(vsd, notes)
     width, height = image_size(root)
     backend = backend if backend is not None else Backend()
     stats = stats if stats is not None else RunStats()
@@ -268,7 +283,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
                 "labels": None if labels is None else str(labels), "backend": backend.name,
-                "workers": backend.workers, **({"task": task} if task == "detection" else {})}
+                "workers": backend.workers, **({"task": task} if task == "detection" else {}),
+                **({"data_notes": notes.summary()} if notes.summary() else {})}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
@@ -279,6 +295,29 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if out_dir is not None:
         _write_outputs(report, Path(out_dir), write_results=True)
     return report
+
+
+def _check_inputs(spec: Any, est: Any, notes: DataNotes, gt_masks: bool) -> None:
+    """Refuse, before anything runs, an estimator that reads what the dataset lacks: depth (``needs_depth``)
+    or ground-truth visible masks (``needs_gt_masks`` with targets given)."""
+    name = spec if isinstance(spec, str) else type(est).__name__
+    if not notes.has_depth and needs_depth(est):
+        raise DatasetError(f"the dataset has no depth/ (scenes {notes.no_depth_scenes[:8]}) and estimator {name!r} "
+                           "reads depth (needs_depth is not False); use an RGB-only estimator (keypoints, oracle) "
+                           "or a copy of the dataset with depth (e.g. BOP's lmo_test_bop19 has depth/)")
+    if not notes.has_masks and gt_masks and not getattr(est, "needs_gt", False):
+        raise DatasetError(f"the dataset has no mask_visib/ (scenes {notes.no_mask_scenes[:8]}) and estimator {name!r} "
+                           "is given ground-truth visible masks (needs_gt_masks = True); use one that finds the "
+                           "objects itself")
+
+
+def _vsd_possible(vsd: bool, notes: DataNotes) -> bool:
+    """``vsd``, unless the dataset has no depth: then False, with a note (VSD compares depth maps)."""
+    if vsd and not notes.has_depth:
+        notes.lines.append("VSD skipped: it needs the test depth images (AR is the mean of AR_MSSD and AR_MSPD)")
+        log.info("VSD skipped: the dataset has no depth/")
+        return False
+    return vsd
 
 
 def _refuse_targets(spec: Any, est: Any) -> tuple[str, bool, bool]:
@@ -333,7 +372,7 @@ def _describe(spec: Any, est: Any) -> str:
     return spec if isinstance(spec, str) else type(est).__name__
 
 
-def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str = "train_pbr",
+def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: str | None = None,
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
                   progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
                   labels: str | Path | None = None, tracking: bool | None = None,
@@ -363,7 +402,10 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
         kept = {id(r) for r in keep_top_per_image(rows)}
         rows = [r for r in rows if id(r) in kept]
     objects = load_dataset_objects(root)
-    refs = select_images(root, split, scenes, max_images, objects.ids, labels)
+    split = resolve_split(root, split)
+    notes = DataNotes()
+    refs = select_images(root, split, scenes, max_images, objects.ids, labels, notes)
+    vsd = _vsd_possible(vsd, notes)
     selected = {(r.scene_id, r.im_id) for r in refs}
     known = set(objects.ids)
     failures = []
@@ -387,7 +429,8 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     settings = {"dataset": str(root), "split": split, "results": str(results_csv),
                 "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
                 "vsd": bool(vsd), "labels": None if labels is None else str(labels),
-                **({"task": task} if task == "detection" else {})}
+                **({"task": task} if task == "detection" else {}),
+                **({"data_notes": notes.summary()} if notes.summary() else {})}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))

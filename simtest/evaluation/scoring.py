@@ -142,7 +142,7 @@ def _errors(e: ResultRow, g: bop.ImageGT, obj, syms: np.ndarray, K: np.ndarray, 
     return out
 
 
-def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str = "train_pbr",
+def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str | None = None,
                     scenes: Sequence[int] | None = None, max_images: int | None = None, vsd_enabled: bool = True,
                     scales: Sequence[float] | None = None, objects=None, progress: bool = False,
                     _refs: list[ImageRef] | None = None) -> tuple[dict, dict, list[dict], dict[int, str]]:
@@ -200,7 +200,7 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
             rows.append(row)
         # BOP19 on this image.
         gts = [GroundTruthPose(ref.scene_id, ref.im_id, j, g.obj_id, g.T_cam_obj.R, g.T_cam_obj.t, g.visib_fract)
-               for j, g in enumerate(ref.info["gt"]) if g.obj_id in models]
+               for j, g in enumerate(ref.info["gt"]) if g.obj_id in models and (ref.listed is None or g.obj_id in ref.listed)]
         res = evaluate_bop19(ests, gts, models, {(ref.scene_id, ref.im_id): EvalImage(K, width, height, depth)},
                              error_types=error_types)
         for o, po in res.per_object.items():

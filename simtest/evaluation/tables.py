@@ -77,6 +77,8 @@ def format_table(report: Any) -> str:
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
               "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n"
               + (_DETECTION_NOTE if _detection(report) else ""))
+    notes = s.get("data_notes") or []
+    footer += "".join(f"Data: {line}.\n" for line in notes)
     text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + table + footer
     per_category = getattr(report, "per_category", None)
     return text + ("\n" + category_table(report) if per_category else "")

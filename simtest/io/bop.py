@@ -14,10 +14,11 @@ Layout written::
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +28,8 @@ import numpy as np
 from simtest.camera import CameraModel
 from simtest.errors import ConfigError, DatasetError
 from simtest.geometry import Pose
-from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, short_repr, validate_camera_json, validate_scene_camera,
-                                   validate_scene_gt, validate_scene_gt_info)
+from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, RotationRepairs, short_repr, validate_camera_json,
+                                   validate_scene_camera, validate_scene_gt, validate_scene_gt_info)
 from simtest.io.coco import coco_annotation, coco_scene
 from simtest.io.dense import write_png16
 from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed, private_partial_dir,
@@ -39,10 +40,12 @@ __all__ = [
     "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
     "encode_depth", "decode_depth", "rgb_to_bgr",
     "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
-    "dataset_split_dir", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
-    "validate_scene_gt_info", "ROT_TOL", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
+    "dataset_split_dir", "split_names", "resolve_split", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
+    "validate_scene_gt_info", "ROT_TOL", "RotationRepairs", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
     "withhold_labels", "UNLABELLED_KEEP",
 ]
+
+log = logging.getLogger(__name__)
 
 #: The only metres <-> millimetres factor in simtest.
 MM_PER_M = 1000.0
@@ -368,18 +371,48 @@ def _move_into_place(partial: Path, final: Path) -> None:
 
 # ---------------------------------------------------------------------------------------------------------
 # Reading
-def dataset_split_dir(dataset_dir: str | Path, split: str) -> Path:
-    """The folder of ``split`` in a dataset; :class:`DatasetError` if the dataset or the split is missing.
+def split_names(dataset_dir: str | Path) -> list[str]:
+    """The splits of a dataset: its folders that hold ``<6-digit scene>`` folders, sorted (``withheld/`` and
+    other folders of split folders are not splits)."""
+    root = Path(dataset_dir)
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and any(
+        c.is_dir() and c.name.isdigit() and len(c.name) == 6 for c in p.iterdir()))
 
-    The split error lists the splits found (folders holding ``<6-digit scene>`` folders).
+
+def resolve_split(dataset_dir: str | Path, split: str | None) -> str:
+    """The split to read: ``split`` when given, else the dataset's only split (a real BOP test set has just
+    ``test``; a generated dataset just ``train_pbr``).
+
+    Raises:
+        DatasetError: The dataset folder is missing; ``split`` is None and the dataset has no split or several
+            (they are listed: choose one with ``--split``).
     """
     root = Path(dataset_dir)
     if not root.is_dir():
         raise DatasetError(f"dataset folder {root} does not exist")
+    if split is not None:
+        return str(split)
+    found = split_names(root)
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        raise DatasetError(f"dataset {root} has no split folder (no folder holds 6-digit scene folders such as "
+                           f"{root}/test/000002)")
+    raise DatasetError(f"dataset {root} has several splits ({', '.join(found)}); choose one with --split "
+                       "(split= in Python)")
+
+
+def dataset_split_dir(dataset_dir: str | Path, split: str | None = None) -> Path:
+    """The folder of ``split`` in a dataset (None: its only split, :func:`resolve_split`); :class:`DatasetError`
+    if the dataset or the split is missing.
+
+    The split error lists the splits found (folders holding ``<6-digit scene>`` folders).
+    """
+    root = Path(dataset_dir)
+    split = resolve_split(root, split)
     split_dir = root / split
     if not split_dir.is_dir():
-        found = sorted(p.name for p in root.iterdir() if p.is_dir() and any(
-            c.is_dir() and c.name.isdigit() and len(c.name) == 6 for c in p.iterdir()))
+        found = split_names(root)
         raise DatasetError(f"dataset {root} has no split folder {split!r}; splits found: "
                            f"{', '.join(found) or 'none (no folder holds 6-digit scene folders)'}")
     return split_dir
@@ -425,12 +458,14 @@ def read_camera_json(path: str | Path) -> dict:
 class SceneFiles:
     """The parsed and validated JSON files of one scene folder, as stored (keys are the files' image-id
     strings, poses in millimetres). ``gt`` and ``gt_info`` are None only when read with ``require_gt=False``
-    and the files are absent."""
+    and the files are absent. ``repairs`` counts the nearly orthonormal rotations that were projected to the
+    nearest rotation as they were read (:class:`~simtest.io.bop_checks.RotationRepairs`)."""
 
     dir: Path
     camera: dict[str, dict]
     gt: dict[str, list] | None
     gt_info: dict[str, list] | None
+    repairs: RotationRepairs = field(default_factory=RotationRepairs)
 
 
 def read_scene_camera(scene_dir: str | Path) -> dict[str, dict]:
@@ -448,7 +483,10 @@ def read_scene_files(scene_dir: str | Path, obj_ids: Iterable[int] | None = None
 
     Every consumer of a dataset's ground truth reads it through here (see :func:`validate_scene_camera`,
     :func:`validate_scene_gt`, :func:`validate_scene_gt_info`); every image annotated in ``scene_gt.json``
-    must have a ``scene_camera.json`` entry.
+    must have a ``scene_camera.json`` entry. Rotations off orthonormal by more than
+    :data:`~simtest.io.bop_checks.ROT_TOL` but at most :data:`~simtest.io.bop_checks.ROT_REPAIR_TOL` (real BOP
+    annotations are rounded) are projected to the nearest rotation and counted in ``repairs``; worse ones are
+    refused.
 
     Args:
         scene_dir: ``DATASET/<split>/<6-digit scene>``.
@@ -463,32 +501,40 @@ def read_scene_files(scene_dir: str | Path, obj_ids: Iterable[int] | None = None
     cam_path, gt_path, info_path = (scene_dir / n for n in ("scene_camera.json", "scene_gt.json",
                                                             "scene_gt_info.json"))
     cams = read_json(cam_path)
-    cam_ims = validate_scene_camera(cams, cam_path)
+    repairs = RotationRepairs()
+    cam_ims = validate_scene_camera(cams, cam_path, repairs)
     if not require_gt and not gt_path.is_file():
-        return SceneFiles(scene_dir, cams, None, read_json(info_path) if info_path.is_file() else None)
+        return SceneFiles(scene_dir, cams, None, read_json(info_path) if info_path.is_file() else None, repairs)
     gts = read_json(gt_path)
-    gt_ims = validate_scene_gt(gts, gt_path, obj_ids)
+    gt_ims = validate_scene_gt(gts, gt_path, obj_ids, repairs)
     no_cam = sorted(set(gt_ims) - set(cam_ims))
     if no_cam:
         raise DatasetError(f"{gt_path}: image ids {short_repr(no_cam)} have no entry in {cam_path.name}; every "
                            "annotated image needs its camera")
     infos = read_json(info_path)
     validate_scene_gt_info(infos, gt_ims, info_path)
-    return SceneFiles(scene_dir, cams, gts, infos)
+    return SceneFiles(scene_dir, cams, gts, infos, repairs)
 
 
-def read_scene(scene_dir: str | Path, obj_ids: Iterable[int] | None = None) -> dict[int, dict]:
+def read_scene(scene_dir: str | Path, obj_ids: Iterable[int] | None = None,
+               repairs: RotationRepairs | None = None) -> dict[int, dict]:
     """All annotations of one scene, in metres, validated by :func:`read_scene_files`.
 
     Args:
         scene_dir: ``DATASET/<split>/<6-digit scene>``.
         obj_ids: The dataset's object ids (an unknown ground-truth ``obj_id`` is an error); None: not checked.
+        repairs: Add the scene's repaired rotations to this tally (the caller reports them); None: a warning
+            is logged here when there are any.
 
     Returns:
         ``{im_id: {"K": 3x3, "depth_scale": float, "T_cam_world": Pose | None, "gt": [ImageGT, ...]}}`` for
         every image of ``scene_camera.json``.
     """
     files = read_scene_files(scene_dir, obj_ids)
+    if repairs is not None:
+        repairs.add(files.repairs)
+    elif files.repairs.count:
+        log.warning("%s", files.repairs.summary())
     gts = {int(k): v for k, v in files.gt.items()}
     infos = {int(k): v for k, v in files.gt_info.items()}
     out: dict[int, dict] = {}

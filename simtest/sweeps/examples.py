@@ -90,10 +90,10 @@ def colourize_depth_range(depth: np.ndarray, lo: float, hi: float) -> tuple[np.n
     return out, f"{lo:.2f}-{hi:.2f} m (blue near, red far), {(~valid).mean() * 100:.1f}% invalid (black)"
 
 
-def _first_scene(data: Path, split: str) -> Path:
-    from simtest.io.bop import scene_dirs
+def _first_scene(data: Path, split: str | None) -> Path:
+    from simtest.io.bop import dataset_split_dir, scene_dirs
 
-    return scene_dirs(data / split)[0]
+    return scene_dirs(dataset_split_dir(data, split))[0]
 
 
 def example_pictures(cfg, out: Path, conds) -> list[Example]:

@@ -39,6 +39,7 @@ from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, check_b
 from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import GT_MASKS_LABEL
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
+from simtest.io.bop import dataset_split_dir
 from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
 from simtest.metrics.registry import metric_keys
 from simtest.schema import bounds, build, config_changes, read_config_file, to_plain
@@ -62,7 +63,7 @@ class DatasetSection:
 
     path: str | None = None
     generate: dict | None = None
-    split: str = "train_pbr"
+    split: str | None = None  # None: the dataset's only split
     max_images: int | None = field(default=None, metadata=bounds(1, 10_000_000))
 
 
@@ -288,8 +289,7 @@ class SweepReport:
 def _prepare_dataset(cfg: SweepConfig, out: Path, progress: bool) -> Path:
     if cfg.dataset.path is not None:
         path = Path(cfg.dataset.path).resolve()
-        if not (path / cfg.dataset.split).is_dir():
-            raise DatasetError(f"sweep dataset {str(path)!r} has no split folder {cfg.dataset.split!r}")
+        dataset_split_dir(path, cfg.dataset.split)  # the split exists (or the only one is found), else a clear error
         return path
     from simtest.generators.pipeline import generate
     from simtest.sweeps.renders import clean_generate_config

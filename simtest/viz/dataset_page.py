@@ -38,10 +38,10 @@ DATASET_LEGEND = [((235, 235, 235), "visible mask", "solid"), ((235, 235, 235), 
 
 @dataclass(frozen=True)
 class ImageSelection:
-    """Which images to show: ``split``, ``scene`` (None: every scene), ``image`` (one image id, None: any) and
-    at most ``count`` images."""
+    """Which images to show: ``split`` (None: the dataset's only split), ``scene`` (None: every scene),
+    ``image`` (one image id, None: any) and at most ``count`` images."""
 
-    split: str = "train_pbr"
+    split: str | None = None
     scene: int | None = None
     image: int | None = None
     count: int = 4
@@ -89,6 +89,9 @@ def load_captions(scene_dir: Path) -> dict[int, str] | None:
 
 
 def _read_mask(ref: ImageRef, gt_id: int, visible: bool) -> np.ndarray | None:
+    """The instance's mask, or None where the dataset has none (real BOP test sets ship no masks)."""
+    if not ref.has_masks:
+        return None
     try:
         return bop.read_mask(ref.gt_dir, ref.im_id, gt_id, visible=visible)
     except DatasetError:
@@ -156,9 +159,11 @@ def dataset_card(ref: ImageRef, objects, scale: int | None = None, captions: dic
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     s = upscale_factor(rgb.shape[1], rgb.shape[0]) if scale is None else int(scale)
     canvas, drawn = gt_canvas(ref, objects, s, rgb)
-    depth = colourize_depth(bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]))
-    top = hstack([titled(canvas, f"RGB + ground truth ({len(drawn)} of {len(ref.info['gt'])} instances visible)"),
-                  titled(upscale(depth.image, s, nearest=True), depth.caption)])
+    tiles = [titled(canvas, f"RGB + ground truth ({len(drawn)} of {len(ref.info['gt'])} instances visible)")]
+    if ref.has_depth:  # real test excerpts may ship RGB only
+        depth = colourize_depth(bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]))
+        tiles.append(titled(upscale(depth.image, s, nearest=True), depth.caption))
+    top = hstack(tiles)
     parts = [text_strip([f"scene {ref.scene_id:06d}  image {ref.im_id:06d}   {ref.scene_dir}"], top.shape[1]), top]
     dense = _dense_row(ref, s, top.shape[1])
     if dense is not None:

@@ -55,7 +55,7 @@ class ShowResult:
     ms_per_card: float
 
 
-def folder_kind(path: Path, split: str = "train_pbr") -> str:
+def folder_kind(path: Path, split: str | None = None) -> str:
     """``"eval"``, ``"grasp"`` or ``"dataset"``.
 
     Raises:
@@ -68,11 +68,11 @@ def folder_kind(path: Path, split: str = "train_pbr") -> str:
         return "eval"
     if grasp_page.is_grasp_run(path):
         return "grasp"
-    if path.is_dir() and ((path / split).is_dir() or (path / "camera.json").is_file() or any(
+    if path.is_dir() and ((split is not None and (path / split).is_dir()) or (path / "camera.json").is_file() or any(
             c.is_dir() and any(s.is_dir() and s.name.isdigit() and len(s.name) == 6 for s in c.iterdir())
             for c in path.iterdir())):
         return "dataset"
-    raise DatasetError(f"{path} is not a BOP dataset (DATASET/{split}/<6-digit scene>/), an evaluation folder "
+    raise DatasetError(f"{path} is not a BOP dataset (DATASET/{split or '<split>'}/<6-digit scene>/), an evaluation folder "
                        "(metrics.json, errors.csv) or a grasp run (episodes.csv, summary.json)")
 
 

@@ -184,6 +184,8 @@ class CropKeypointEstimator:
         self.device = device
         #: Ground-truth boxes are given (and runs labelled ``(GT masks)``) only with ``detect=gt``.
         self.needs_gt_masks = detect == "gt"
+        #: Depth is read only by segicp's RGB-D detector (``detect="segicp"``).
+        self.needs_depth = detect == "segicp"
         self.net = self.model = None
         if model is not None:
             if objects_record is None:

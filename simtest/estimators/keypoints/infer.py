@@ -256,6 +256,8 @@ class KeypointEstimator:
         self.use_masks = bool(use_masks)
         #: Ground-truth visible masks are passed (and the runs labelled ``(GT masks)``) only when used.
         self.needs_gt_masks = self.use_masks
+        #: RGB only: the observation's depth is never read.
+        self.needs_depth = False
         self.min_cells = int(min_cells)
         self.last_failures: list[dict[str, Any]] = []
         self._checked: set[int] = set()

@@ -58,9 +58,9 @@ class SegTrainConfig:
 
     data: str | tuple[str, ...]
     out: str
-    split: str = "train_pbr"
+    split: str | None = None  # None: the dataset's only split
     val: str | None = None
-    val_split: str = "train_pbr"
+    val_split: str | None = None
     val_images: int | None = None
     epochs: int = 12
     batch_size: int = 8
