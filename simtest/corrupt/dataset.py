@@ -121,7 +121,7 @@ def corrupt_dataset(in_dir: str | os.PathLike, out_dir: str | os.PathLike, spec:
     for scene in scenes:
         files = read_scene_files(scene, require_gt=False)
         cache[scene] = {"camera": files.camera, "gt": files.gt or {}, "gt_info": files.gt_info}
-        _check_inputs(scene, spec, files.gt is not None)
+        _check_inputs(scene, spec)
     bank, fallback = _cutout_bank(spec, scenes, cutout_fallback)  # a missing source fails before any write
     if fallback is not None:
         spec = replace(spec, occlusion_kind="paste")
@@ -300,15 +300,11 @@ def _record(src: Path, spec: CorruptionSpec, seed: int, images: int, change_rgb:
     return record
 
 
-def _check_inputs(scene: Path, spec: CorruptionSpec, labelled: bool) -> None:
-    """Refuse, before anything is written, a corruption that needs what the scene lacks: depth noise needs
-    ``depth/``, occlusion of a labelled scene needs ``mask_visib/`` (it rewrites the visible masks and
-    ``visib_fract``). Weather needs only ``rgb/``: a real BOP test set without depth or masks takes it."""
+def _check_inputs(scene: Path, spec: CorruptionSpec) -> None:
+    """Refuse, before anything is written, depth noise on a scene without ``depth/`` (a real BOP test excerpt
+    may ship RGB only; weather needs only ``rgb/``)."""
     if spec.depth_noise is not None and not (scene / "depth").is_dir():
         raise DatasetError(f"{scene} has no depth/ folder: depth noise {spec.depth_noise!r} needs depth images")
-    if spec.occlusion is not None and labelled and not (scene / "mask_visib").is_dir():
-        raise DatasetError(f"{scene} has no mask_visib/ folder: occlusion rewrites the visible masks and "
-                           "visib_fract, so it needs them (weather corruptions need only rgb/)")
 
 
 def _corrupt_image(src: Path, dst: Path, scene: Path, rgb_path: Path, scene_id: int, im_id: int,
