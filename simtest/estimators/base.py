@@ -65,9 +65,7 @@ def gt_access(estimator: Any) -> tuple[bool, bool]:
 
 
 def needs_depth(estimator: Any) -> bool:
-    """Whether an (instantiated) estimator reads ``Observation.depth``: its ``needs_depth`` attribute, True when
-    it has none (a plug-in that does not say may read depth). On a dataset without depth, RGB-only estimators
-    (``needs_depth = False``) are given ``depth=None`` and the others are refused before the run."""
+    """Whether an estimator reads ``Observation.depth`` (its ``needs_depth``; True when it does not say)."""
     return bool(getattr(estimator, "needs_depth", True))
 
 

@@ -219,13 +219,9 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         EstimatorError: With ``fail_fast``, the estimator's first fault.
         DatasetError: Missing dataset folder, split or models, or malformed ground truth (an unknown
             ``obj_id``, a non-finite or non-rotation pose, missing scene files); checked before the estimator
-            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``. A dataset
-            without ``depth/`` for an estimator that reads depth (``needs_depth``, the default of plug-ins that
-            do not say), or without ``mask_visib/`` for one given ground-truth masks (``needs_gt_masks``).
-
-    A real BOP test set is read as distributed (:func:`simtest.io.dataset.select_images`): its only split,
-    rounded rotations repaired, the images its ``test_targets_bop19.json`` lists; what was repaired or skipped
-    is written in ``metrics.md`` (and ``settings["data_notes"]``).
+            runs. ``out_dir`` not empty without ``overwrite``, not writable, or inside ``dataset_dir``. No
+            ``depth/`` for an estimator that reads depth, no ``mask_visib/`` for one given masks.
+            Real BOP test sets are read as distributed (:func:`simtest.io.dataset.select_images`).
 
     Estimator faults never end the run: an image where the estimator raises (kind ``exception``), calls
     ``sys.exit`` (``exit``), exceeds ``timeout`` (``timeout``) or returns something other than a list
@@ -255,8 +251,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     known = set(objects.ids)
     notes = DataNotes()
     refs = select_images(root, split, scenes, max_images, known, labels, notes)
-    _check_inputs(estimator, est, notes, gt_masks)
-    vsd = _vsd_possible(vsd, notes)
+    vsd = _check_inputs(estimator, est, notes, gt_masks, vsd)
     width, height = image_size(root)
     backend = backend if backend is not None else Backend()
     stats = stats if stats is not None else RunStats()
@@ -269,22 +264,15 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         results, scales = _keep_top(results, scales)
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
                                                        scales=scales, progress=False, _refs=refs)
-    overall["num_images"] = len(refs)
-    overall["num_estimates"] = len(results)
-    overall["num_failures"] = len(failures)
-    overall["num_image_exceptions"] = sum(f["kind"] == "exception" for f in failures)
-    overall["mean_time_per_image_s"] = float(np.mean(times)) if times else float("nan")
-    overall["median_time_per_image_s"] = float(np.median(times)) if times else float("nan")
+    overall.update(_run_counts(len(refs), len(results), failures, times))
     labelled = gt_masks and not needs_gt  # the oracle's name says it
     settings = {"dataset": str(root), "split": split,
                 "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else "")
                 + (GT_INIT_LABEL if gt_init else ""),
                 "gt_masks": labelled, "gt_init": gt_init, "targets": targets,
-                "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
-                "labels": None if labels is None else str(labels), "backend": backend.name,
-                "workers": backend.workers, **({"task": task} if task == "detection" else {}),
-                **({"data_notes": notes.summary()} if notes.summary() else {})}
+                **_selection_settings(scenes, max_images, vsd, labels, task, notes),
+                "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
+                "backend": backend.name, "workers": backend.workers}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
                         object_names=names, num_images=len(refs), settings=settings,
                         num_failed_images=failed_images, per_category=_per_category(objects, rows, per_object))
@@ -297,9 +285,28 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     return report
 
 
-def _check_inputs(spec: Any, est: Any, notes: DataNotes, gt_masks: bool) -> None:
+def _selection_settings(scenes: Sequence[int] | None, max_images: int | None, vsd: bool,
+                        labels: str | Path | None, task: str, notes: DataNotes) -> dict[str, Any]:
+    """The ``settings`` entries that say which images were scored and how (with the data notes, if any)."""
+    return {"scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
+            "vsd": bool(vsd), "labels": None if labels is None else str(labels),
+            **({"task": task} if task == "detection" else {}),
+            **({"data_notes": notes.summary()} if notes.summary() else {})}
+
+
+def _run_counts(num_images: int, num_estimates: int, failures: list[dict[str, Any]], times: list[float]
+                ) -> dict[str, Any]:
+    """The counts and times of a run that go into ``overall`` (seconds per image)."""
+    return {"num_images": num_images, "num_estimates": num_estimates, "num_failures": len(failures),
+            "num_image_exceptions": sum(f["kind"] == "exception" for f in failures),
+            "mean_time_per_image_s": float(np.mean(times)) if times else float("nan"),
+            "median_time_per_image_s": float(np.median(times)) if times else float("nan")}
+
+
+def _check_inputs(spec: Any, est: Any, notes: DataNotes, gt_masks: bool, vsd: bool) -> bool:
     """Refuse, before anything runs, an estimator that reads what the dataset lacks: depth (``needs_depth``)
-    or ground-truth visible masks (``needs_gt_masks`` with targets given)."""
+    or ground-truth visible masks (``needs_gt_masks`` with targets given). Returns whether VSD is computed
+    (:func:`_vsd_possible`)."""
     name = spec if isinstance(spec, str) else type(est).__name__
     if not notes.has_depth and needs_depth(est):
         raise DatasetError(f"the dataset has no depth/ (scenes {notes.no_depth_scenes[:8]}) and estimator {name!r} "
@@ -309,6 +316,7 @@ def _check_inputs(spec: Any, est: Any, notes: DataNotes, gt_masks: bool) -> None
         raise DatasetError(f"the dataset has no mask_visib/ (scenes {notes.no_mask_scenes[:8]}) and estimator {name!r} "
                            "is given ground-truth visible masks (needs_gt_masks = True); use one that finds the "
                            "objects itself")
+    return _vsd_possible(vsd, notes)
 
 
 def _vsd_possible(vsd: bool, notes: DataNotes) -> bool:
@@ -427,10 +435,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     overall["mean_time_per_image_s"] = float(np.mean(t)) if t else float("nan")
     overall["median_time_per_image_s"] = float(np.median(t)) if t else float("nan")
     settings = {"dataset": str(root), "split": split, "results": str(results_csv),
-                "scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
-                "vsd": bool(vsd), "labels": None if labels is None else str(labels),
-                **({"task": task} if task == "detection" else {}),
-                **({"data_notes": notes.summary()} if notes.summary() else {})}
+                **_selection_settings(scenes, max_images, vsd, labels, task, notes)}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))
