@@ -34,7 +34,8 @@ def register(subparsers) -> None:
 
     p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
     common(p_list)
-    p_list.add_argument("--no-grasps", action="store_true", help="skip grasp sampling (faster)")
+    p_list.add_argument("--no-grasps", action="store_true",
+                        help="skip grasp sampling and the collision parts it needs (faster on a set's first use)")
     p_list.add_argument("--by-category", action="store_true",
                         help="print only the category table (objects and ids per category; reads no mesh)")
     p_list.add_argument("--category", metavar="NAME[,NAME]",
@@ -154,6 +155,8 @@ def _chosen_categories(objects, text: str | None) -> list[str] | None:
 
 
 def _cmd_list(args) -> int:
+    from simtest.objects.prepare import prepare_set
+
     objects = _load(args)
     cats = objects.categories
     chosen = _chosen_categories(objects, args.category)
@@ -169,6 +172,9 @@ def _cmd_list(args) -> int:
         print("# meshes are read on first use; --category NAME lists sizes, mass, symmetry and grasps")
         print(entry_table(objects.entries, objects.name))
         return 0
+    # First use of a set: collision parts (CoACD, cached on disk) and grasps per object, under a progress bar
+    # naming the object being worked on (shown when slow); the table is then made from what is in memory.
+    prepare_set(objects, ids, collision=not args.no_grasps, grasps=not args.no_grasps, progress=not args.quiet)
     print(object_table([objects.get(i) for i in ids], grasps=not args.no_grasps))
     return 0
 
