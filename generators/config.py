@@ -9,25 +9,38 @@ seconds.
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from simtest.backend import check_backend
-from simtest.errors import ConfigError
+from simtest.errors import ConfigError, DatasetError
 from simtest.schema import bounds as _bounds
 from simtest.schema import build, pair as _rng_pair, read_config_file, to_plain, to_toml
 
 __all__ = [
     "CameraConfig", "OcclusionConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
-    "GenerateConfig", "load_config",
+    "GenerateConfig", "load_config", "CAMERA_FILE_FIELDS", "camera_file_values",
 ]
+
+#: The ``camera`` fields a BOP ``camera.json`` named by ``camera.file`` sets (its ``depth_scale``, when it has
+#: one, sets ``render.depth_scale``).
+CAMERA_FILE_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """Pinhole intrinsics (pixels) and image size. Defaults: RealSense-D435-like colour camera at 640x480."""
+    """Pinhole intrinsics (pixels) and image size. Defaults: RealSense-D435-like colour camera at 640x480.
 
+    ``file``: a BOP ``camera.json`` (``simtest generate --camera PATH``) whose ``fx, fy, cx, cy, width, height``
+    become these fields and whose optional ``depth_scale`` (mm per depth unit) becomes ``render.depth_scale``
+    (:func:`camera_file_values`); kept as an absolute path. A field given next to it must equal the file's value
+    (else a :class:`ConfigError` naming both); :meth:`GenerateConfig.replace` with a new ``camera.file`` takes
+    all of the new file's values (the command line's ``--camera`` over a config file's camera fields).
+    """
+
+    file: str | None = None
     width: int = field(default=640, metadata=_bounds(16, 8192))
     height: int = field(default=480, metadata=_bounds(16, 8192))
     fx: float | None = field(default=None, metadata=_bounds(1.0, 1e5))  # None: 615 * width / 640
@@ -248,6 +261,7 @@ class GenerateConfig:
         ``recipe`` fills the values ``data`` leaves out (:func:`simtest.generators.recipes.with_recipe`)."""
         from simtest.generators.recipes import with_recipe
 
+        data = _with_camera_file(data, source)  # before the recipe: the file's values are given, not preset
         cfg = build(GenerateConfig, with_recipe(data, source), prefix="", source=source)
         try:
             check_backend(cfg.backend, cfg.ray_address, cfg.workers)
@@ -255,8 +269,13 @@ class GenerateConfig:
             raise ConfigError(f"{source}: {exc}") from None
         return cfg
 
-    def to_dict(self) -> dict[str, Any]:
-        return to_plain(dataclasses.asdict(self))
+    def to_dict(self, camera_file: bool = True) -> dict[str, Any]:
+        """The config as nested dicts; ``camera_file=False``: without ``camera.file``, its values kept (what a
+        process rebuilds the config from without reading the file again)."""
+        data = to_plain(dataclasses.asdict(self))
+        if not camera_file:
+            data["camera"]["file"] = None
+        return data
 
     def to_toml(self) -> str:
         """The config as TOML text that :func:`load_config` reads back (``None`` values are omitted)."""
@@ -270,6 +289,8 @@ class GenerateConfig:
         data = full
         if "recipe" in overrides and overrides["recipe"] != self.recipe:
             data = _changed(full, GenerateConfig.from_dict({"recipe": self.recipe}).to_dict())
+        if overrides.get("camera.file") is not None:  # a new camera file: its values replace this config's
+            data = _without_camera_values(data, overrides["camera.file"])
         for key, value in overrides.items():
             node, known = data, full
             parts = key.split(".")
@@ -279,6 +300,82 @@ class GenerateConfig:
                 node, known = node.setdefault(p, {}), known[p]
             node[parts[-1]] = value
         return GenerateConfig.from_dict(data, source="overrides")
+
+
+def camera_file_values(path: str | Path, source: str = "config") -> dict[str, float | int]:
+    """The values a BOP ``camera.json`` gives a generation config: ``fx, fy, cx, cy`` (pixels, OpenCV: pixel
+    centres at integers), ``width, height`` (pixels) and, when the file has it, ``depth_scale`` (mm per depth
+    PNG unit). Other keys of the file are ignored.
+
+    Raises:
+        ConfigError: Naming ``source``, ``camera.file``, the file and the field: the file is missing or not JSON,
+            a field is missing, not a number or out of range (:func:`simtest.io.bop.read_camera_json`; the
+            config's bounds: fx, fy in [1, 1e5], width, height in [16, 8192], depth_scale in [0.001, 100]), or
+            the principal point lies outside the image (``cx`` in [-0.5, width - 0.5], ``cy`` likewise: a swapped
+            or mistyped K).
+    """
+    from simtest.io.bop import read_camera_json
+
+    where = f"{source}: camera.file"
+    try:
+        data = read_camera_json(path)
+    except DatasetError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    values: dict[str, float | int] = {k: float(data[k]) for k in ("fx", "fy", "cx", "cy")}
+    values.update(width=int(data["width"]), height=int(data["height"]))
+    try:
+        build(CameraConfig, values, prefix="", source=str(path))
+        if "depth_scale" in data:
+            values["depth_scale"] = build(RenderConfig, {"depth_scale": data["depth_scale"]}, prefix="",
+                                          source=str(path)).depth_scale
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    for key, size in (("cx", "width"), ("cy", "height")):
+        if not -0.5 <= values[key] <= values[size] - 0.5:
+            raise ConfigError(f"{where}: {path}: field {key!r} is {data[key]!r}; allowed: a principal point inside "
+                              f"the image, [-0.5, {values[size] - 0.5}] for {size} {values[size]}")
+    return values
+
+
+def _with_camera_file(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """``data`` (a config as nested dicts) with ``camera.file`` read into its camera fields and
+    ``render.depth_scale`` and the path made absolute; a field given with a different value is an error."""
+    cam = data.get("camera") if isinstance(data, dict) else None
+    if not isinstance(cam, dict) or cam.get("file") is None:
+        return data
+    file = cam["file"]
+    if not isinstance(file, str) or not file.strip():
+        raise ConfigError(f"{source}: camera.file = {file!r} is invalid; allowed: the path of a BOP camera.json")
+    path = os.path.abspath(os.path.expanduser(file))
+    values = camera_file_values(path, source)
+    cam = {**cam, "file": path}
+    render = data.get("render", {})
+    render = dict(render) if isinstance(render, dict) else render  # not a table: build says so
+    for key, value in values.items():
+        table, name = (render, "render") if key == "depth_scale" else (cam, "camera")
+        if not isinstance(table, dict):
+            continue
+        given = table.get(key)
+        if given is not None and not (isinstance(given, (int, float)) and not isinstance(given, bool)
+                                      and float(given) == float(value)):
+            raise ConfigError(f"{source}: {name}.{key} = {given!r} conflicts with camera.file {path!r}, whose "
+                              f"{key} is {value!r}; give one or the other (the file's values are used for the "
+                              f"fields left out)")
+        table[key] = value
+    return {**data, "camera": cam, "render": render}
+
+
+def _without_camera_values(data: dict[str, Any], file: Any) -> dict[str, Any]:
+    """``data`` without the camera fields a new ``camera.file`` sets (and ``render.depth_scale`` when the file
+    has one), so that file's values replace them instead of conflicting with them."""
+    out = dict(data)
+    if isinstance(out.get("camera"), dict):
+        out["camera"] = {k: v for k, v in out["camera"].items() if k not in CAMERA_FILE_FIELDS}
+    if isinstance(file, str) and file.strip() and isinstance(out.get("render"), dict):
+        values = camera_file_values(os.path.abspath(os.path.expanduser(file)), "overrides")
+        if "depth_scale" in values:
+            out["render"] = {k: v for k, v in out["render"].items() if k != "depth_scale"}
+    return out
 
 
 def _changed(data: dict, base: dict) -> dict:

@@ -24,13 +24,14 @@ import simtest
 from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, preflight, run_units
 from simtest.camera import CameraModel
 from simtest.errors import DatasetError
-from simtest.generators.config import GenerateConfig
+from simtest.generators.config import GenerateConfig, camera_file_values
 from simtest.generators.dense import DenseViews
 from simtest.generators.views_behind import ViewsBehind
 from simtest.io.bop import SceneWriter, encode_depth, scene_dirs, write_camera_json
 from simtest.io.bop_targets import TARGETS_BOP19, TARGETS_BOP24, write_targets
 from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
+from simtest.objects.prepare import prepare_set
 from simtest.rng import child_rng
 from simtest.schema import config_changes
 
@@ -358,6 +359,8 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     _check_out_dir(out, cfg, resume, overwrite)
     t0 = time.perf_counter()
     objects = load_objects(cfg)
+    if not getattr(objects, "lazy", False):  # collision parts decomposed here, under a bar, not in each worker
+        prepare_set(objects, progress=None if progress else False)
     if cfg.captions:
         from simtest.generators.captions import check_caption_objects
 
@@ -374,7 +377,9 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
                 for e in objects.entries],
             "command_line": list(command_line if command_line is not None else sys.argv),
             "unlabelled": cfg.unlabelled, "captions": cfg.captions,
-            "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"}})
+            "units": {"poses": "mm (BOP)", "depth": f"uint16, mm = value * {cfg.render.depth_scale}"},
+            **({} if cfg.camera.file is None else {"camera_file": {  # its path and the values read from it
+                "path": cfg.camera.file, "values": camera_file_values(cfg.camera.file)}})})
     write_camera_json(out / "camera.json", camera, cfg.render.depth_scale)
     _write_models(objects, out / "models", split_dir)
     if "keypoints" in cfg.annotation.channels:
@@ -430,7 +435,9 @@ def run_scenes(cfg: GenerateConfig, objects, todo: list[int], split_dir: Path, r
         fn = _worker_scene
     units = [(i, str(split_dir.resolve())) for i in todo]  # absolute: a worker's working folder may differ
     try:
-        for rep in run_units(fn, units, backend, init=_worker_init, init_args=(cfg.to_dict(),), stats=report.run):
+        # a worker gets the camera file's values, not its path (which may not exist where the worker runs)
+        init_args = (cfg.to_dict(camera_file=False),)
+        for rep in run_units(fn, units, backend, init=_worker_init, init_args=init_args, stats=report.run):
             _account(report, rep, bar)
     except BackendError as exc:
         if not report.run.failures:

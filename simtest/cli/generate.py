@@ -25,6 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", choices=["shell", "wrist", "sequence"], help="camera rig")
     p.add_argument("--width", type=int, help="image width (pixels)")
     p.add_argument("--height", type=int, help="image height (pixels)")
+    p.add_argument("--camera", metavar="PATH",
+                   help="a BOP camera.json (fx, fy, cx, cy, width, height, optional depth_scale in mm per depth "
+                        "unit): the dataset's intrinsics, image size and depth unit (config camera.file); it "
+                        "replaces the config file's camera values; --width/--height must agree with it")
     p.add_argument("--profile", choices=["fast", "quality", "pbr"],
                    help="render profile (quality: shadows, MSAA; pbr: path-traced RGB, needs simtest[pbr])")
     p.add_argument("--depth-sensor", choices=["none", "d435-stereo", "passive-stereo"],
@@ -77,7 +81,8 @@ def config_from_args(args: argparse.Namespace):
     overrides = {
         "objects": args.objects, "units": args.units, "scale": args.scale, "scenes": args.scenes,
         "frames_per_scene": args.frames_per_scene, "rig": args.rig, "camera.width": args.width,
-        "camera.height": args.height, "render.profile": args.profile, "render.depth_sensor": args.depth_sensor, "render.coco": args.coco,
+        "camera.height": args.height, "camera.file": args.camera, "render.profile": args.profile,
+        "render.depth_sensor": args.depth_sensor, "render.coco": args.coco,
         "render.rgb_format": args.rgb_format, "captions": args.captions, "unlabelled": args.unlabelled,
         "workers": args.workers, "backend": args.backend, "ray_address": args.ray_address, "seed": args.seed,
         "occlusion.level": args.occlusion,
@@ -90,7 +95,7 @@ def config_from_args(args: argparse.Namespace):
                                                                     if c.strip() and c.strip() != "none"],
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
-    if args.width is not None and args.height is None and not args.config:
+    if args.width is not None and args.height is None and not args.config and args.camera is None:
         overrides["camera.height"] = args.width * 3 // 4
     try:
         return cfg.replace(**overrides) if overrides else cfg

@@ -14,8 +14,12 @@ read from the compiled model and data every frame, so it is what MuJoCo would dr
   shadows), a point light a spherical area light, a directional light stays directional; each is calibrated so
   its irradiance at the scene centre (``model.stat.center``) matches MuJoCo's unattenuated ``diffuse``; the
   ambient (headlight + lights) becomes a constant environment;
-* camera: a ``perspective`` sensor with the exact OpenCV intrinsics (fov from fx, principal point offset from
-  cx, cy; OpenCV pixel centres at integer coordinates), box pixel filter.
+* camera: a ``perspective`` sensor with the exact OpenCV intrinsics (fov from the focal length, principal point
+  offset from cx, cy; OpenCV pixel centres at integer coordinates), box pixel filter. Mitsuba's sensor has
+  square pixels (and refuses a scale in its ``to_world``), so a K with ``fx != fy`` is rendered on a film with
+  the larger focal length on both axes, denser along the other axis over the same field of view, and
+  area-resampled onto the image's pixel grid along that axis only (:class:`FilmGrid`): every pixel sees the
+  rays K gives it; square pixels render the image's own grid.
 
 Mitsuba and ``pyoidn`` are the optional extra ``simtest[pbr]``, imported on first use. The Mitsuba variant is
 ``render.pbr_variant`` (:func:`simtest.render.llvm.choose_variant`; ``auto``: ``cuda_ad_rgb`` with a CUDA
@@ -39,13 +43,14 @@ from simtest.camera import CameraModel
 from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
 from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
+from simtest.render.pbr_film import FilmGrid, film_grid, resample_to_image
 from simtest.render.pbr_lights import emitters
 from simtest.render.pbr_shapes import box_arrays, mesh_from_arrays, sphere_arrays, transform
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
 
 __all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "renderer_versions", "auto_spp",
-           "INSTALL_HINT", "PBR_VARIANTS"]
+           "FilmGrid", "film_grid", "resample_to_image", "INSTALL_HINT", "PBR_VARIANTS"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
@@ -91,13 +96,12 @@ def _modules(requested: str = "auto") -> tuple[Any, Any, Variant]:
 
 def require_pbr(camera: CameraModel, variant: str = "auto") -> None:
     """Check that the ``pbr`` profile can render ``camera`` with path-tracer ``variant`` (see
-    :func:`choose_variant`): the extra is installed, the variant is available and ``fx == fy``. A fallback of
-    ``auto`` is logged here (once per run).
+    :func:`choose_variant`): the extra is installed and the variant is available (any pinhole K renders:
+    :class:`FilmGrid`). A fallback of ``auto`` is logged here (once per run).
 
     Raises:
-        RenderError: Naming ``pip install 'simtest[pbr]'`` when Mitsuba or pyoidn is missing, naming the library
-            to install when an explicit ``cuda`` / ``llvm`` is unavailable, or naming the focal lengths when the
-            pixels are not square.
+        RenderError: Naming ``pip install 'simtest[pbr]'`` when Mitsuba or pyoidn is missing, or naming the library
+            to install when an explicit ``cuda`` / ``llvm`` is unavailable.
     """
     mi, _, _ = _modules(variant)
     camera_sensor(mi, camera, 1)
@@ -153,25 +157,20 @@ def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
 
 
 def camera_sensor(mi, camera: CameraModel, spp: int) -> dict:
-    """A Mitsuba ``perspective`` sensor with ``camera``'s exact intrinsics and pose.
+    """A Mitsuba ``perspective`` sensor with ``camera``'s exact intrinsics and pose, on the film of
+    :func:`film_grid` (the image's own grid when ``fx == fy``).
 
     OpenCV pixel ``u`` is centred at integer ``u``; Mitsuba's film pixel ``i`` covers ``[i, i + 1)``, so the
     principal point sits at ``cx + 0.5`` film units and its offset from the film centre, as a fraction of the
     film, is ``(cx + 0.5 - W / 2) / W`` (Mitsuba's x axis points left, hence the sign).
-
-    Raises:
-        RenderError: If ``fx != fy`` (Mitsuba's perspective sensor has square pixels).
     """
-    K, w, h = camera.K, camera.width, camera.height
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if abs(fx - fy) > 1e-9 * fx:
-        raise RenderError(f"the 'pbr' render profile needs square pixels: camera fx={fx!r} and fy={fy!r} differ; "
-                          f"set camera.fy equal to camera.fx")
+    g = film_grid(camera)
+    w, h = g.width, g.height
     T = camera.T_world_cam
     return {
-        "type": "perspective", "fov_axis": "x", "fov": float(np.degrees(2.0 * np.arctan(w / (2.0 * fx)))),
-        "principal_point_offset_x": float(-(cx + 0.5 - w / 2.0) / w),
-        "principal_point_offset_y": float(-(cy + 0.5 - h / 2.0) / h),
+        "type": "perspective", "fov_axis": "x", "fov": float(np.degrees(2.0 * np.arctan(w / (2.0 * g.focal)))),
+        "principal_point_offset_x": float(-(g.cx + 0.5 - w / 2.0) / w),
+        "principal_point_offset_y": float(-(g.cy + 0.5 - h / 2.0) / h),
         "near_clip": 0.001, "far_clip": 100.0,
         "to_world": transform(mi, T.R @ _R_CV_MI, T.t),
         "film": {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "rgb", "rfilter": {"type": "box"}},
@@ -198,9 +197,12 @@ class PbrRenderer:
     Views of one scene whose geometry, materials and lights are unchanged reuse the loaded Mitsuba scene with
     only the sensor changed (the same bytes as loading it again).
 
+    Any pinhole K renders, ``fx != fy`` included (:class:`FilmGrid`: the path tracer's square-pixel film is
+    area-resampled onto the image's grid along one axis).
+
     Raises:
-        RenderError: If the ``pbr`` extra is not installed (the message names it), ``spp`` is invalid, an
-            explicit ``variant`` is unavailable, or ``fx != fy``.
+        RenderError: If the ``pbr`` extra is not installed (the message names it), ``spp`` is invalid or an
+            explicit ``variant`` is unavailable.
     """
 
     def __init__(self, model: mujoco.MjModel, camera: CameraModel, spp: int | str = 16, denoise: bool = True,
@@ -218,7 +220,7 @@ class PbrRenderer:
             os.environ["OIDN_NUM_THREADS"] = str(max(1, int(threads)))
         self.model, self.camera = model, camera
         self.spp, self.denoise = int(spp), bool(denoise)
-        camera_sensor(self._mi, camera, self.spp)  # fail early on unsupported intrinsics
+        self._grid = film_grid(camera)
         self._groups = frozenset(int(g) for g in geomgroups)
         self._textures: dict[tuple, Any] = {}
         self._aux = None
@@ -257,7 +259,8 @@ class PbrRenderer:
 
     def render(self, data: mujoco.MjData, camera: int | str, seed: int = 0) -> Frame:
         """Path-trace RGB from fixed camera ``camera`` (id or name) at ``data``'s state (``data.cam_xpos`` /
-        ``cam_xmat`` as they are). ``seed`` seeds the sampler (uint32). Returns a Frame with rgb only."""
+        ``cam_xmat`` as they are). ``seed`` seeds the sampler (uint32). Returns a Frame with rgb only (the
+        image's size; a ``fx != fy`` film is denoised, then resampled onto the image's grid)."""
         mi = self._mi
         if mi.variant() != self._variant.name:  # another renderer of this process chose another variant
             mi.set_variant(self._variant.name)
@@ -280,6 +283,7 @@ class PbrRenderer:
                                     spp=min(self.spp, AUX_SPP)))
             color = self._oidn.denoise(color, np.ascontiguousarray(np.clip(aux[..., 0:3], 0.0, 1.0)),
                                        np.ascontiguousarray(np.clip(aux[..., 3:6], -1.0, 1.0)), hdr=True)
+        color = resample_to_image(np.asarray(color, dtype=np.float32), self._grid, self.width, self.height)
         return Frame(linear_to_srgb8(color), None, None)
 
     def _scene_key(self, data: mujoco.MjData) -> bytes:

@@ -1,6 +1,6 @@
 """The path-traced ``pbr`` profile: only ``rgb/`` differs from the fast profile (on every Mitsuba variant), the
-image is registered with the exact masks, a fixed seed repeats its bytes, and a missing extra says what to
-install."""
+image is registered with the exact masks (square pixels with an off-centre principal point, and LM-O's camera,
+``fx != fy``, given by ``--camera``), a fixed seed repeats its bytes, and a missing extra says what to install."""
 
 from __future__ import annotations
 
@@ -20,6 +20,10 @@ from simtest.generators.pipeline import generate
 from simtest.io.bop import read_image, read_json, read_mask, scene_dirs
 
 W, H = 96, 72
+#: LM-O's camera (BOP ``lmo/camera.json``: 640x480, fx 572.4114, fy 573.57043) at a quarter of its size, on the
+#: OpenCV pixel grid (principal point ``(c + 0.5) / 4 - 0.5``); depth_scale 1.0 mm per depth unit as in LM-O.
+LMO_QUARTER = {"fx": 572.4114 / 4, "fy": 573.57043 / 4, "cx": (325.2611 + 0.5) / 4 - 0.5,
+               "cy": (242.04899 + 0.5) / 4 - 0.5, "width": 160, "height": 120, "depth_scale": 1.0}
 
 
 def _digest(root: Path) -> dict[str, str]:
@@ -54,6 +58,38 @@ def runs(tmp_path_factory, small_config):
     generate(cfg.replace(**{"render.profile": "pbr", "render.pbr_variant": "scalar"}), root / "pbr_scalar",
              progress=False)
     return root
+
+
+@pytest.fixture(scope="module")
+def lmo_runs(tmp_path_factory):
+    """One scene, two views, made by ``simtest generate --config plain.toml --camera camera.json`` with LM-O's
+    camera (:data:`LMO_QUARTER`, a file this test writes) in the fast profile and, with the extra, in the pbr
+    profile (4 spp); plain looks as in :func:`runs`."""
+    from simtest.cli import main
+
+    root = tmp_path_factory.mktemp("lmo")
+    (root / "camera.json").write_text(json.dumps(LMO_QUARTER))
+    (root / "plain.toml").write_text(
+        'objects = "builtin-small"\nseed = 7\n[scene]\nobjects_per_scene = [3, 5]\ndistractors = [1, 2]\n'
+        '[materials]\nfamilies = []\nobject_textures = false\n[lights]\nenvironment = "constant"\n'
+        '[render]\npbr_spp = 4\n')
+    base = ["generate", "--config", str(root / "plain.toml"), "--camera", str(root / "camera.json"), "--scenes", "1",
+            "--frames-per-scene", "2", "--quiet"]
+    assert main(base + ["--out", str(root / "fast")]) == 0
+    if all(importlib.util.find_spec(n) is not None for n in ("mitsuba", "pyoidn")):
+        assert main(base + ["--profile", "pbr", "--out", str(root / "pbr")]) == 0
+    return root
+
+
+def _registration_run(request, name: str) -> tuple[Path, Path, int, int]:
+    """``(fast dataset, pbr dataset, width, height)`` of a registration case: ``square`` (fx = fy, principal
+    point 6 px right of and 4 px above the centre) or ``lmo`` (LM-O's fx != fy camera from ``--camera``)."""
+    _need_pbr()
+    if name == "square":
+        root = request.getfixturevalue("runs")
+        return root / "fast", root / "pbr", W, H
+    root = request.getfixturevalue("lmo_runs")
+    return root / "fast", root / "pbr", LMO_QUARTER["width"], LMO_QUARTER["height"]
 
 
 _RENDERER_KEYS = ("mitsuba", "mitsuba_variant", "pyoidn", "libllvm", "libllvm_version")
@@ -110,15 +146,18 @@ def _shifted_gradients(grey: np.ndarray, labels: np.ndarray, axis: int, shifts: 
     return out
 
 
-def test_pbr_object_boundaries_coincide_with_masks(runs):
-    """Image gradients peak on the exact visible-mask boundaries, not 1-3 px off (both axes, off-centre K)."""
-    scene = scene_dirs(runs / "pbr" / "train_pbr")[0]
+@pytest.mark.parametrize("case", ["square", "lmo"])
+def test_pbr_object_boundaries_coincide_with_masks(request, case):
+    """Image gradients peak on the exact visible-mask boundaries, not 1-3 px off (both axes; off-centre K, and
+    LM-O's fx != fy K)."""
+    _, pbr, w, h = _registration_run(request, case)
+    scene = scene_dirs(pbr / "train_pbr")[0]
     gt = read_json(scene / "scene_gt.json")
     totals: dict[tuple[int, int], list[float]] = {}
     for im_key, anns in gt.items():
         im_id = int(im_key)
         grey = read_image(scene, im_id).astype(np.float64).mean(axis=-1)
-        labels = np.zeros((H, W), dtype=np.int32)
+        labels = np.zeros((h, w), dtype=np.int32)
         for gt_id in range(len(anns)):
             labels[read_mask(scene, im_id, gt_id, visible=True) > 0] = gt_id + 1
         assert labels.any()
@@ -131,12 +170,14 @@ def test_pbr_object_boundaries_coincide_with_masks(runs):
         assert g[0] > 1.2 * max(g[-3], g[-2], g[2], g[3]), (axis, g)
 
 
-def test_pbr_images_register_with_the_fast_profile(runs):
+@pytest.mark.parametrize("case", ["square", "lmo"])
+def test_pbr_images_register_with_the_fast_profile(request, case):
     """The path-traced image lines up with the rasterized one (exact K, tested against the masks) to a fraction
-    of a pixel: phase correlation of their gradient magnitudes, per image."""
+    of a pixel: phase correlation of their gradient magnitudes, per image (off-centre K, and LM-O's fx != fy K)."""
     import cv2
 
-    fast, pbr = scene_dirs(runs / "fast" / "train_pbr")[0], scene_dirs(runs / "pbr" / "train_pbr")[0]
+    fast_root, pbr_root, _, _ = _registration_run(request, case)
+    fast, pbr = scene_dirs(fast_root / "train_pbr")[0], scene_dirs(pbr_root / "train_pbr")[0]
     shifts = []
     for im_id in range(2):
         a, b = (np.hypot(*np.gradient(read_image(s, im_id).astype(np.float64).mean(axis=-1))) for s in (fast, pbr))
@@ -147,6 +188,69 @@ def test_pbr_images_register_with_the_fast_profile(runs):
     # one 160x120 image estimates its shift to about +-0.4 px (sampling noise of the path tracer), so the mean over
     # the images carries the test; a half-pixel convention error would show as a consistent 0.5
     assert np.all(np.abs(shifts) < 0.6) and np.all(np.abs(shifts.mean(axis=0)) < 0.3), shifts
+
+
+@pytest.mark.parametrize("profile", ["fast", "pbr"])
+def test_camera_file_puts_model_points_where_its_k_says(lmo_runs, profile):
+    """``--camera``: the dataset's camera is the file's (camera.json, every ``cam_K``, depth_scale 1.0, the
+    manifest's record); model vertices through the ground-truth pose and the file's K land on the visible masks
+    where the rendered depth sees them, and the rendered image's edges lie on those masks' boundaries (its
+    gradients peak there on both axes): K, masks, depth and the image agree, in the fast and the pbr profile."""
+    import cv2
+
+    from simtest.camera import CameraModel, intrinsics_matrix
+    from simtest.io.bop import read_depth, read_scene
+    from simtest.objects import load_object_set
+
+    if profile == "pbr":
+        _need_pbr()
+    root = lmo_runs / profile
+    cam_file = dict(LMO_QUARTER)
+    assert read_json(root / "camera.json") == cam_file
+    manifest = read_json(root / "manifest.json")
+    assert manifest["camera_file"] == {"path": str((lmo_runs / "camera.json").resolve()), "values": cam_file}
+    assert manifest["config"]["camera"]["file"] == str((lmo_runs / "camera.json").resolve())
+    assert manifest["config"]["render"]["depth_scale"] == 1.0
+    K = intrinsics_matrix(LMO_QUARTER["fx"], LMO_QUARTER["fy"], LMO_QUARTER["cx"], LMO_QUARTER["cy"])
+    cam = CameraModel(K, LMO_QUARTER["width"], LMO_QUARTER["height"])
+    objects = load_object_set("builtin-small")
+    scene_dir = scene_dirs(root / "train_pbr")[0]
+    on_mask, centres, edges = [], 0, {}
+    for im_id, im in read_scene(scene_dir).items():
+        np.testing.assert_array_equal(im["K"], K)
+        assert im["depth_scale"] == 1.0
+        depth = read_depth(scene_dir, im_id, im["depth_scale"])
+        assert depth.shape == (cam.height, cam.width)
+        labels = np.zeros((cam.height, cam.width), dtype=np.int32)
+        for gt_id, gt in enumerate(im["gt"]):
+            visib = read_mask(scene_dir, im_id, gt_id, visible=True)
+            labels[visib > 0] = gt_id + 1
+            if gt.px_count_visib < 30:
+                continue
+            grown = cv2.dilate(visib.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+            uv, z = cam.project(gt.T_cam_obj.apply(objects.get(gt.obj_id).vertices))
+            px = np.round(uv).astype(int)
+            inside = (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+            px, z = px[inside], z[inside]
+            d = depth[px[:, 1], px[:, 0]]
+            seen = np.abs(d - z) < 0.003  # depth in whole millimetres (depth_scale 1.0)
+            if seen.sum() >= 5:
+                on_mask.append(grown[px[seen, 1], px[seen, 0]].mean())
+            centre, _ = cam.project(gt.T_cam_obj.t[None])
+            u, v = np.round(centre[0]).astype(int)
+            if visib.sum() > 0.9 * gt.px_count_all and 0 <= u < cam.width and 0 <= v < cam.height:
+                ys, xs = np.nonzero(visib)  # an unoccluded object: its centre projects inside its silhouette box
+                assert xs.min() <= u <= xs.max() and ys.min() <= v <= ys.max()
+                centres += 1
+        grey = read_image(scene_dir, im_id).astype(np.float64).mean(axis=-1)
+        for axis in (0, 1):
+            for shift, g in _shifted_gradients(grey, labels, axis, range(-3, 4)).items():
+                edges.setdefault((axis, shift), []).append(g)
+    assert len(on_mask) >= 3 and min(on_mask) > 0.97, on_mask
+    assert centres >= 1
+    for axis in (0, 1):
+        g = {shift: float(np.mean(edges[(axis, shift)])) for shift in range(-3, 4)}
+        assert g[0] > max(g[-1], g[1]) and g[0] > 1.2 * max(g[-3], g[-2], g[2], g[3]), (axis, g)
 
 
 def test_pbr_config_fields_are_validated():
