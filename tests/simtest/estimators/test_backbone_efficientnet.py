@@ -219,3 +219,32 @@ def test_the_encoder_exports_to_onnx_and_onnx_runtime_matches_torch(tmp_path):
     for g, r, c in zip(got, ref, FEATURE_CHANNELS):
         assert g.shape == tuple(r.shape) and g.shape[1] == c
         assert np.abs(g - r.numpy()).max() < 1e-4 * max(1.0, float(r.abs().max()))
+
+
+def test_the_crop_network_starts_from_the_pretrained_encoder(checkpoint):
+    """``simtest train keypoints --backbone efficientnet-lite0``: the crop network's encoder holds the ImageNet
+    weights after its seeded initialisation (stride 16 and shallower: the stride-32 blocks are left out), the
+    heads come from the seed, and the outputs keep the plain network's shapes."""
+    from simtest.errors import ConfigError as Refused
+    from simtest.estimators.keypoints.crop_model import EFFICIENTNET_WIDTHS, CropNetConfig
+    from simtest.estimators.keypoints.train import TrainConfig, build_crop_model
+
+    net = build_crop_model(3, 8, seed=0, xyz_scale=(0.05, 0.06, 0.07), hypotheses=2, backbone="efficientnet-lite0")
+    assert net.cfg.widths == EFFICIENTNET_WIDTHS and len(net.encoder.blocks) == 11
+    mapping = load_imagenet_weights(EfficientNetLite0Encoder(levels=4))
+    own = net.encoder.state_dict()
+    assert len(mapping) == len(own)
+    for model_key, ckpt_key in mapping.items():
+        assert torch.equal(own[model_key], checkpoint[ckpt_key]), model_key
+    again = build_crop_model(3, 8, seed=0, xyz_scale=(0.05, 0.06, 0.07), hypotheses=2, backbone="efficientnet-lite0")
+    assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), again.state_dict().values()))
+    out = net.eval()(torch.rand(2, 3, 128, 128, generator=torch.Generator().manual_seed(0)))
+    assert out["fg"].shape == (2, 3, 32, 32) and out["kp"].shape == (2, 3 * 8 * 3, 32, 32)
+    assert out["xyz"].shape == (2, 4 * 2 * 3, 32, 32)
+    cfg = CropNetConfig.from_dict(net.cfg.to_dict())  # what a checkpoint stores and inference rebuilds
+    assert cfg.backbone == "efficientnet-lite0"
+    with pytest.raises(ValueError, match="multiple of 32"):
+        CropNetConfig(num_classes=1, num_keypoints=8, widths=EFFICIENTNET_WIDTHS, crop_size=112,
+                      backbone="efficientnet-lite0")
+    with pytest.raises(Refused, match="needs --arch crop"):
+        TrainConfig(data="x", out="y", arch="full", backbone="efficientnet-lite0")
