@@ -172,10 +172,11 @@ def _estimate_overlay(canvas, K, est: ResultRow, obj, scale: int, width: int, he
 
 def _gt_overlay(canvas, ref: ImageRef, gt_id: int, obj, scale: int) -> np.ndarray:
     g = ref.info["gt"][gt_id]
-    try:
-        draw_mask_contour(canvas, bop.read_mask(ref.gt_dir, ref.im_id, gt_id, True), GT_COLOUR, scale, 2)
-    except DatasetError:
-        pass
+    if ref.has_masks:  # real BOP test sets ship none
+        try:
+            draw_mask_contour(canvas, bop.read_mask(ref.gt_dir, ref.im_id, gt_id, True), GT_COLOUR, scale, 2)
+        except DatasetError:
+            pass
     corners = box_corner_pixels(ref.info["K"], g.T_cam_obj.R, g.T_cam_obj.t, obj.keypoints_bbox)
     draw_box(canvas, corners, GT_COLOUR, scale)
     return corners
