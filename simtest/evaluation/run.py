@@ -248,6 +248,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     gt_masks = gt_masks and targets == "gt-masks"
     limit = check_timeout(timeout)
     objects = load_dataset_objects(root)
+    if callable(getattr(est, "check_objects", None)):  # a network trained for other objects: one error, now
+        est.check_objects(objects)
     known = set(objects.ids)
     notes = DataNotes()
     refs = select_images(root, split, scenes, max_images, known, labels, notes)

@@ -16,7 +16,7 @@ import pytest
 
 from simtest.cli import main
 from simtest.corrupt import CorruptionSpec, corrupt_dataset
-from simtest.errors import DatasetError
+from simtest.errors import ConfigError, DatasetError
 from simtest.evaluation.run import evaluate
 from simtest.io import bop
 from simtest.io.bop_checks import ROT_REPAIR_TOL, ROT_TOL, nearest_rotations
@@ -168,6 +168,21 @@ def test_estimators_that_read_what_is_missing_are_refused_before_running(distrib
     with pytest.raises(DatasetError, match=r"has no mask_visib/ .* ground-truth visible masks"):
         evaluate(root, NeedsMasks(), progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_network_for_other_objects_is_refused_before_the_run(distributed, tmp_path):
+    """The shipped keypoint network knows builtin-small's objects: on a set with another object (id 1 renamed
+    31 here) the run stops before any image with the reason, instead of failing image after image."""
+    root, _ = distributed
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    (other / "models" / "obj_000001.ply").rename(other / "models" / "obj_000031.ply")
+    info = json.loads((other / "models" / "models_info.json").read_text())
+    info["31"] = info.pop("1")
+    (other / "models" / "models_info.json").write_text(json.dumps(info))
+    with pytest.raises(ConfigError, match=r"trained for objects .* object ids differ"):
+        evaluate(other, "keypoints", progress=False, out_dir=tmp_path / "run")
+    assert not (tmp_path / "run" / "results.csv").exists()
 
 
 def test_several_splits_need_a_choice(distributed, tmp_path):
