@@ -4,24 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import trimesh
 
 from simtest.cli import main
 from simtest.errors import AssetError
 from simtest.objects import load_object_set
-from simtest.objects.builtin import build_object
 from simtest.objects.collision import decomposition_cache_path
-
-
-@pytest.fixture()
-def mesh_folder(tmp_path, monkeypatch):
-    """A folder with a concave mesh (a banana, decomposed in under a second) and a box, and an empty cache."""
-    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path / "cache"))
-    folder = tmp_path / "meshes"
-    folder.mkdir()
-    build_object("banana", 1, seed=5).mesh.export(folder / "banana.obj")
-    trimesh.creation.box([0.05, 0.04, 0.03]).export(folder / "box.obj")
-    return folder
 
 
 def _rows(out: str) -> dict[str, list[str]]:

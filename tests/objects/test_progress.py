@@ -10,24 +10,11 @@ import re
 import time
 
 import pytest
-import trimesh
 
 from simtest.cli import main
 from simtest.objects import load_object_set, progress
-from simtest.objects.builtin import build_object
 from simtest.objects.prepare import prepare_set
 from simtest.objects.progress import ObjectProgress, progress_enabled
-
-
-@pytest.fixture()
-def mesh_folder(tmp_path, monkeypatch):
-    """A folder with a concave mesh (a banana, decomposed in about a second) and a box, and an empty cache."""
-    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path / "cache"))
-    folder = tmp_path / "meshes"
-    folder.mkdir()
-    build_object("banana", 1, seed=5).mesh.export(folder / "banana.obj")
-    trimesh.creation.box([0.05, 0.04, 0.03]).export(folder / "box.obj")
-    return folder
 
 
 def _run(work: dict[str, float], **kwargs) -> tuple[ObjectProgress, str]:
