@@ -46,7 +46,8 @@ import mujoco
 
 from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
-from simtest.estimators.base import Observation, PoseEstimate, gt_access, load_estimator
+from simtest.estimators.base import Observation, PoseEstimate, gt_access
+from simtest.estimators.registry import load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate, log_fault
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox

@@ -189,7 +189,8 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     from simtest.envs.grasp_env import PandaGraspEnv
     from simtest.envs.planner import GraspPlanner
-    from simtest.estimators.base import estimator_label, load_estimator
+    from simtest.estimators.base import estimator_label
+    from simtest.estimators.registry import load_estimator
 
     env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
                         object_scale=cfg.scale, depth_sensor=cfg.depth_sensor,

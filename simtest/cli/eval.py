@@ -62,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from simtest.backend import RunStats
-    from simtest.estimators.base import parse_options
+    from simtest.estimators.options import parse_options
     from simtest.evaluation.run import evaluate, format_table, overall_table, score_results
 
     scenes = None

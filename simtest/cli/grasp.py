@@ -75,7 +75,8 @@ def _targets(text: str | None) -> tuple:
 
 def run(args: argparse.Namespace) -> int:
     from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
-    from simtest.estimators.base import check_estimator_options, default_object_set, parse_options
+    from simtest.estimators.options import parse_options
+    from simtest.estimators.registry import check_estimator_options, default_object_set
     from simtest.io.files import prepare_out_dir
 
     prepare_out_dir(args.out, overwrite=args.overwrite)  # before anything is loaded

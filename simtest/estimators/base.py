@@ -22,18 +22,9 @@ the scene, so an estimator may keep state from frame to frame.
 
 from __future__ import annotations
 
-import ast
 import importlib
-import importlib.metadata
-import importlib.util
-import inspect
-import numbers
 import operator
-import sys
-import zlib
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -43,13 +34,28 @@ from simtest.errors import ConfigError
 if TYPE_CHECKING:
     from simtest.objects import ObjectSet
 
-__all__ = ["Observation", "PoseEstimate", "Estimator", "register_estimator", "load_estimator", "ESTIMATORS",
-           "parse_value", "parse_options", "option_signature", "check_estimator_options", "ENTRY_POINT_GROUP",
-           "installed_estimators", "default_object_set", "gt_access", "estimator_label", "GT_MASKS_LABEL",
-           "GT_INIT_LABEL", "needs_gt_init", "needs_depth", "reset_estimator", "check_int_options"]
+__all__ = ["Observation", "PoseEstimate", "Estimator", "gt_access", "estimator_label", "GT_MASKS_LABEL",
+           "GT_INIT_LABEL", "needs_gt_init", "needs_depth", "reset_estimator"]
 
-#: Entry-point group under which installed packages register estimators by name.
-ENTRY_POINT_GROUP = "simtest.estimators"
+#: Names that moved out of this module: the loader and registry to :mod:`simtest.estimators.registry`, option
+#: parsing to :mod:`simtest.estimators.options`. ``from simtest.estimators.base import NAME`` still works, with
+#: a DeprecationWarning.
+MOVED = {**{n: "simtest.estimators.registry" for n in (
+    "register_estimator", "load_estimator", "ESTIMATORS", "ENTRY_POINT_GROUP", "installed_estimators",
+    "default_object_set", "check_estimator_options", "is_file_target")},
+    **{n: "simtest.estimators.options" for n in (
+        "parse_value", "parse_options", "option_signature", "check_int_options")}}
+
+
+def __getattr__(name: str) -> Any:
+    """The moved names (:data:`MOVED`), from their new module, with a DeprecationWarning."""
+    if name in MOVED:
+        import warnings
+
+        warnings.warn(f"simtest.estimators.base.{name} moved to {MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(importlib.import_module(MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 #: Appended to the label of an estimator that is given ground-truth masks.
 GT_MASKS_LABEL = " (GT masks)"
@@ -248,303 +254,3 @@ def _field_array(name: str, value: Any, shape: tuple[int, ...], expected: str) -
 @runtime_checkable
 class Estimator(Protocol):
     def estimate(self, observation: Observation) -> list[PoseEstimate]: ...
-
-
-#: Built-in estimators by name -> "module:attr" (imported lazily, so torch-based ones cost nothing unused).
-ESTIMATORS: dict[str, str] = {}
-
-
-def check_int_options(who: str, *options: tuple[str, Any, int]) -> None:
-    """Raise :class:`ConfigError` unless every ``(name, value, lo)`` is an integer (not a bool) ``>= lo``; the
-    message names the estimator ``who``, the option, its value and what is allowed."""
-    for name, value, lo in options:
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo:
-            raise ConfigError(f"{who}: {name} must be an integer >= {lo}, got {value!r}")
-
-
-def register_estimator(name: str, target: str) -> None:
-    """Register a built-in estimator name for ``module:attr``."""
-    ESTIMATORS[name] = target
-
-
-def load_estimator(spec: str | Estimator | Callable, **options: Any) -> Estimator:
-    """An estimator from a registered name, an installed entry point, ``module:attr``, ``path/file.py:attr``,
-    an instance, or a callable.
-
-    A string is looked up in this order: a built-in name (:data:`ESTIMATORS`); a name registered by an
-    installed package in the ``simtest.estimators`` entry-point group; ``module:attr`` (the module imported
-    from ``sys.path``); ``path/to/file.py:attr`` (the file imported by path; its folder is appended to
-    ``sys.path`` so it can import its sibling modules). ``attr`` may be dotted (``Class.factory``).
-
-    The object found may be a class (instantiated with ``options``), a factory function (called with
-    ``options``) or a function ``f(observation) -> list[PoseEstimate]`` (used as is; no options allowed).
-
-    Raises:
-        ConfigError: Unknown name (lists the built-in and installed ones), a module that cannot be imported or
-            a file that does not exist (with how to fix it), a missing attribute, or options the estimator
-            does not accept (lists the valid ones).
-    """
-    if not isinstance(spec, str):
-        if hasattr(spec, "estimate"):
-            return spec  # type: ignore[return-value]
-        if callable(spec):
-            return _FunctionEstimator(spec)
-        raise ConfigError(f"estimator must be a name, 'module:attr', 'path/to/file.py:attr', or have an estimate() "
-                          f"method; got {spec!r}")
-    obj = _resolve(spec)
-    if isinstance(obj, type) or (callable(obj) and options):
-        _check_options(spec, obj, options)
-        try:
-            made = obj(**options)
-        except (TypeError, ValueError) as exc:
-            if isinstance(exc, ConfigError):
-                raise
-            raise ConfigError(f"estimator {spec!r}: bad options {options!r}: {exc}; valid options: "
-                              f"{option_signature(obj)}") from exc
-        return load_estimator(made) if not hasattr(made, "estimate") else made
-    if options:
-        raise ConfigError(f"estimator {spec!r} is a plain function and takes no options; got {options!r}")
-    return load_estimator(obj)
-
-
-def installed_estimators() -> dict[str, importlib.metadata.EntryPoint]:
-    """Estimators registered by installed packages: ``{name: entry point}`` of the ``simtest.estimators``
-    group (``[project.entry-points."simtest.estimators"] my-est = "mypkg.est:MyEstimator"``)."""
-    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def _resolve(spec: str) -> Any:
-    """The class, factory or function a name, entry point, ``module:attr`` or ``file.py:attr`` names."""
-    if spec in ESTIMATORS:
-        return _import_target(spec, ESTIMATORS[spec])
-    if ":" not in spec:
-        installed = installed_estimators()
-        if spec in installed:
-            return _load_entry_point(spec, installed[spec])
-        hint = (f"; give the class or function too: {spec}:MyEstimator" if spec.endswith(".py") else
-                "; or give 'module:attr' or 'path/to/file.py:attr' for your own")
-        names = sorted(ESTIMATORS)
-        extra = f"; installed: {', '.join(sorted(installed))}" if installed else ""
-        raise ConfigError(f"unknown estimator {spec!r}; built-in: {', '.join(names)}{extra}{hint}")
-    return _import_target(spec, spec)
-
-
-def _load_entry_point(spec: str, ep: importlib.metadata.EntryPoint) -> Any:
-    dist = getattr(getattr(ep, "dist", None), "name", None) or "?"
-    try:
-        return ep.load()
-    except Exception as exc:  # noqa: BLE001 - any failure of a plug-in's import is reported as a config error
-        raise ConfigError(f"estimator {spec!r}: the entry point {ep.value!r} (group {ENTRY_POINT_GROUP!r}, "
-                          f"package {dist!r}) failed to load: {type(exc).__name__}: {exc}") from exc
-
-
-def is_file_target(module_part: str) -> bool:
-    return module_part.endswith(".py") or "/" in module_part or "\\" in module_part
-
-
-def _import_target(spec: str, target: str) -> Any:
-    """Import ``module:attr`` or ``path/file.py:attr`` and return the attribute."""
-    mod_name, _, attr = target.rpartition(":")
-    if not mod_name or not attr:
-        raise ConfigError(f"estimator {spec!r}: expected 'module:attr' or 'path/to/file.py:attr' with both parts "
-                          "given")
-    module = _import_file(spec, mod_name, attr) if is_file_target(mod_name) else _import_module(spec, mod_name, attr)
-    obj: Any = module
-    for part in attr.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError:
-            public = sorted(n for n, v in vars(module).items() if not n.startswith("_") and callable(v)
-                            and getattr(v, "__module__", None) == module.__name__)
-            raise ConfigError(f"estimator {spec!r}: {mod_name!r} has no attribute {attr!r}; its classes and "
-                              f"functions: {', '.join(public) or '(none)'}") from None
-    return obj
-
-
-def _import_module(spec: str, mod_name: str, attr: str) -> Any:
-    try:
-        return importlib.import_module(mod_name)
-    except ImportError as exc:
-        missing = getattr(exc, "name", None)
-        if missing and (mod_name == missing or mod_name.startswith(missing + ".")):
-            raise ConfigError(f"estimator {spec!r}: {exc}: is it on PYTHONPATH (tried the folders of sys.path)? "
-                              f"or pass a file path: path/to/{mod_name.split('.')[-1]}.py:{attr}") from exc
-        raise ConfigError(f"estimator {spec!r}: importing module {mod_name!r} failed: {exc} (a module it imports "
-                          "is missing: install it)") from exc
-    except Exception as exc:  # noqa: BLE001 - user code failing at import time
-        raise ConfigError(f"estimator {spec!r}: importing module {mod_name!r} raised {type(exc).__name__}: "
-                          f"{exc}") from exc
-
-
-def _import_file(spec: str, path_text: str, attr: str) -> Any:
-    """Import a Python file by path (once per resolved path; later calls reuse the module)."""
-    path = Path(path_text).expanduser().resolve()
-    if not path.is_file():
-        raise ConfigError(f"estimator {spec!r}: file not found: {path} (a path relative to the working folder "
-                          f"{Path.cwd()}, or absolute)")
-    name = f"simtest_plugin_{path.stem}_{zlib.crc32(str(path).encode()):08x}"
-    if name in sys.modules:
-        return sys.modules[name]
-    loader_spec = importlib.util.spec_from_file_location(name, path)
-    if loader_spec is None or loader_spec.loader is None:
-        raise ConfigError(f"estimator {spec!r}: {path} cannot be imported as a Python module (expected a .py file)")
-    module = importlib.util.module_from_spec(loader_spec)
-    if str(path.parent) not in sys.path:
-        sys.path.append(str(path.parent))
-    sys.modules[name] = module
-    try:
-        loader_spec.loader.exec_module(module)
-    except Exception as exc:  # noqa: BLE001 - user code failing at import time
-        del sys.modules[name]
-        where = f" (line {exc.lineno})" if isinstance(exc, SyntaxError) else ""
-        raise ConfigError(f"estimator {spec!r}: importing {path}{where} raised {type(exc).__name__}: {exc}") from exc
-    return module
-
-
-def default_object_set(spec: str | Any, options: dict[str, Any], fallback: str = "builtin") -> str:
-    """The object set an estimator works on by default: its class attribute ``default_object_set`` (e.g.
-    ``segicp``'s shipped checkpoint knows ``builtin-small``) unless it is given its own ``checkpoint``; else
-    ``fallback``."""
-    target = _resolve(spec) if isinstance(spec, str) else spec
-    own = getattr(target, "default_object_set", None)
-    return own if isinstance(own, str) and own and not options.get("checkpoint") else fallback
-
-
-def check_estimator_options(spec: str | Any, options: dict[str, Any]) -> None:
-    """Check option names and types against a named estimator's signature without constructing it (what
-    :func:`load_estimator` checks first); instances and callables are not checked.
-
-    Raises:
-        ConfigError: As :func:`load_estimator`, listing the valid options.
-    """
-    if isinstance(spec, str):
-        obj = _resolve(spec)
-        if isinstance(obj, type) or (callable(obj) and options):
-            _check_options(spec, obj, options)
-
-
-def parse_value(text: str) -> Any:
-    """One option value from the command line.
-
-    ``true/false/yes/no/on/off`` -> bool, ``none/null`` -> None, integers and floats -> numbers, text starting
-    with ``[``, ``(``, ``{`` or a quote -> that Python literal (a list, tuple, dict or quoted string), anything
-    else -> the string itself.
-
-    Raises:
-        ConfigError: Text that starts like a literal but does not parse as one.
-    """
-    stripped = text.strip()
-    low = stripped.lower()
-    if low in ("true", "yes", "on"):
-        return True
-    if low in ("false", "no", "off"):
-        return False
-    if low in ("none", "null"):
-        return None
-    for cast in (int, float):
-        try:
-            return cast(stripped)
-        except ValueError:
-            pass
-    if stripped[:1] in ("[", "(", "{", "'", '"'):
-        try:
-            return ast.literal_eval(stripped)
-        except (ValueError, SyntaxError):
-            raise ConfigError(f"--opt value {text!r} starts like a Python literal (list, tuple, dict or quoted "
-                              "string) but does not parse as one") from None
-    return text
-
-
-def parse_options(items: list[str]) -> dict[str, Any]:
-    """``["key=value", ...]`` (the repeatable ``--opt``) -> ``{key: parse_value(value)}``; ``-`` in a key
-    becomes ``_``.
-
-    Raises:
-        ConfigError: An item without ``=`` or whose key is not an identifier.
-    """
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        key = key.strip().replace("-", "_")
-        if not sep or not key.isidentifier():
-            raise ConfigError(f"--opt must be KEY=VALUE with KEY a name such as rot_noise_deg, got {item!r}")
-        out[key] = parse_value(value)
-    return out
-
-
-def _option_params(factory: Callable) -> list[inspect.Parameter] | None:
-    """Keyword parameters of a class's ``__init__`` or a factory; ``None`` if it takes ``**kwargs`` or has no
-    readable signature."""
-    try:
-        params = list(inspect.signature(factory).parameters.values())
-    except (TypeError, ValueError):
-        return None
-    if any(p.kind is p.VAR_KEYWORD for p in params):
-        return None
-    return [p for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
-
-
-def option_signature(factory: Callable) -> str:
-    """``"name=default, ..."`` for the options a class or factory accepts (``name`` alone if required)."""
-    params = _option_params(factory)
-    if params is None:
-        return "(any keyword; see its documentation)"
-    if not params:
-        return "(none)"
-    return ", ".join(p.name if p.default is p.empty else f"{p.name}={p.default!r}" for p in params)
-
-
-def _type_ok(value: Any, param: inspect.Parameter) -> bool:
-    """Whether ``value`` fits the type of the option's default (a ``None`` default fits anything; ``None``
-    fits an option annotated as optional)."""
-    default = param.default
-    if default is None or default is param.empty:
-        return True
-    if value is None:
-        return "None" in str(param.annotation) or "Optional" in str(param.annotation)
-    if isinstance(default, bool):
-        return isinstance(value, bool)
-    if isinstance(default, int):
-        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if isinstance(default, float):
-        return isinstance(value, numbers.Real) and not isinstance(value, bool)
-    if isinstance(default, str):
-        return isinstance(value, str)
-    return True
-
-
-def _check_options(spec: str, factory: Callable, options: dict[str, Any]) -> None:
-    """Raise :class:`ConfigError` listing the valid options for an unknown name or a value of the wrong type."""
-    params = _option_params(factory)
-    if params is None:
-        return
-    by_name = {p.name: p for p in params}
-    unknown = sorted(set(options) - set(by_name))
-    if unknown:
-        raise ConfigError(f"estimator {spec!r}: bad options: unknown option(s) {', '.join(unknown)}; valid options: "
-                          f"{option_signature(factory)}")
-    for name, value in options.items():
-        default = by_name[name].default
-        if not _type_ok(value, by_name[name]):
-            raise ConfigError(f"estimator {spec!r}: bad options: {name} = {value!r} has the wrong type; expected "
-                              f"{type(default).__name__} (default {default!r}); valid options: "
-                              f"{option_signature(factory)}")
-
-
-class _FunctionEstimator:
-    def __init__(self, fn: Callable) -> None:
-        self.fn = fn
-
-    def estimate(self, observation: Observation) -> list[PoseEstimate]:
-        return self.fn(observation)  # returned as is: the runners check it (simtest.estimators.guard)
-
-
-for _name, _target in {
-    "oracle": "simtest.estimators.oracle:OracleEstimator",
-    "icp": "simtest.estimators.icp:ICPEstimator",
-    "umeyama": "simtest.estimators.umeyama:UmeyamaEstimator",
-    "keypoints": "simtest.estimators.keypoints:KeypointEstimator",
-    "segicp": "simtest.estimators.segicp:SegICPEstimator",
-    "track-icp": "simtest.estimators.track_icp:TrackICPEstimator",
-}.items():
-    register_estimator(_name, _target)

@@ -41,7 +41,8 @@ from scipy.spatial import cKDTree
 
 from simtest.camera import backproject, pinhole_pixels
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate, check_int_options
+from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.options import check_int_options
 
 #: Sources of the object masks (the ``masks`` option).
 MASK_SOURCES = ("gt", "segicp")

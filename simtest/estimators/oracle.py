@@ -42,7 +42,8 @@ import numpy as np
 
 from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate, check_int_options
+from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.options import check_int_options
 
 __all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix"]
 

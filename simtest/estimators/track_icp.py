@@ -46,7 +46,8 @@ import numpy as np
 from simtest.camera import pinhole_pixels, pinhole_points
 from simtest.errors import ConfigError
 from simtest.geometry import as_matrix
-from simtest.estimators.base import Observation, PoseEstimate, check_int_options
+from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.options import check_int_options
 from simtest.estimators.icp import ModelCloud, model_cloud, point_to_plane_icp, visible_points
 from simtest.estimators.oracle import axis_angle_matrix, random_unit_vector
 

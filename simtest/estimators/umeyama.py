@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, PoseEstimate, check_int_options
+from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.options import check_int_options
 from simtest.camera import backproject
 from simtest.estimators.icp import ICPEstimator, model_cloud
 

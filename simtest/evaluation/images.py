@@ -16,7 +16,8 @@ from typing import Any
 
 from simtest.backend import Backend, RunStats, run_units
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import Observation, is_file_target, load_estimator, reset_estimator
+from simtest.estimators.base import Observation, reset_estimator
+from simtest.estimators.registry import is_file_target, load_estimator
 from simtest.estimators.guard import call_estimator, check_estimate, log_fault
 from simtest.io import bop
 from simtest.io.dataset import ImageRef, image_targets

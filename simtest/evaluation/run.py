@@ -62,8 +62,9 @@ import numpy as np
 
 from simtest.backend import Backend, RunStats, preflight
 from simtest.errors import ConfigError, DatasetError
-from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, load_estimator,
-                                     needs_depth, needs_gt_init)
+from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, needs_depth,
+                                     needs_gt_init)
+from simtest.estimators.registry import load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.evaluation.detection import keep_top_per_image, score_detection
 from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards, targets_needed
@@ -247,9 +248,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
                           "use targets='gt-masks'")
     gt_masks = gt_masks and targets == "gt-masks"
     limit = check_timeout(timeout)
-    objects = load_dataset_objects(root)
-    if callable(getattr(est, "check_objects", None)):  # a network trained for other objects: one error, now
-        est.check_objects(objects)
+    objects = _objects_for(root, est)
     known = set(objects.ids)
     notes = DataNotes()
     refs = select_images(root, split, scenes, max_images, known, labels, notes)
@@ -294,6 +293,15 @@ def _selection_settings(scenes: Sequence[int] | None, max_images: int | None, vs
             "vsd": bool(vsd), "labels": None if labels is None else str(labels),
             **({"task": task} if task == "detection" else {}),
             **({"data_notes": notes.summary()} if notes.summary() else {})}
+
+
+def _objects_for(root: Path, est: Any):
+    """The dataset's objects, checked by the estimator when it can (``check_objects``: a network trained for
+    other objects is one error before the run, not a failure per image)."""
+    objects = load_dataset_objects(root)
+    if callable(getattr(est, "check_objects", None)):
+        est.check_objects(objects)
+    return objects
 
 
 def _run_counts(num_images: int, num_estimates: int, failures: list[dict[str, Any]], times: list[float]

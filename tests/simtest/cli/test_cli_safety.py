@@ -19,7 +19,8 @@ import pytest
 
 from simtest.cli import build_parser, main
 from simtest.errors import ConfigError, DatasetError
-from simtest.estimators.base import load_estimator, parse_options
+from simtest.estimators.options import parse_options
+from simtest.estimators.registry import load_estimator
 from simtest.io.files import prepare_out_dir
 
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import PoseEstimate, installed_estimators, load_estimator
+from simtest.estimators.base import PoseEstimate
+from simtest.estimators.registry import installed_estimators, load_estimator
 
 ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = f"{ROOT / 'examples' / 'my_estimator.py'}:DepthCentroid"

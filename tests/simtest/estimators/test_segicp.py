@@ -11,7 +11,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from simtest.errors import ConfigError  # noqa: E402
-from simtest.estimators.base import Observation, load_estimator  # noqa: E402
+from simtest.estimators.base import Observation  # noqa: E402
+from simtest.estimators.registry import load_estimator  # noqa: E402
 from simtest.estimators.icp import ICPEstimator  # noqa: E402
 from simtest.estimators.segicp import SegICPEstimator, default_checkpoint  # noqa: E402
 from simtest.estimators.segicp.train import FORMAT, SegTrainConfig, train_segmentation  # noqa: E402
@@ -165,7 +166,7 @@ def test_sweep_labels_gt_mask_runs(tmp_path):
 
 
 def test_grasp_defaults_to_the_shipped_checkpoints_object_set():
-    from simtest.estimators.base import default_object_set
+    from simtest.estimators.registry import default_object_set
 
     assert default_object_set("segicp", {}) == "builtin-small"
     assert default_object_set("segicp", {"checkpoint": "my.pt"}) == "builtin"

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from simtest.errors import ConfigError
-from simtest.estimators.base import Observation, estimator_label, load_estimator
+from simtest.estimators.base import Observation, estimator_label
+from simtest.estimators.registry import load_estimator
 from simtest.estimators.oracle import axis_angle_matrix
 from simtest.metrics.tracking import box_iou, first_loss, summarize_frames, tracked_fraction
 
