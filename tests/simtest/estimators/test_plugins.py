@@ -229,3 +229,15 @@ def test_grasp_records_tracebacks_and_exits_1_when_every_episode_failed(tmp_path
     err = capsys.readouterr().err
     assert "failed in episode 0" in err and "Traceback (most recent call last)" in err
     assert not (tmp_path / "ff" / "episodes.csv").exists()
+
+
+def test_names_moved_out_of_base_still_import_with_a_deprecation_warning():
+    import simtest.estimators.base as base
+    from simtest.estimators import options, registry
+
+    for name, module in base.MOVED.items():
+        with pytest.warns(DeprecationWarning, match=rf"simtest\.estimators\.base\.{name} moved to {module}"):
+            value = getattr(base, name)
+        assert value is getattr(options if module.endswith("options") else registry, name)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        base.nope
