@@ -114,3 +114,16 @@ def test_panda_ik_step_option_moves_the_same_way():
     p1, _ = env._diffik.fk(env._q_cmd)
     np.testing.assert_allclose(p1 - p0, [0.0, 3 * MAX_STEP_TRANSLATION, 0.0], atol=1e-3)
     env.close()
+
+
+def test_the_main_pieces_import_from_the_package():
+    import simtest.envs
+    from simtest.envs import PandaGraspEnv, run_episode, write_video
+    from simtest.envs.episode import run_episode as run_episode_
+    from simtest.envs.grasp_env import PandaGraspEnv as Env
+    from simtest.envs.runner import write_video as write_video_
+
+    assert PandaGraspEnv is Env and run_episode is run_episode_ and write_video is write_video_
+    assert {"PandaGraspEnv", "run_episode", "write_video"} <= set(simtest.envs.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        simtest.envs.nope
