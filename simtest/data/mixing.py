@@ -76,9 +76,10 @@ class UnlabelledDataset(ImageFeed):
         from simtest.io import bop
 
         self.seed, crop = check_feed_options(seed, rgb_dtype, crop)
-        self.root, self.split, self.transform, self.crop, self.rgb_dtype = str(root), bop.resolve_split(root, split), transform, crop, rgb_dtype
+        self.root, self.transform, self.crop, self.rgb_dtype = str(root), transform, crop, rgb_dtype
+        self.split = bop.resolve_split(root, split)
         self.epoch = 0
-        split_dir = bop.dataset_split_dir(root, split)
+        split_dir = bop.dataset_split_dir(root, self.split)
         dirs = select_scene_dirs(split_dir, scenes)
         images: list[_Image] = []
         for d in dirs:

@@ -47,10 +47,11 @@ def observation(ref: ImageRef, objects, targets: str, width: int, height: int, n
                  initialised: set[int] | None = None,
                  task: str = "localization") -> tuple[Observation, list[tuple[int, bop.ImageGT]]]:
     """The estimator's view of one image: ground-truth masks and boxes only with ``gt_masks``, poses only with
-    ``needs_gt`` (see the module doc); ``depth`` is None when the scene has no ``depth/``. With ``initialised`` (a ``needs_gt_init`` estimator: the ``gt_id`` of the
-    scene's targets already given a pose), the targets' track ids, and the ground-truth pose of each target not
-    in it (then added). In the ``"detection"`` task no target id, count, mask or box is given; a ``needs_gt``
-    estimator (an oracle with ``needs_targets = False``) gets ``gt_poses`` and ``gt_obj_ids`` of the targets."""
+    ``needs_gt`` (see the module doc); ``depth`` is None when the scene has no ``depth/``. With ``initialised``
+    (a ``needs_gt_init`` estimator: the ``gt_id`` of the scene's targets already given a pose), the targets'
+    track ids, and the ground-truth pose of each target not in it (then added). In the ``"detection"`` task no
+    target id, count, mask or box is given; a ``needs_gt`` estimator (an oracle with ``needs_targets = False``)
+    gets ``gt_poses`` and ``gt_obj_ids`` of the targets."""
     rgb = bop.read_image(ref.scene_dir, ref.im_id)
     depth = bop.read_depth(ref.scene_dir, ref.im_id, ref.info["depth_scale"]) if ref.has_depth else None
     tg = image_targets(ref, VISIB_GT_MIN)

@@ -200,7 +200,7 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
             rows.append(row)
         # BOP19 on this image.
         gts = [GroundTruthPose(ref.scene_id, ref.im_id, j, g.obj_id, g.T_cam_obj.R, g.T_cam_obj.t, g.visib_fract)
-               for j, g in enumerate(ref.info["gt"]) if g.obj_id in models and (ref.listed is None or g.obj_id in ref.listed)]
+               for j, g in enumerate(ref.info["gt"]) if g.obj_id in models and ref.scores(g.obj_id)]
         res = evaluate_bop19(ests, gts, models, {(ref.scene_id, ref.im_id): EvalImage(K, width, height, depth)},
                              error_types=error_types)
         for o, po in res.per_object.items():

@@ -37,14 +37,12 @@ from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_ke
                               write_new_file)
 from simtest.io.png import encode_depth_png, encode_mask_png
 
-__all__ = [
-    "MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json", "read_camera_json",
-    "encode_depth", "decode_depth", "rgb_to_bgr",
-    "read_scene", "read_image", "read_depth", "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop",
-    "dataset_split_dir", "split_names", "resolve_split", "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt",
-    "validate_scene_gt_info", "ROT_TOL", "RotationRepairs", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES",
-    "withhold_labels", "UNLABELLED_KEEP",
-]
+__all__ = ["MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json",
+    "read_camera_json", "encode_depth", "decode_depth", "rgb_to_bgr", "read_scene", "read_image", "read_depth",
+    "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop", "dataset_split_dir", "split_names", "resolve_split",
+    "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt", "validate_scene_gt_info",
+    "ROT_TOL", "RotationRepairs", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES", "withhold_labels",
+    "UNLABELLED_KEEP"]
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,8 @@ import numpy as np
 
 from simtest.errors import DatasetError
 
-__all__ = ["ROT_TOL", "ROT_REPAIR_TOL", "RotationRepairs", "nearest_rotations", "GT_INFO_FIELDS", "validate_camera_json", "validate_scene_camera", "validate_scene_gt",
+__all__ = ["ROT_TOL", "ROT_REPAIR_TOL", "RotationRepairs", "nearest_rotations", "GT_INFO_FIELDS",
+           "validate_camera_json", "validate_scene_camera", "validate_scene_gt",
            "validate_scene_gt_info", "is_number", "short_repr"]
 
 

@@ -44,6 +44,11 @@ class ImageRef:
         """The folder holding this image's ground truth and masks."""
         return self.scene_dir if self.label_dir is None else self.label_dir
 
+    def scores(self, obj_id: int) -> bool:
+        """Whether instances of ``obj_id`` can be targets here: always, unless a test-target file chose this
+        image and does not list the object (the BOP toolkit's rule)."""
+        return self.listed is None or obj_id in self.listed
+
     @property
     def has_depth(self) -> bool:
         """Whether the scene has a ``depth/`` folder (real BOP test excerpts may ship RGB only)."""
@@ -87,9 +92,11 @@ class DataNotes:
 
     def summary(self) -> list[str]:
         """The notes as lines for a report (empty when the data was read as it is)."""
+        return ([self.repairs.summary()] if self.repairs.count else []) + self.other_lines()
+
+    def other_lines(self) -> list[str]:
+        """The notes but the rotation repairs (those are a warning of their own)."""
         out = []
-        if self.repairs.count:
-            out.append(self.repairs.summary())
         if self.targets_file:
             out.append(f"images chosen by {self.targets_file}"
                        + (f" ({self.skipped_images} images of the split not listed there were skipped)"
@@ -218,7 +225,7 @@ def select_images(dataset_dir: Path, split: str | None, scenes: Sequence[int] | 
     notes.no_mask_scenes = [r.scene_id for r in chosen if not r.has_masks]
     if notes.repairs.count:
         log.warning("%s", notes.repairs.summary())
-    for line in notes.summary()[1 if notes.repairs.count else 0:]:
+    for line in notes.other_lines():
         log.info("%s", line)
     return refs
 
@@ -284,7 +291,7 @@ def image_targets(ref: ImageRef, visib_min: float) -> list[tuple[int, bop.ImageG
     """``(gt_id, gt)`` of the instances that are scored: ``visib_fract >= visib_min`` (BOP19: 0.1) and, when a
     test-target file chose the image, of an object it lists there (the BOP toolkit's valid ground truth)."""
     return [(j, g) for j, g in enumerate(ref.info["gt"])
-            if g.visib_fract >= visib_min and (ref.listed is None or g.obj_id in ref.listed)]
+            if g.visib_fract >= visib_min and ref.scores(g.obj_id)]
 
 
 def describe_dataset(path: Path) -> str:

@@ -72,8 +72,8 @@ def folder_kind(path: Path, split: str | None = None) -> str:
             c.is_dir() and any(s.is_dir() and s.name.isdigit() and len(s.name) == 6 for s in c.iterdir())
             for c in path.iterdir())):
         return "dataset"
-    raise DatasetError(f"{path} is not a BOP dataset (DATASET/{split or '<split>'}/<6-digit scene>/), an evaluation folder "
-                       "(metrics.json, errors.csv) or a grasp run (episodes.csv, summary.json)")
+    raise DatasetError(f"{path} is not a BOP dataset (DATASET/{split or '<split>'}/<6-digit scene>/), an evaluation "
+                       "folder (metrics.json, errors.csv) or a grasp run (episodes.csv, summary.json)")
 
 
 def _dataset_cards(path: Path, opts: ShowOptions) -> list[np.ndarray]:
