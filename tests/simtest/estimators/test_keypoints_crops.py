@@ -279,11 +279,19 @@ def test_checkpoint_loading_refuses_another_object_set(overfitted, tmp_path):
     with pytest.raises(ConfigError, match="trained for objects"):
         onnx_est.check_objects(other)
     assert est.recrop == onnx_est.recrop == 0  # ground-truth boxes: both runtimes see the same crops
+    # the two runtimes compute the same network: its outputs agree to float32 rounding
+    probe = np.random.default_rng(0).random((2, 3, 64, 64), dtype=np.float32)
+    ra, rb = est._run(probe), onnx_est._run(probe)
+    assert ra.keys() == rb.keys()
+    for name in ra:
+        np.testing.assert_allclose(ra[name], rb[name], rtol=1e-3, atol=1e-4, err_msg=name)
+    # the poses go through RANSAC-PnP on votes that differ in their last bits: a changed inlier set can move the
+    # translation of this barely trained network by millimetres (4.9 mm seen), so they agree within 1 cm
     a = est.estimate(_observation(ds, 0, objects)[0])
     b = onnx_est.estimate(_observation(ds, 0, objects)[0])
     assert len(a) == len(b)
     for x, y in zip(a, b):
-        np.testing.assert_allclose(x.t, y.t, atol=3e-3)  # RANSAC on float32-rounded points: within 3 mm
+        np.testing.assert_allclose(x.t, y.t, atol=1e-2)
     # a whole-image checkpoint is not a crop checkpoint
     with pytest.raises(ConfigError, match="simtest-keypoints/2"):
         CropKeypointEstimator(checkpoint=save_checkpoint(tmp_path / "v1.pt", {**ckpt, "format": "simtest-keypoints/1"}),
