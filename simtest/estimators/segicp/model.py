@@ -1,6 +1,7 @@
 """A tiny U-Net for per-class semantic segmentation of RGB (optionally RGB-D) images (torch).
 
-Encoder stages at strides 2, 4, 8 and 16 (the blocks of :mod:`simtest.estimators.blocks`), a decoder
+Encoder stages at strides 2, 4, 8 and 16 (the blocks of :mod:`simtest.estimators.blocks`, trained from
+scratch, or ImageNet-pretrained EfficientNet-Lite0 to stride 16 with ``backbone="efficientnet-lite0"``), a decoder
 with skip connections back to stride 2, and a 1x1 classifier whose logits are upsampled bilinearly to the
 input size. Class 0 is background; class ``c`` (1-based) is the ``c``-th object id of the checkpoint's object
 record (sorted ids).
@@ -19,11 +20,15 @@ from torch import nn
 from torch.nn import functional as F
 
 from simtest.estimators.blocks import Residual, conv_bn_relu
-from simtest.estimators.segicp.infer import DEPTH_RANGE_M
+from simtest.estimators.segicp.infer import DEPTH_RANGE_M, size_multiple
 from simtest.estimators.training import init_conv_weights
 
-__all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "DEPTH_RANGE_M"]
+__all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "size_multiple", "DEPTH_RANGE_M", "BACKBONES"]
 
+#: Encoders of the segmentation network.
+BACKBONES = ("plain", "efficientnet-lite0")
+#: Channels of EfficientNet-Lite0's feature maps at strides 2, 4, 8, 16.
+_EFFICIENTNET_WIDTHS = (16, 24, 40, 112)
 
 
 @dataclass(frozen=True)
@@ -34,11 +39,21 @@ class SegNetConfig:
         num_classes: Object classes (background excluded).
         depth_input: Whether depth is a fourth input channel.
         widths: Channels of the encoder stages at strides 2, 4, 8, 16 (the decoder mirrors them).
+        backbone: ``"plain"`` (from scratch, ``widths``) or ``"efficientnet-lite0"`` (ImageNet-pretrained, RGB
+            only; ``widths`` are then its channels, 16, 24, 40, 112).
     """
 
     num_classes: int
     depth_input: bool = False
     widths: tuple[int, int, int, int] = (16, 24, 48, 64)
+    backbone: str = "plain"
+
+    def __post_init__(self) -> None:
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")
+        if self.backbone != "plain" and (self.depth_input or tuple(self.widths) != _EFFICIENTNET_WIDTHS):
+            raise ValueError(f"backbone {self.backbone} reads RGB only (depth_input=False) and needs widths "
+                             f"{_EFFICIENTNET_WIDTHS}, got depth_input={self.depth_input}, widths={self.widths}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -50,6 +65,7 @@ class SegNetConfig:
         d = dict(d)
         d["widths"] = tuple(int(w) for w in d["widths"])
         return SegNetConfig(**d)
+
 
 
 def depth_channel(depth: torch.Tensor) -> torch.Tensor:
@@ -76,10 +92,16 @@ class SegNet(nn.Module):
         self.cfg = cfg
         w1, w2, w3, w4 = cfg.widths
         cin = 4 if cfg.depth_input else 3
-        self.stem = nn.Sequential(conv_bn_relu(cin, w1, 2), conv_bn_relu(w1, w1))
-        self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
-        self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
-        self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        if cfg.backbone == "plain":
+            self.stem = nn.Sequential(conv_bn_relu(cin, w1, 2), conv_bn_relu(w1, w1))
+            self.s4 = nn.Sequential(conv_bn_relu(w1, w2, 2), Residual(w2))
+            self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
+            self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
+        else:  # pretrained weights are loaded by init_weights (training); a checkpoint holds them afterwards
+            from simtest.estimators.efficientnet_lite import EfficientNetLite0Encoder
+
+            self.encoder = EfficientNetLite0Encoder(levels=4)
+            self.s16 = Residual(w4, dilation=2)  # context beyond the encoder's receptive field, trained from scratch
         self.up8 = conv_bn_relu(w4 + w3, w3)
         self.up4 = conv_bn_relu(w3 + w2, w2)
         self.up2 = conv_bn_relu(w2 + w1, w1)
@@ -89,8 +111,12 @@ class SegNet(nn.Module):
 
     def init_weights(self, generator: torch.Generator) -> None:
         """Deterministic initialisation from ``generator`` (Kaiming convolutions, a small head that starts
-        out predicting background)."""
+        out predicting background); a pretrained encoder is then filled with its ImageNet weights (bit for bit)."""
         init_conv_weights(self, generator)
+        if self.cfg.backbone != "plain":
+            from simtest.estimators.efficientnet_lite import load_imagenet_weights
+
+            load_imagenet_weights(self.encoder)
         nn.init.normal_(self.head.weight, std=0.01, generator=generator)
         nn.init.zeros_(self.head.bias)
         with torch.no_grad():
@@ -101,21 +127,26 @@ class SegNet(nn.Module):
         return F.interpolate(x, size=ref.shape[-2:], mode="bilinear", align_corners=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        rgb = (x[:, :3] - self.mean) / self.std
-        x = torch.cat([rgb, x[:, 3:]], 1) if self.cfg.depth_input else rgb
-        f2 = self.stem(x)
-        f4 = self.s4(f2)
-        f8 = self.s8(f4)
-        f16 = self.s16(f8)
+        if self.cfg.backbone == "plain":
+            rgb = (x[:, :3] - self.mean) / self.std
+            x = torch.cat([rgb, x[:, 3:]], 1) if self.cfg.depth_input else rgb
+            f2 = self.stem(x)
+            f4 = self.s4(f2)
+            f8 = self.s8(f4)
+            f16 = self.s16(f8)
+        else:  # the encoder normalises its input as its weights were trained
+            f2, f4, f8, f16 = self.encoder(x)
+            f16 = self.s16(f16)
         u8 = self.up8(torch.cat([self._up(f16, f8), f8], 1))
         u4 = self.up4(torch.cat([self._up(u8, f4), f4], 1))
         u2 = self.up2(torch.cat([self._up(u4, f2), f2], 1))
         return F.interpolate(self.head(u2), size=x.shape[-2:], mode="bilinear", align_corners=False)
 
 
-def net_input(rgb: torch.Tensor, depth: torch.Tensor, depth_input: bool) -> torch.Tensor:
+def net_input(rgb: torch.Tensor, depth: torch.Tensor, depth_input: bool, multiple: int = 16) -> torch.Tensor:
     """The network input of a batch: RGB (B, 3, H, W) in [0, 1], plus the depth channel (depth (B, 1, H, W) in
-    metres) when asked, padded at the bottom and right to multiples of 16."""
+    metres) when asked, padded at the bottom and right to multiples of ``multiple``
+    (:func:`~simtest.estimators.segicp.infer.size_multiple`)."""
     x = torch.cat([rgb, depth_channel(depth)], 1) if depth_input else rgb
     H, W = x.shape[-2:]
-    return F.pad(x, (0, (-W) % 16, 0, (-H) % 16))
+    return F.pad(x, (0, (-W) % multiple, 0, (-H) % multiple))

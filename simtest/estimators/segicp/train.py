@@ -51,7 +51,9 @@ class SegTrainConfig:
             that a sample is corrupted at all.
         crop: ``(height, width)`` training crops (pixels) around a random object, or None for full images.
         depth_input: Feed relative depth as a fourth channel.
-        widths: Encoder channels at strides 2, 4, 8, 16.
+        widths: Encoder channels at strides 2, 4, 8, 16 (``backbone="plain"``).
+        backbone: ``"plain"`` (from scratch) or ``"efficientnet-lite0"`` (ImageNet-pretrained encoder, RGB only;
+            training crops then need sides that are multiples of 32).
         device, seed, workers, threads: As ``simtest train keypoints``.
         max_images: Train on the first N images only (None: all).
     """
@@ -71,6 +73,7 @@ class SegTrainConfig:
     crop: tuple[int, int] | None = None
     depth_input: bool = False
     widths: tuple[int, int, int, int] = (16, 24, 48, 64)
+    backbone: str = "plain"
     device: str = "cpu"
     seed: int = 0
     workers: int = 0
@@ -80,18 +83,30 @@ class SegTrainConfig:
 
     def __post_init__(self) -> None:
         check_settings(self, "segmentation training")
+        from simtest.estimators.segicp.model import BACKBONES
+
+        if self.backbone not in BACKBONES:
+            raise ConfigError(f"segmentation training: backbone must be one of {', '.join(BACKBONES)}, got "
+                              f"{self.backbone!r}")
+        if self.backbone != "plain" and (self.depth_input or (self.crop is not None and (self.crop[0] % 32 or
+                                                                                          self.crop[1] % 32))):
+            raise ConfigError(f"segmentation training: backbone {self.backbone!r} reads RGB only (no --depth-input) "
+                              f"and needs crop sides that are multiples of 32, got crop={self.crop}")
 
     def to_dict(self) -> dict[str, Any]:
         return settings_dict(self)
 
 
-def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=(16, 24, 48, 64)):
-    """A freshly initialised :class:`SegNet`, deterministic in ``seed`` (the global RNG is left as it was)."""
+def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=(16, 24, 48, 64),
+                 backbone: str = "plain"):
+    """A freshly initialised :class:`SegNet`, deterministic in ``seed`` (the global RNG is left as it was); with
+    ``backbone="efficientnet-lite0"`` its encoder holds the ImageNet weights (``widths`` are then its own)."""
     import torch
 
-    from simtest.estimators.segicp.model import SegNet, SegNetConfig
+    from simtest.estimators.segicp.model import _EFFICIENTNET_WIDTHS, SegNet, SegNetConfig
 
-    cfg = SegNetConfig(num_classes=int(num_classes), depth_input=bool(depth_input), widths=tuple(widths))
+    cfg = SegNetConfig(num_classes=int(num_classes), depth_input=bool(depth_input), backbone=backbone,
+                       widths=tuple(widths) if backbone == "plain" else _EFFICIENTNET_WIDTHS)
     with torch.random.fork_rng(devices=[]):
         net = SegNet(cfg)
     net.init_weights(torch.Generator().manual_seed(int(seed)))
@@ -133,6 +148,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
     """One epoch of optimisation; returns the mean losses."""
     from tqdm import tqdm
 
+    from simtest.estimators.segicp.infer import size_multiple
     from simtest.estimators.segicp.model import net_input
 
     loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
@@ -143,7 +159,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
     for i, batch in enumerate(bar):
         for g in opt.param_groups:
             g["lr"] = lr_at(epoch * steps + i, total, cfg.lr)
-        x = net_input(batch["rgb"], batch["depth"], cfg.depth_input).to(cfg.device)
+        x = net_input(batch["rgb"], batch["depth"], cfg.depth_input, size_multiple(net.cfg.to_dict())).to(cfg.device)
         target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
         losses = seg_loss(net(x), target)
         optimizer_step(net, opt, losses, sums)
@@ -157,6 +173,7 @@ def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
     """Mean IoU (object classes present in the validation images) and pixel accuracy on full images."""
     import torch
 
+    from simtest.estimators.segicp.infer import size_multiple
     from simtest.estimators.segicp.model import net_input
 
     net.eval()
@@ -168,7 +185,7 @@ def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
             s = dataset[i]
             batch = {"rgb": s["rgb"][None], "masks": s["masks"], "labels": s["labels"],
                      "batch_index": torch.zeros(len(s["labels"]), dtype=torch.int64)}
-            x = net_input(s["rgb"][None], s["depth"][None], cfg.depth_input).to(cfg.device)
+            x = net_input(s["rgb"][None], s["depth"][None], cfg.depth_input, size_multiple(net.cfg.to_dict())).to(cfg.device)
             H, W = s["rgb"].shape[-2:]
             pred = net(x).argmax(1)[0, :H, :W].cpu().numpy()
             tgt = label_targets(batch, tuple(x.shape[-2:]))[0, :H, :W].numpy()
@@ -235,7 +252,7 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
     dataset, val = _datasets(cfg, objects)
     first = dataset.datasets[0] if hasattr(dataset, "datasets") else dataset
     focal = float(first.load_numpy(0)["K"][0, 0])
-    net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths).to(cfg.device)
+    net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths, cfg.backbone).to(cfg.device)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict[str, Any]] = []
     start_epoch, best = 0, -1.0

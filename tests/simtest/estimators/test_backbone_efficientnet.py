@@ -248,3 +248,32 @@ def test_the_crop_network_starts_from_the_pretrained_encoder(checkpoint):
                       backbone="efficientnet-lite0")
     with pytest.raises(Refused, match="needs --arch crop"):
         TrainConfig(data="x", out="y", arch="full", backbone="efficientnet-lite0")
+
+
+def test_the_segmentation_network_starts_from_the_pretrained_encoder(checkpoint):
+    """``simtest train segmentation --backbone efficientnet-lite0``: the encoder holds the ImageNet weights bit
+    for bit after the seeded initialisation, the rest comes from the seed, logits keep the input size, and the
+    settings it cannot take (depth input, crop sides not multiples of 32) are refused by name."""
+    from simtest.estimators.segicp.infer import size_multiple
+    from simtest.estimators.segicp.model import SegNetConfig
+    from simtest.estimators.segicp.train import SegTrainConfig, build_segnet
+
+    net = build_segnet(3, seed=0, backbone="efficientnet-lite0")
+    assert net.cfg.widths == (16, 24, 40, 112) and size_multiple(net.cfg.to_dict()) == 32
+    mapping = load_imagenet_weights(EfficientNetLite0Encoder(levels=4))
+    own = net.encoder.state_dict()
+    assert len(mapping) == len(own)
+    for model_key, ckpt_key in mapping.items():
+        assert torch.equal(own[model_key], checkpoint[ckpt_key]), model_key
+    again = build_segnet(3, seed=0, backbone="efficientnet-lite0")
+    assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), again.state_dict().values()))
+    logits = net.eval()(torch.rand(1, 3, 64, 96, generator=torch.Generator().manual_seed(0)))
+    assert logits.shape == (1, 4, 64, 96)
+    assert SegNetConfig.from_dict(net.cfg.to_dict()).backbone == "efficientnet-lite0"
+    assert size_multiple(build_segnet(3, seed=0).cfg.to_dict()) == 16  # the plain network as before
+    with pytest.raises(ValueError, match="RGB only"):
+        SegNetConfig(num_classes=1, depth_input=True, widths=(16, 24, 40, 112), backbone="efficientnet-lite0")
+    with pytest.raises(ConfigError, match="multiples of 32"):
+        SegTrainConfig(data="x", out="y", crop=(96, 100), backbone="efficientnet-lite0")
+    with pytest.raises(ConfigError, match="backbone must be one of"):
+        SegTrainConfig(data="x", out="y", backbone="resnet")

