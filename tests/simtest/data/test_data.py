@@ -125,6 +125,49 @@ def test_transforms_deterministic_per_seed_and_epoch(small_dataset):
         assert not bool((s["masks"] & ~g["masks"]).any())
 
 
+def test_color_jitter_changes_colours_only_and_leaves_the_other_draws_alone(small_dataset):
+    """``--augment ...,color``: a seeded photometric jitter of RGB; depth, masks and geometry are untouched, and
+    adding it does not change which corruptions the other kinds draw."""
+    from simtest.data.augment import ColorJitter
+
+    jit = PoseDataset(small_dataset, transform=Compose((ColorJitter(p=1.0),)), seed=4)
+    clean = PoseDataset(small_dataset)
+    for i in range(3):
+        s, g = jit[i], clean[i]
+        assert s["rgb"].dtype == g["rgb"].dtype and s["rgb"].shape == g["rgb"].shape
+        assert not torch.equal(s["rgb"], g["rgb"])
+        for k in ("depth", "masks", "keypoints_2d", "R", "t"):
+            assert torch.equal(s[k], g[k]), k
+        assert torch.equal(s["rgb"], PoseDataset(small_dataset, transform=Compose((ColorJitter(p=1.0),)),
+                                                 seed=4)[i]["rgb"])
+    mixed = augmentation("weather,color", p=1.0)
+    assert [type(t).__name__ for t in mixed.transforms] == ["ColorJitter", "RandomCorrupt"]
+    assert [type(t).__name__ for t in augmentation("weather").transforms] == ["RandomCorrupt"]
+    with pytest.raises(ConfigError, match="color"):
+        augmentation("colour")
+
+
+def test_background_swap_keeps_every_object_pixel_and_the_ground_truth(small_dataset):
+    """``--augment ...,background``: all but the annotated objects' visible pixels become a random cluttered
+    background; object pixels, depth, masks and poses are the rendered ones; seeded."""
+    from simtest.data.augment import BackgroundSwap
+
+    swap = PoseDataset(small_dataset, transform=Compose((BackgroundSwap(p=1.0),)), seed=2)
+    clean = PoseDataset(small_dataset)
+    for i in range(3):
+        s, g = swap[i], clean[i]
+        fg = g["masks"].any(0)
+        assert fg.any() and torch.equal(s["rgb"][:, fg], g["rgb"][:, fg])
+        changed = (s["rgb"] != g["rgb"]).any(0)
+        assert float(changed[~fg].float().mean()) > 0.5  # most of the background is new
+        for k in ("depth", "masks", "keypoints_2d", "R", "t"):
+            assert torch.equal(s[k], g[k]), k
+        again = PoseDataset(small_dataset, transform=Compose((BackgroundSwap(p=1.0),)), seed=2)[i]
+        assert torch.equal(s["rgb"], again["rgb"])
+    assert [type(t).__name__ for t in augmentation("background,color,occlusion").transforms] == [
+        "BackgroundSwap", "ColorJitter", "RandomCorrupt"]
+
+
 def test_corrupt_spec_transform_updates_visible_masks(small_dataset):
     from simtest.corrupt import CorruptionSpec
 
