@@ -55,6 +55,7 @@ from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
+from simtest.estimators.shipped import choose, matches
 from simtest.estimators.training import check_device
 
 __all__ = ["CropKeypointEstimator", "CROP_FORMAT", "DETECTORS", "FUSIONS", "default_checkpoint",
@@ -187,6 +188,10 @@ class CropKeypointEstimator:
         #: Depth is read only by segicp's RGB-D detector (``detect="segicp"``).
         self.needs_depth = detect == "segicp"
         self.net = self.model = None
+        self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
+                         "threads": threads, "min_region_pixels": int(min_region_pixels)}
+        #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
+        self.shipped = checkpoint is None and model is None
         if model is not None:
             if objects_record is None:
                 raise ConfigError("keypoints: a model given in memory needs its objects_record")
@@ -194,29 +199,49 @@ class CropKeypointEstimator:
             self.cfg, self.record = model.cfg.to_dict(), objects_record
         else:
             self._load(checkpoint, runtime, threads)
+        self._configure()
+        self.segmenter = None
+        if detect != "gt":
+            self._load_detector(None if detect == "segicp" else (detector or default_detector()))
+        self.last_failures: list[dict[str, Any]] = []
+        self._checked: set[int] = set()
+
+    def _configure(self) -> None:
+        """Settings that follow from the loaded network: keypoints, solver, fusion, classes."""
         self.kp3d = {int(i): np.asarray(k, np.float64) for i, k in zip(self.record["obj_ids"], self.record["keypoints"])}
+        solver, fusion = self._options["solver"], self._options["fusion"]
         has_dense = bool(self.cfg.get("dense", False))
         if solver == "dense" and not has_dense:
             raise ConfigError(f"keypoints: solver=dense needs a network with the object-coordinate head; "
                               f"{self.checkpoint or '(in memory)'} has none (use solver=keypoints)")
         self.solver = ("dense" if has_dense else "keypoints") if solver == "auto" else solver
-        if fusion == "auto":
-            self.fusion = "uniform" if self.solver == "dense" else "confidence"
+        self.fusion = ("uniform" if self.solver == "dense" else "confidence") if fusion == "auto" else fusion
         self.class_ids = [int(i) for i in self.record["obj_ids"]]
-        self.segmenter = None
-        if detect != "gt":
-            from simtest.estimators.segicp.infer import Segmenter
 
-            path = None if detect == "segicp" else (detector or default_detector())
-            if detect == "rgb" and detector is None and not Path(path).is_file():
-                raise ConfigError(f"keypoints: the shipped detector {str(path)!r} is missing; pass "
-                                  "--opt detector=SEGMENTATION_CHECKPOINT or --opt detect=gt")
-            self.segmenter = Segmenter(path, "cpu", int(min_region_pixels), threads, runtime="auto")
-            if detect == "rgb" and self.segmenter.depth_input:
-                raise ConfigError(f"keypoints: detector {self.segmenter.checkpoint} reads depth; detect=rgb needs an "
-                                  "RGB-only segmentation network (simtest train segmentation without --depth-input)")
-        self.last_failures: list[dict[str, Any]] = []
-        self._checked: set[int] = set()
+    def _load_detector(self, path: str | Path | None) -> None:
+        """The segmentation network that finds the objects (None: segicp's shipped RGB-D one)."""
+        from simtest.estimators.segicp.infer import Segmenter
+
+        if self.detect == "rgb" and self._options["detector"] is None and not Path(path).is_file():
+            raise ConfigError(f"keypoints: the shipped detector {str(path)!r} is missing; pass "
+                              "--opt detector=SEGMENTATION_CHECKPOINT or --opt detect=gt")
+        self.segmenter = Segmenter(path, "cpu", self._options["min_region_pixels"], self._options["threads"],
+                                   runtime="auto")
+        if self.detect == "rgb" and self.segmenter.depth_input:
+            raise ConfigError(f"keypoints: detector {self.segmenter.checkpoint} reads depth; detect=rgb needs an "
+                              "RGB-only segmentation network (simtest train segmentation without --depth-input)")
+
+    def _ship_for(self, objects: Any) -> None:
+        """Swap in the shipped crop network (and, unless one was named, the shipped detector) trained for
+        ``objects``; a :class:`ConfigError` names the shipped sets when none was."""
+        from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT
+
+        net = choose("keypoints", CROP_FORMAT, objects, what="keypoints")
+        self._load(net.path, self._options["runtime"], self._options["threads"])
+        self._configure()
+        if self.detect == "rgb" and self._options["detector"] is None:
+            det = choose("keypoints_detector", SEG_FORMAT, objects, what="keypoints (its detector)", subset=True)
+            self._load_detector(det.path)
 
     def _load(self, checkpoint: str | Path | None, runtime: str, threads: int | None) -> None:
         from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
@@ -253,6 +278,8 @@ class CropKeypointEstimator:
     def check_objects(self, objects: Any) -> None:
         """Raise :class:`ConfigError` unless ``objects`` is the set the network was trained for."""
         if id(objects) not in self._checked:
+            if self.shipped and matches(self.record, objects) is not None:
+                self._ship_for(objects)
             check_objects(self.record, objects, where=f"keypoints checkpoint {self.checkpoint or '(in memory)'}")
             if self.segmenter is not None:
                 self.segmenter.check_objects(objects)

@@ -1,0 +1,62 @@
+"""The shipped networks are chosen by the objects' content: builtin-small's for builtin-small, LM-O's for the
+LM-O models (where ../shared/real/lmo and the shipped LM-O files are present), and other sets are refused with
+the reason for each shipped set."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from simtest.errors import ConfigError
+from simtest.estimators.keypoints.crop_infer import CROP_FORMAT
+from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT
+from simtest.estimators.shipped import choose, shipped_nets, weights_dir
+from simtest.objects import load_object_set
+
+LMO = Path(__file__).resolve().parents[3].parent / "shared" / "real" / "lmo"
+
+
+def test_the_shipped_files_carry_their_object_records():
+    nets = shipped_nets("keypoints", CROP_FORMAT)
+    assert "builtin-small" in [n.object_set for n in nets]
+    for n in nets:
+        assert n.path.is_file() and n.path.with_suffix(".onnx").is_file()
+        assert n.path.parent == weights_dir() and n.size[0] > n.size[1] > 0
+        assert len(n.record["obj_ids"]) == len(n.record["mesh_hashes"]) > 0
+    # a detector is not a crop network: the format in the file decides, not the name
+    assert all(n.family == "keypoints_detector" for n in shipped_nets("keypoints_detector", SEG_FORMAT))
+    assert shipped_nets("keypoints_detector", CROP_FORMAT) == []
+
+
+def test_builtin_small_gets_its_network_and_other_sets_are_refused_with_reasons():
+    net = choose("keypoints", CROP_FORMAT, load_object_set("builtin-small"), what="keypoints")
+    assert net.object_set == "builtin-small"
+    with pytest.raises(ConfigError) as err:
+        choose("keypoints", CROP_FORMAT, load_object_set("builtin"), what="keypoints")
+    msg = str(err.value)
+    assert "no shipped network was trained for these objects" in msg
+    assert "keypoints_builtin-small_320x240.onnx (builtin-small)" in msg and "Train one" in msg
+
+
+def test_the_estimator_without_options_refuses_an_unknown_set_naming_the_shipped_ones():
+    from simtest.estimators import load_estimator
+
+    est = load_estimator("keypoints")
+    with pytest.raises(ConfigError, match="builtin-small"):
+        est.check_objects(load_object_set("builtin"))
+
+
+@pytest.mark.skipif(not (LMO / "models").is_dir(), reason=f"the real LM-O frames are not here ({LMO})")
+def test_the_lmo_models_get_the_lmo_networks():
+    from simtest.estimators import load_estimator
+
+    if not any(n.object_set == "lmo" for n in shipped_nets("keypoints", CROP_FORMAT)):
+        pytest.skip(f"no shipped LM-O network in {weights_dir()}")
+    objects = load_object_set(LMO / "models")
+    assert choose("keypoints", CROP_FORMAT, objects, what="keypoints").object_set == "lmo"
+    est = load_estimator("keypoints")  # no options: builtin-small's until it sees other objects
+    est.check_objects(objects)
+    assert Path(est.checkpoint).name.startswith("keypoints_lmo_")
+    assert Path(est.segmenter.checkpoint).name.startswith("keypoints_detector_lmo_")
+    assert est.class_ids == objects.ids
