@@ -28,13 +28,12 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.icp import ICPEstimator
 from simtest.estimators.onnx_net import resolve_runtime
+from simtest.estimators.segicp.inputs import DEPTH_RANGE_M, depth_channel_np, size_multiple
 from simtest.estimators.training import check_device
 
-__all__ = ["Segmenter", "size_multiple", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
-           "FORMAT"]
+__all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
+           "FORMAT", "DEPTH_RANGE_M", "depth_channel_np", "size_multiple"]
 
-#: Half-range (metres) of the relative depth input channel of the network (torch and numpy alike).
-DEPTH_RANGE_M = 0.25
 #: ``format`` entry of segmentation checkpoints.
 FORMAT = "simtest-segmentation/1"
 #: File name of the shipped checkpoint (in ``simtest/estimators/weights/``).
@@ -46,28 +45,6 @@ def default_checkpoint() -> Path:
     the estimators, so it is found in an editable install and in a wheel alike. Its ONNX file
     (:func:`~simtest.estimators.onnx_net.onnx_path_for`) lies beside it and is what inference runs."""
     return Path(__file__).resolve().parent.parent / "weights" / DEFAULT_CHECKPOINT_NAME
-
-
-def depth_channel_np(depth: np.ndarray) -> np.ndarray:
-    """numpy twin of :func:`simtest.estimators.segicp.model.depth_channel` for one (H, W) image in metres: the
-    depth relative to the median of the valid depth (torch's median: the lower middle value of an even count),
-    clipped to +-``DEPTH_RANGE_M`` and divided by it, 0 where depth is missing."""
-    out = np.zeros(depth.shape, np.float32)
-    valid = depth > 0
-    v = depth[valid].astype(np.float32)
-    if v.size:
-        k = (v.size - 1) // 2
-        med = np.partition(v, k)[k]
-        rel = np.clip(depth.astype(np.float32) - med, -DEPTH_RANGE_M, DEPTH_RANGE_M) / np.float32(DEPTH_RANGE_M)
-        out[valid] = rel[valid]
-    return out
-
-
-
-def size_multiple(net: dict[str, Any]) -> int:
-    """The multiple (pixels) that a network's input height and width are padded to, from its config dict: 32 for
-    the EfficientNet encoder (its fixed TensorFlow padding), 16 for the plain one."""
-    return 32 if net.get("backbone", "plain") != "plain" else 16
 
 
 class Segmenter:

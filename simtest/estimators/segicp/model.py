@@ -20,15 +20,17 @@ from torch import nn
 from torch.nn import functional as F
 
 from simtest.estimators.blocks import Residual, conv_bn_relu
-from simtest.estimators.segicp.infer import DEPTH_RANGE_M, size_multiple
+from simtest.estimators.efficientnet_lite import FEATURE_CHANNELS
+from simtest.estimators.segicp.inputs import DEPTH_RANGE_M
 from simtest.estimators.training import init_conv_weights
 
-__all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "size_multiple", "DEPTH_RANGE_M", "BACKBONES"]
+__all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "DEPTH_RANGE_M", "BACKBONES",
+           "EFFICIENTNET_WIDTHS"]
 
 #: Encoders of the segmentation network.
 BACKBONES = ("plain", "efficientnet-lite0")
 #: Channels of EfficientNet-Lite0's feature maps at strides 2, 4, 8, 16.
-_EFFICIENTNET_WIDTHS = (16, 24, 40, 112)
+EFFICIENTNET_WIDTHS = tuple(FEATURE_CHANNELS[:4])
 
 
 @dataclass(frozen=True)
@@ -51,9 +53,9 @@ class SegNetConfig:
     def __post_init__(self) -> None:
         if self.backbone not in BACKBONES:
             raise ValueError(f"backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")
-        if self.backbone != "plain" and (self.depth_input or tuple(self.widths) != _EFFICIENTNET_WIDTHS):
+        if self.backbone != "plain" and (self.depth_input or tuple(self.widths) != EFFICIENTNET_WIDTHS):
             raise ValueError(f"backbone {self.backbone} reads RGB only (depth_input=False) and needs widths "
-                             f"{_EFFICIENTNET_WIDTHS}, got depth_input={self.depth_input}, widths={self.widths}")
+                             f"{EFFICIENTNET_WIDTHS}, got depth_input={self.depth_input}, widths={self.widths}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -146,7 +148,7 @@ class SegNet(nn.Module):
 def net_input(rgb: torch.Tensor, depth: torch.Tensor, depth_input: bool, multiple: int = 16) -> torch.Tensor:
     """The network input of a batch: RGB (B, 3, H, W) in [0, 1], plus the depth channel (depth (B, 1, H, W) in
     metres) when asked, padded at the bottom and right to multiples of ``multiple``
-    (:func:`~simtest.estimators.segicp.infer.size_multiple`)."""
+    (:func:`~simtest.estimators.segicp.inputs.size_multiple`)."""
     x = torch.cat([rgb, depth_channel(depth)], 1) if depth_input else rgb
     H, W = x.shape[-2:]
     return F.pad(x, (0, (-W) % multiple, 0, (-H) % multiple))

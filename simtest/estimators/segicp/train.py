@@ -103,10 +103,10 @@ def build_segnet(num_classes: int, seed: int, depth_input: bool = False, widths=
     ``backbone="efficientnet-lite0"`` its encoder holds the ImageNet weights (``widths`` are then its own)."""
     import torch
 
-    from simtest.estimators.segicp.model import _EFFICIENTNET_WIDTHS, SegNet, SegNetConfig
+    from simtest.estimators.segicp.model import EFFICIENTNET_WIDTHS, SegNet, SegNetConfig
 
     cfg = SegNetConfig(num_classes=int(num_classes), depth_input=bool(depth_input), backbone=backbone,
-                       widths=tuple(widths) if backbone == "plain" else _EFFICIENTNET_WIDTHS)
+                       widths=tuple(widths) if backbone == "plain" else EFFICIENTNET_WIDTHS)
     with torch.random.fork_rng(devices=[]):
         net = SegNet(cfg)
     net.init_weights(torch.Generator().manual_seed(int(seed)))
@@ -148,7 +148,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
     """One epoch of optimisation; returns the mean losses."""
     from tqdm import tqdm
 
-    from simtest.estimators.segicp.infer import size_multiple
+    from simtest.estimators.segicp.inputs import size_multiple
     from simtest.estimators.segicp.model import net_input
 
     loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
@@ -173,7 +173,7 @@ def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
     """Mean IoU (object classes present in the validation images) and pixel accuracy on full images."""
     import torch
 
-    from simtest.estimators.segicp.infer import size_multiple
+    from simtest.estimators.segicp.inputs import size_multiple
     from simtest.estimators.segicp.model import net_input
 
     net.eval()

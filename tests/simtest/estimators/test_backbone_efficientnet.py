@@ -254,7 +254,7 @@ def test_the_segmentation_network_starts_from_the_pretrained_encoder(checkpoint)
     """``simtest train segmentation --backbone efficientnet-lite0``: the encoder holds the ImageNet weights bit
     for bit after the seeded initialisation, the rest comes from the seed, logits keep the input size, and the
     settings it cannot take (depth input, crop sides not multiples of 32) are refused by name."""
-    from simtest.estimators.segicp.infer import size_multiple
+    from simtest.estimators.segicp.inputs import size_multiple
     from simtest.estimators.segicp.model import SegNetConfig
     from simtest.estimators.segicp.train import SegTrainConfig, build_segnet
 
