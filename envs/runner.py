@@ -26,6 +26,7 @@ import numpy as np
 
 from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
 from simtest.errors import ConfigError, EstimatorError
+from simtest.metrics.intervals import wilson_interval
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.rng import child_sequence
 from simtest.io.files import jsonable
@@ -47,17 +48,6 @@ RECORD_EVERY = 2
 def episode_seed(seed: int, index: int) -> int:
     """The env seed of episode ``index`` under master ``seed``: SeedSequence child ``index``, as a uint32."""
     return int(child_sequence(seed, index).generate_state(1)[0])
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % by default); ``(0, 1)`` for ``n = 0``."""
-    if n <= 0:
-        return 0.0, 1.0
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from simtest.io.dataset import ImageRef, image_size, image_targets, select_image
 from simtest.metrics.auc import ADDS_2CM, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, ResultRow
 from simtest.metrics.bop19 import evaluate_bop19
+from simtest.metrics.intervals import wilson_interval
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, re_sym, te, vsd
 from simtest.metrics.registry import NDEG_MCM
 from simtest.metrics.viewpoint import PI_6, PI_18, accuracy_at
@@ -84,8 +85,13 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "median_te_m": float(np.median(te_m)),
         "mean_add_s_or_add_m": float(np.mean(addsa[np.isfinite(addsa)])) if np.isfinite(addsa).any() else inf,
     }
+    hits = {"add_s_or_add_01d": addsa < 0.1 * diam, "adds_lt_2cm": adds < ADDS_2CM,
+            "acc_pi_6": np.radians(re_s) < PI_6, "acc_pi_18": np.radians(re_s) < PI_18}
     for nd, mc in NDEG_MCM:
-        out[f"{nd:g}deg{mc:g}cm"] = float(np.mean((re_s <= nd) & (te_m <= mc / 100.0)))
+        hits[f"{nd:g}deg{mc:g}cm"] = (re_s <= nd) & (te_m <= mc / 100.0)
+        out[f"{nd:g}deg{mc:g}cm"] = float(np.mean(hits[f"{nd:g}deg{mc:g}cm"]))
+    #: 95 % Wilson intervals of the proportions of targets, [low, high] fractions
+    out["ci95"] = {k: list(wilson_interval(int(np.sum(h)), n)) for k, h in hits.items()}
     return out
 
 

@@ -74,6 +74,7 @@ def format_table(report: Any) -> str:
               f"{o.get('num_estimates', 0)} estimates, {o.get('num_failures', 0)} failures"
               f"{_kinds_text(report.failures)}; "
               f"time per image: mean {metric('mean_time_per_image_s').format(o.get('mean_time_per_image_s'), 3)} s.\n"
+              + _interval_line(o) +
               "ADD(-S): ADD-S for symmetric objects. AUC: YCB-Video VOC-style, 0-10 cm. Rotation errors are the "
               "smallest over the object's symmetries; misses count as 180°. AR: BOP19 Average Recall.\n"
               + (_DETECTION_NOTE if _detection(report) else ""))
@@ -82,6 +83,14 @@ def format_table(report: Any) -> str:
     text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + table + footer
     per_category = getattr(report, "per_category", None)
     return text + ("\n" + category_table(report) if per_category else "")
+
+
+def _interval_line(overall: dict[str, Any]) -> str:
+    """``95 % intervals (Wilson, over targets): ADD(-S)-0.1d 41.6-48.8 %, ...`` of the overall proportions."""
+    ci = overall.get("ci95") or {}
+    parts = [f"{metric(k).label} {metric(k).format(ci[k][0])}-{metric(k).format(ci[k][1])} {metric(k).unit}"
+             for k in ("add_s_or_add_01d", "adds_lt_2cm", "acc_pi_6", "5deg5cm") if k in ci]
+    return f"95 % intervals (Wilson, over targets): {', '.join(parts)}.\n" if parts else ""
 
 
 _DETECTION_NOTE = ("Detection task: no target ids or counts given; at most 100 estimates per image. AP: BOP24 "
@@ -114,6 +123,9 @@ def overall_table(report: Any) -> str:
         text = m.format(o.get(k), digits) if k in o else ""
         if k == "num_failures":
             text += _kinds_text(report.failures)
+        ci = (o.get("ci95") or {}).get(k)
+        if ci is not None and k in o:
+            text += f" [{m.format(ci[0])}, {m.format(ci[1])}]"
         items.append((m.label, f"{text} {m.unit}".rstrip()))
     w = max(len(k) for k, _ in items)
     return "\n".join(f"{k:<{w}}  {v}" for k, v in items)
