@@ -28,8 +28,8 @@ import numpy as np
 
 from simtest.errors import AssetError
 
-__all__ = ["Appearance", "appearance_from_visual", "render_texture", "tint_rgba", "add_object_visual",
-           "texture_roles"]
+__all__ = ["Appearance", "appearance_from_visual", "render_texture", "surface_colors", "tint_rgba",
+           "add_object_visual", "texture_roles"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,6 +151,27 @@ def render_texture(appearance: Appearance, faces: np.ndarray) -> tuple[np.ndarra
     row, col = idx // side, idx % side
     uv = np.stack([(col + 0.5) / side, 1.0 - (row + 0.5) / side], axis=1)
     return atlas.reshape(side, side, 3), np.repeat(uv[:, None, :], 3, axis=1)
+
+
+def surface_colors(appearance: Appearance, faces: np.ndarray, face_index: np.ndarray, barycentric: np.ndarray
+                   ) -> np.ndarray:
+    """(N, 3) colours in [0, 1] of surface points given by their face and barycentric coordinates (N, 3):
+    the texel under the interpolated UV (nearest, UVs wrapped to [0, 1)), the interpolated vertex colours, or
+    the face's colour. Raises :class:`AssetError` for ``kind == "none"``."""
+    f = np.asarray(face_index, dtype=np.int64)
+    b = np.asarray(barycentric, dtype=np.float64)
+    if appearance.kind == "texture":
+        uv = np.einsum("nk,nkj->nj", b, appearance.face_uv[f]) % 1.0
+        H, W = appearance.texture.shape[:2]
+        col = np.clip(np.floor(uv[:, 0] * W), 0, W - 1).astype(np.int64)
+        row = np.clip(np.floor((1.0 - uv[:, 1]) * H), 0, H - 1).astype(np.int64)
+        return appearance.texture[row, col].astype(np.float64) / 255.0
+    if appearance.kind == "vertex":
+        corners = appearance.vertex_colors[np.asarray(faces)[f]].astype(np.float64)
+        return np.einsum("nk,nkj->nj", b, corners) / 255.0
+    if appearance.kind == "face":
+        return appearance.face_colors[f].astype(np.float64) / 255.0
+    raise AssetError("surface_colors: the appearance has no colours (kind 'none')")
 
 
 def tint_rgba(amount: float, rng: np.random.Generator) -> tuple[float, float, float, float]:

@@ -14,6 +14,14 @@ perpendicular directions towards the farthest surface point (the flip axes of a 
 continuous symmetry is tried first (several unrelated angles), else the 2, 3, 4, 5 and 6-fold rotations.
 The discrete rotations found generate a group, whose elements are all checked and returned.
 
+Symmetry in BOP's sense is *visual* indistinguishability, so for an object with colours (a texture, colours per
+vertex or per face: :class:`~simtest.objects.appearance.Appearance`) a rotation must also map the colours: the
+colour of each moved probe is compared with the colour of the nearest reference point, and the rotation is
+refused when more than :data:`COLOR_MISMATCH` of the probes differ by more than :data:`COLOR_TOLERANCE` in any
+channel (a die's faces are told apart by their pips; a uniformly coloured cube keeps its 24 rotations). The
+share allows for probes near a colour edge, whose nearest reference point may lie across it. ``symmetry=
+"geometry"`` detects by shape alone.
+
 Results are cached in-process per mesh hash and tolerance, and on disk (``<cache_dir>/symmetry/``, next to the
 collision cache of :mod:`simtest.objects.collision`), so a mesh library's objects are examined once, when a
 scene first uses them.
@@ -32,20 +40,27 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
+from trimesh.triangles import points_to_barycentric
 
 from simtest.errors import ConfigError
 from simtest.geometry import rotation_about
 from simtest.io.files import atomic_write_json
+from simtest.objects.appearance import Appearance, surface_colors
 from simtest.objects.model import ContinuousSymmetry, ObjectModel, ObjectSet
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ["detect_symmetries", "apply_symmetry_policy", "with_symmetry_policy", "symmetry_status",
-           "SYMMETRY_POLICIES", "DEFAULT_TOLERANCE", "symmetry_cache_path"]
+__all__ = ["detect_symmetries", "apply_symmetry_policy", "with_symmetry_policy", "symmetry_status", "uses_colors",
+           "SYMMETRY_POLICIES", "DEFAULT_TOLERANCE", "COLOR_TOLERANCE", "COLOR_MISMATCH", "symmetry_cache_path"]
 
-#: ``auto``: objects without declared symmetries get the detected ones; ``none``: no detection.
-SYMMETRY_POLICIES = ("auto", "none")
+#: ``auto``: objects without declared symmetries get the detected ones (by shape and, when the object has
+#: colours, by colours too); ``geometry``: detected by shape alone; ``none``: no detection.
+SYMMETRY_POLICIES = ("auto", "geometry", "none")
+#: Largest colour difference (any channel, colours in [0, 1]) of a probe that still counts as the same colour.
+COLOR_TOLERANCE = 0.2
+#: Largest share of probes whose colours may differ (colour edges) under a symmetry.
+COLOR_MISMATCH = 0.02
 #: Largest surface deviation of a symmetry, as a fraction of the object diameter.
 DEFAULT_TOLERANCE = 0.01
 log = logging.getLogger(__name__)
@@ -81,6 +96,8 @@ class _Surface:
     bbox_center: np.ndarray     # (3,)
     diameter: float
     vertices: np.ndarray        # mesh vertices (V, 3): corners give exact flip axes of prisms
+    probe_colors: np.ndarray | None = None  # (P, 3) in [0, 1]; None: shape only
+    ref_colors: np.ndarray | None = None    # (R, 3) in [0, 1]
 
 
 def _mesh_hash(mesh: trimesh.Trimesh) -> str:
@@ -97,18 +114,25 @@ def _diameter(mesh: trimesh.Trimesh) -> float:
                      for i in range(0, len(hull), 512)))
 
 
-def _surface(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float) -> _Surface:
+def _surface(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float, appearance: Appearance | None = None
+             ) -> _Surface:
     rng = np.random.default_rng([int(mesh_hash[:12], 16), 11])
     ref, fidx = trimesh.sample.sample_surface(mesh, _NUM_REFERENCE, seed=rng)
-    probes, _ = trimesh.sample.sample_surface(mesh, _NUM_PROBES, seed=rng)
+    probes, pidx = trimesh.sample.sample_surface(mesh, _NUM_PROBES, seed=rng)
     normals = np.asarray(mesh.face_normals)[fidx]
     tree = cKDTree(ref)
     gap, _ = tree.query(probes)  # the identity's distances: pure sampling gaps
     tri = np.asarray(mesh.triangles)
     area = np.asarray(mesh.area_faces)
     centroid = (area[:, None] * tri.mean(axis=1)).sum(axis=0) / area.sum()
+    colors: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+    if appearance is not None and appearance.kind != "none":
+        colors = tuple(surface_colors(appearance, mesh.faces, f, points_to_barycentric(tri[f], pts))
+                       for pts, f in ((probes, pidx), (ref, fidx)))
+        if np.ptp(colors[1], axis=0).max() < 2.0 / 255.0:  # one colour all over: the shape decides alone
+            colors = (None, None)
     return _Surface(np.asarray(probes), tree, normals, 2.0 * float(np.median(gap)), centroid,
-                    0.5 * (mesh.bounds[0] + mesh.bounds[1]), diameter, np.asarray(mesh.vertices))
+                    0.5 * (mesh.bounds[0] + mesh.bounds[1]), diameter, np.asarray(mesh.vertices), *colors)
 
 
 def _deviation(s: _Surface, T: np.ndarray, limit: float) -> float:
@@ -119,6 +143,7 @@ def _deviation(s: _Surface, T: np.ndarray, limit: float) -> float:
     """
     moved = s.probes @ T[:3, :3].T + T[:3, 3]
     worst = 0.0
+    nearest = []
     for chunk in (moved[:100], moved[100:]):
         dist, idx = s.tree.query(chunk, k=_NEIGHBOURS, distance_upper_bound=limit + s.spacing)
         if not np.all(np.isfinite(dist[:, 0])):
@@ -128,7 +153,17 @@ def _deviation(s: _Surface, T: np.ndarray, limit: float) -> float:
         worst = max(worst, float(np.maximum(plane, dist - s.spacing).min(axis=1).max()))
         if worst > limit:
             return worst
+        nearest.append(idx[:, 0])
+    if s.probe_colors is not None and _color_mismatch(s, np.concatenate(nearest)) > COLOR_MISMATCH:
+        return float("inf")  # the shape maps onto itself, the colours do not
     return worst
+
+
+def _color_mismatch(s: _Surface, nearest: np.ndarray) -> float:
+    """Share of the probes whose colour differs (by more than :data:`COLOR_TOLERANCE` in a channel) from that
+    of the reference point nearest to where a candidate moved them."""
+    diff = np.abs(s.probe_colors - s.ref_colors[nearest]).max(axis=1)
+    return float(np.mean(diff > COLOR_TOLERANCE))
 
 
 def _rotation(axis: np.ndarray, angle: float, point: np.ndarray) -> np.ndarray:
@@ -216,13 +251,14 @@ def _flip_axes(s: _Surface, axis: np.ndarray, candidates: list[np.ndarray]) -> l
     return out
 
 
-def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_TOLERANCE
+def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_TOLERANCE, colors: bool = True
                       ) -> tuple[list[np.ndarray], list[ContinuousSymmetry]]:
     """Rotational symmetries of a mesh, found by surface distance (see the module docstring).
 
     Args:
         obj: An :class:`ObjectModel` or a triangle mesh (metres; any units work, offsets come out in them).
         tol: Largest surface deviation of a symmetry as a fraction of the diameter (0.01: 1 %).
+        colors: Whether an object's colours (``obj.appearance``) must map too; a bare mesh has none.
 
     Returns:
         ``(discrete, continuous)`` in BOP form: 4x4 transforms (identity excluded; with a continuous
@@ -231,22 +267,41 @@ def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_T
     """
     if not 0 < tol < 0.5:
         raise ConfigError(f"symmetry tolerance must be in (0, 0.5) (fraction of the diameter), got {tol!r}")
+    appearance = None
     if isinstance(obj, ObjectModel):
         mesh, mesh_hash, diameter = obj.mesh, obj.mesh_hash, float(obj.diameter)
+        appearance = obj.appearance if colors and uses_colors(obj) else None
     else:
         mesh, mesh_hash = obj, _mesh_hash(obj)
         diameter = _diameter(mesh)
-    key = (mesh_hash, float(tol))
+    key_hash = mesh_hash if appearance is None else f"{mesh_hash}_c{_appearance_hash(appearance)}"
+    key = (key_hash, float(tol))
     if key not in _CACHE:
         if len(_CACHE) >= _CACHE_MAX:
             _CACHE.pop(next(iter(_CACHE)))
-        found = _read_cached(mesh_hash, tol)
+        found = _read_cached(key_hash, tol)
         if found is None:
-            found = _detect(mesh, mesh_hash, diameter, tol)
-            _write_cached(mesh_hash, tol, found)
+            found = _detect(mesh, mesh_hash, diameter, tol, appearance)
+            _write_cached(key_hash, tol, found)
         _CACHE[key] = found
     discrete, continuous = _CACHE[key]
     return [d.copy() for d in discrete], list(continuous)
+
+
+def uses_colors(obj: ObjectModel) -> bool:
+    """Whether detection under ``symmetry="auto"`` compares ``obj``'s colours (it has a texture or colours
+    per vertex or face)."""
+    return obj.appearance is not None and obj.appearance.kind != "none"
+
+
+def _appearance_hash(appearance: Appearance) -> str:
+    """A short hash of an appearance's arrays (the cache key of colour-aware results)."""
+    h = hashlib.sha1(appearance.kind.encode())
+    for arr in (appearance.texture, appearance.face_uv, appearance.vertex_colors, appearance.face_colors):
+        if arr is not None:
+            h.update(str(arr.shape).encode())
+            h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()[:16]
 
 
 def symmetry_cache_path(mesh_hash: str, tol: float = DEFAULT_TOLERANCE) -> Path:
@@ -281,9 +336,9 @@ def _write_cached(mesh_hash: str, tol: float,
         "continuous": [{"axis": list(c.axis), "offset": list(c.offset)} for c in continuous]})
 
 
-def _detect(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float, tol: float
+def _detect(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float, tol: float, appearance: Appearance | None = None
             ) -> tuple[tuple[np.ndarray, ...], tuple[ContinuousSymmetry, ...]]:
-    s = _surface(mesh, mesh_hash, diameter)
+    s = _surface(mesh, mesh_hash, diameter, appearance)
     limit = tol * diameter
     axes: list[np.ndarray] = []
     for a in np.eye(3):
@@ -316,7 +371,8 @@ def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float =
 
     An object keeps its own symmetries when it declares any, or when ``extra["symmetry"]`` is already set
     (``"declared"`` by a manifest, even one that declares no symmetry). Each object without them records
-    ``extra["symmetry"]``: ``"detected"`` (used), or ``"off"`` (``policy="none"``: not detected). A
+    ``extra["symmetry"]``: ``"detected"`` (used; ``extra["symmetry_by"]`` says ``"shape"`` or ``"shape and
+    colours"``), or ``"off"`` (``policy="none"``: not detected). ``policy="geometry"`` detects by shape alone. A
     :class:`~simtest.objects.lazy.LazyObjectSet` gets the policy applied to each object as it is read.
 
     Raises:
@@ -333,20 +389,26 @@ def with_symmetry_policy(obj: ObjectModel, policy: str = "auto", tol: float = DE
         return obj
     if policy == "none":
         return dataclasses.replace(obj, extra={**obj.extra, "symmetry": "off"})
-    discrete, continuous = detect_symmetries(obj, tol)
+    colors = policy == "auto" and uses_colors(obj)
+    discrete, continuous = detect_symmetries(obj, tol, colors=colors)
     return dataclasses.replace(obj, symmetries_discrete=tuple(discrete), symmetries_continuous=tuple(continuous),
-                               extra={**obj.extra, "symmetry": "detected"})
+                               extra={**obj.extra, "symmetry": "detected",
+                                      "symmetry_by": "shape and colours" if colors else "shape"})
 
 
 def symmetry_status(obj: ObjectModel, tol: float = DEFAULT_TOLERANCE) -> str:
     """Text for tables: the symmetry label and where it comes from.
 
-    ``continuous(z)`` (declared or built in), ``continuous(z) detected`` (detected and used), or
-    ``continuous(z) detected, not used`` (detection turned off; detected here for display).
+    ``continuous(z)`` (declared or built in), ``continuous(z) detected`` (detected and used; by shape, the
+    object has no colours), ``none detected (shape and colours)`` / ``discrete(23) detected (shape only)``
+    (an object with colours, detected with / without them), or ``continuous(z) detected, not used`` (detection
+    turned off; detected here for display).
     """
     state = obj.extra.get("symmetry")
     if state == "detected":
-        return f"{obj.symmetry_label()} detected"
+        by = obj.extra.get("symmetry_by", "shape")
+        how = "" if not uses_colors(obj) else " (shape and colours)" if by != "shape" else " (shape only)"
+        return f"{obj.symmetry_label()} detected{how}"
     if state == "off":
         discrete, continuous = detect_symmetries(obj, tol)
         if not discrete and not continuous:

@@ -29,8 +29,9 @@ def register(subparsers) -> None:
         p.add_argument("--scale", type=float, default=1.0,
                        help="factor on top of --units (metres = file units x units x scale; default 1)")
         p.add_argument("--seed", type=int, default=0, help="seed of the built-in sets")
-        p.add_argument("--symmetry", default="auto", choices=["auto", "none"],
-                       help="symmetries of mesh files that declare none: detect and use them (auto) or not (none)")
+        p.add_argument("--symmetry", default="auto", choices=["auto", "geometry", "none"],
+                       help="symmetries of mesh files that declare none: detect and use them (auto: by shape, and "
+                            "by colours for textured or coloured meshes; geometry: by shape alone) or not (none)")
 
     p_list = sub.add_parser("list", parents=[common_parser()], help="print a table of the objects")
     common(p_list)

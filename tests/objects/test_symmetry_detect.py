@@ -43,7 +43,7 @@ def same_transforms(a, b) -> bool:
 def test_detection_agrees_with_builtin_symmetries(builtin, builtin_small):
     objects = list(builtin_small) + [o for o in builtin if o.category in CHECKED]
     for obj in objects:
-        discrete, continuous = detect_symmetries(obj)
+        discrete, continuous = detect_symmetries(obj, colors=False)  # the declared ones are the shape's
         assert len(continuous) == len(obj.symmetries_continuous), obj.name
         for found, declared in zip(continuous, obj.symmetries_continuous):
             np.testing.assert_allclose(found.axis, declared.axis, atol=1e-9, err_msg=obj.name)
@@ -151,7 +151,7 @@ def test_loader_symmetry_none_and_bad_values(mesh_folder):
     can = objects.by_name("can")
     assert not can.is_symmetric and can.extra["symmetry"] == "off"
     assert symmetry_status(can) == "continuous(z)+discrete(1) detected, not used"
-    with pytest.raises(AssetError, match="symmetry must be one of auto, none, got 'maybe'"):
+    with pytest.raises(AssetError, match="symmetry must be one of auto, geometry, none, got 'maybe'"):
         load_object_set(mesh_folder, symmetry="maybe")
     with pytest.raises(ConfigError, match="symmetry must be one of"):
         apply_symmetry_policy(objects, "yes")
@@ -219,3 +219,68 @@ def test_detected_symmetries_are_exported_as_bop_models(mesh_folder, tmp_path):
     for a, b in zip(original, exported):
         assert b.symmetry_label() == a.symmetry_label(), a.name
         assert same_transforms(list(b.symmetries_discrete), list(a.symmetries_discrete))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Appearance: symmetry is visual indistinguishability, so printed faces count
+
+#: Pip centres of the six faces of a die, in face coordinates [0, 1]^2 (opposite faces sum to seven).
+_PIPS = {1: [(0.5, 0.5)], 2: [(0.25, 0.25), (0.75, 0.75)], 3: [(0.25, 0.25), (0.5, 0.5), (0.75, 0.75)],
+         4: [(0.25, 0.25), (0.25, 0.75), (0.75, 0.25), (0.75, 0.75)],
+         5: [(0.25, 0.25), (0.25, 0.75), (0.5, 0.5), (0.75, 0.25), (0.75, 0.75)],
+         6: [(0.25, 0.2), (0.25, 0.5), (0.25, 0.8), (0.75, 0.2), (0.75, 0.5), (0.75, 0.8)]}
+
+
+def _printed_cube(path, faces: dict[int, list[tuple[float, float]]], side: float = 0.05) -> None:
+    """An OBJ cube (with its MTL and PNG texture) whose six faces are printed white with black pips: face ``k``
+    of the +x, -x, +y, -y, +z, -z faces shows ``faces[k + 1]``'s pips; an atlas of 3 x 2 cells of 64 px."""
+    from PIL import Image
+
+    cell = 64
+    atlas = np.full((2 * cell, 3 * cell, 3), 255, np.uint8)
+    yy, xx = np.mgrid[0:cell, 0:cell] + 0.5
+    verts, uvs, tris = [], [], []
+    for k, (axis, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1)]):
+        row, col = divmod(k, 3)
+        img = atlas[row * cell:(row + 1) * cell, col * cell:(col + 1) * cell]
+        for u, v in faces[k + 1]:
+            img[(xx - u * cell) ** 2 + (yy - (1 - v) * cell) ** 2 < (0.13 * cell) ** 2] = 0
+        a, b = [i for i in range(3) if i != axis]
+        base = len(verts)
+        for u, v in [(0, 0), (1, 0), (1, 1), (0, 1)]:
+            p = np.zeros(3)
+            p[axis], p[a], p[b] = sign * side / 2, (u - 0.5) * side, (v - 0.5) * side
+            verts.append(p)
+            uvs.append(((col + u) / 3, 1 - (row + 1 - v) / 2))
+        quad = [[0, 1, 2], [0, 2, 3]] if sign > 0 else [[0, 2, 1], [0, 3, 2]]
+        tris += [[base + i for i in t] for t in quad]
+    material = trimesh.visual.material.SimpleMaterial(image=Image.fromarray(atlas), name=path.stem)
+    mesh = trimesh.Trimesh(np.array(verts), np.array(tris), process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=np.array(uvs), material=material))
+    mesh.export(path, mtl_name=f"{path.stem}.mtl")  # its own material and texture files beside it
+
+
+def test_a_die_has_no_symmetry_and_a_plain_cube_keeps_its_24(tmp_path, capsys):
+    folder = tmp_path / "printed"
+    folder.mkdir()
+    _printed_cube(folder / "die.obj", _PIPS)
+    _printed_cube(folder / "dotted.obj", {k: [(0.5, 0.5)] for k in range(1, 7)})  # one centred dot per face
+    trimesh.creation.box([0.05, 0.05, 0.05]).export(folder / "plain.stl")
+    objects = load_object_set(folder)
+    die, dotted, plain = (objects.by_name(n) for n in ("die", "dotted", "plain"))
+    assert die.appearance is not None and die.appearance.kind == "texture"
+    assert not die.is_symmetric and symmetry_status(die) == "none detected (shape and colours)"
+    assert len(dotted.symmetries_discrete) == 23  # the centred dots map onto each other under every rotation
+    assert symmetry_status(dotted) == "discrete(23) detected (shape and colours)"
+    assert len(plain.symmetries_discrete) == 23 and symmetry_status(plain) == "discrete(23) detected"
+    shape_only = load_object_set(folder, symmetry="geometry").by_name("die")
+    assert len(shape_only.symmetries_discrete) == 23
+    assert symmetry_status(shape_only) == "discrete(23) detected (shape only)"
+    # the die's faces are told apart: a quarter turn is an error under its symmetries, as the pips show
+    quarter = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    t = np.array([0.0, 0.0, 0.6])
+    assert mssd(quarter, t, np.eye(3), t, die.vertices, die.symmetry_transforms()) > 0.01
+    assert mssd(quarter, t, np.eye(3), t, plain.vertices, plain.symmetry_transforms()) < 1e-6
+    assert main(["objects", "list", "--set", str(folder), "--no-grasps"]) == 0  # the table says how it was found
+    out = capsys.readouterr().out
+    assert "none detected (shape and colours)" in out and "discrete(23) detected (shape and colours)" in out
