@@ -24,7 +24,18 @@ _gl.check_mujoco(MIN_MUJOCO)
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "MIN_MUJOCO", "MOVED_MODULES"]
+__all__ = ["__version__", "MIN_MUJOCO", "MOVED_MODULES", "generate", "evaluate", "grasp", "sweep", "load_objects"]
+
+#: The Python front door (:mod:`simtest.api`), loaded on first use so ``import simtest`` stays light.
+_API = ("generate", "evaluate", "grasp", "sweep", "load_objects")
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from simtest import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'simtest' has no attribute {name!r}")
 
 #: Modules of the flat layout (before the packages render/, evaluation/, sweeps/ and data/) and where they live
 #: now. Importing an old name gives the new module (the same object) with a DeprecationWarning.

@@ -29,6 +29,8 @@ LAYERS = {
     # orchestration: sweeps, benchmarks, the trainers (they drive feeds and evaluation), the command line
     "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.viz": 5, "simtest.estimators.keypoints.train": 5,
     "simtest.estimators.segicp.train": 5, "simtest.cli": 6,
+    # the Python front door: one function per job over the layers below
+    "simtest.api": 6,
 }
 #: Modules directly under simtest/ (the package face and the base); everything else lives in a package.
 MAX_TOP_LEVEL_MODULES = 8
