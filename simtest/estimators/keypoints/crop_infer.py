@@ -140,6 +140,10 @@ class CropKeypointEstimator:
             >= ``fg_threshold`` mapped back to the full image. None (default): 2 with a detector (chosen on the
             validation set of docs/training.md: 24.4, 26.4, 28.0, 26.4 % ADD(-S)-0.1d for 0-3 passes), 0 with
             ``detect=gt`` (the ground-truth visible box already frames the crop as in training).
+        candidates: With a detector and the target ids given (localization): up to this many of the
+            detector's regions (largest first) per expected instance get a pose, and per object the
+            best-scored poses, as many as it has instances, are kept (1: the largest region only). For
+            clutter a detector trained on renders mistakes for an object.
 
     Raises:
         ConfigError: Bad options, a missing or unreadable checkpoint; at :meth:`estimate`, an object set other
@@ -155,7 +159,7 @@ class CropKeypointEstimator:
                  threads: int | None = None, runtime: str = "auto", solver: str = "auto",
                  dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int | None = None,
                  refine: str | None = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.15,
-                 refine_coverage: float = 0.2, *, model: Any = None,
+                 refine_coverage: float = 0.2, candidates: int = 1, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS)):
@@ -163,6 +167,10 @@ class CropKeypointEstimator:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
+        if not (isinstance(candidates, int) and not isinstance(candidates, bool) and 1 <= candidates <= 8):
+            raise ConfigError(f"keypoints: candidates must be an integer 1-8, got {candidates!r}")
+        #: Detector regions tried per expected instance; the best-scored poses are kept (localization).
+        self.candidates = int(candidates)
         if not 0.0 < float(dense_keep) <= 1.0 or not float(ransac_px) > 0.0:
             raise ConfigError(f"keypoints: need 0 < dense_keep <= 1 and ransac_px > 0, got {dense_keep!r}, "
                               f"{ransac_px!r}")
@@ -311,7 +319,7 @@ class CropKeypointEstimator:
                     self.last_failures.append({"obj_id": int(oid), "reason": "empty ground-truth mask"})
             return out
         seen = obs if self.detect == "segicp" else replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
-        for oid, mask, p in self.segmenter.regions(seen):
+        for oid, mask, p in self.segmenter.regions(seen, self.candidates):
             out.append((None, int(oid), np.asarray(mask_bbox(mask), np.float64), float(p), np.asarray(mask, bool)))
         return out
 
@@ -342,7 +350,19 @@ class CropKeypointEstimator:
                 R, t, info["silhouette"] = self._refine(obs.objects.get(oid), R, t, maps, M, K, rgb.shape[:2], others)
             info["box"] = [float(v) for v in box]
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
-        return out
+        return self._best_per_target(out, obs)
+
+    def _best_per_target(self, found: list[PoseEstimate], obs: Observation) -> list[PoseEstimate]:
+        """With ``candidates > 1`` and the target ids known: per object the as many best-scored estimates as
+        it has expected instances (the other candidates are dropped)."""
+        if self.candidates == 1 or obs.target_obj_ids is None:
+            return found
+        wanted = [int(o) for o in obs.target_obj_ids]
+        keep: set[int] = set()
+        for oid in {e.obj_id for e in found}:
+            mine = sorted((i for i, e in enumerate(found) if e.obj_id == oid), key=lambda i: -found[i].score)
+            keep.update(mine[:wanted.count(oid)])
+        return [e for i, e in enumerate(found) if i in keep]
 
     def _crops(self, rgb: np.ndarray, K: np.ndarray, boxes: list[np.ndarray], oids: list[int]
                ) -> list[tuple[dict[str, np.ndarray], np.ndarray]]:

@@ -179,14 +179,17 @@ class Segmenter:
         inner = cv2.erode(mask.astype(np.uint8), k).astype(bool)
         return inner if np.count_nonzero(inner) >= max(self.min_region_pixels // 2, 1) else mask
 
-    def regions(self, obs: Observation) -> list[tuple[int, np.ndarray, float]]:
-        """``(obj_id, mask (H, W) bool, mean class probability)`` per found object (see the module doc)."""
+    def regions(self, obs: Observation, per_instance: int = 1) -> list[tuple[int, np.ndarray, float]]:
+        """``(obj_id, mask (H, W) bool, mean class probability)`` per found object (see the module doc).
+
+        ``per_instance``: with target ids, up to this many regions per expected instance (largest first), as
+        candidates for a caller that checks them (``keypoints --opt candidates=N``)."""
         prob = self.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64))
         label = prob.argmax(0)
         wanted = None if obs.target_obj_ids is None else [int(o) for o in obs.target_obj_ids]
         out = []
         for c, oid in enumerate(self.class_ids, start=1):
-            limit = None if wanted is None else wanted.count(oid)
+            limit = None if wanted is None else wanted.count(oid) * int(per_instance)
             if limit == 0:
                 continue
             n, comp, stats, _ = cv2.connectedComponentsWithStats((label == c).astype(np.uint8), connectivity=8)

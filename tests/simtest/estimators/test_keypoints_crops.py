@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -298,6 +300,26 @@ def test_checkpoint_loading_refuses_another_object_set(overfitted, tmp_path):
                               detect="gt", runtime="torch")
 
 
+def test_detector_candidates_keep_one_pose_per_expected_instance(small_dataset):
+    """``--opt candidates=3``: more detector regions are posed, and per object only as many best-scored
+    estimates as the image has instances of it come back."""
+    from collections import Counter
+
+    from simtest.estimators import load_estimator
+
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=2)
+    one, three = load_estimator("keypoints"), load_estimator("keypoints", candidates=3)
+    for i in range(2):
+        obs, _ = _observation(ds, i, objects)
+        obs = replace(obs, masks=None)
+        a, b = one.estimate(obs), three.estimate(obs)
+        wanted = Counter(obs.target_obj_ids)
+        for found in (a, b):
+            assert all(n <= wanted[o] for o, n in Counter(e.obj_id for e in found).items())
+        assert len(b) >= len(a)
+
+
 def test_estimator_options_are_checked():
     with pytest.raises(ConfigError, match="detect 'depth'"):
         CropKeypointEstimator(detect="depth")
@@ -313,6 +335,8 @@ def test_estimator_options_are_checked():
         CropKeypointEstimator(refine="icp")
     with pytest.raises(ConfigError, match="refine_coverage"):
         CropKeypointEstimator(refine_coverage=1.5)
+    with pytest.raises(ConfigError, match="candidates must be an integer 1-8, got 0"):
+        CropKeypointEstimator(candidates=0)
     from simtest.objects import load_object_set
 
     plain = build_crop_model(4, 8, seed=0, widths=(8, 8, 8, 8), decoder=(8, 8), crop_size=32)
