@@ -25,8 +25,10 @@ def _rows() -> list[dict]:
 
 
 def test_every_aggregate_is_registered():
-    keys = set(_aggregate(_rows()))
+    agg = _aggregate(_rows())
+    keys = set(agg) - {"ci95"}  # ci95: the 95 % intervals, keyed by registered proportions
     assert keys <= set(metric_keys()), sorted(keys - set(metric_keys()))
+    assert set(agg["ci95"]) <= keys and all(0.0 <= lo <= agg[k] <= hi <= 1.0 for k, (lo, hi) in agg["ci95"].items())
     for k in ("ar", "ar_vsd", "ar_mssd", "ar_mspd", "num_estimates", "num_failures", "mean_time_per_image_s"):
         metric(k)
 
