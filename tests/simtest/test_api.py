@@ -1,5 +1,5 @@
-"""The Python front door: the README's Python API block runs as written (in a temporary folder), and the facade
-hands bad input to the same checks as the command line."""
+"""The Python front door: the example of the Python API page (docs/api.md) runs as written (in a temporary
+folder), and the facade hands bad input to the same checks as the command line."""
 
 from __future__ import annotations
 
@@ -12,22 +12,22 @@ import pytest
 import simtest
 from simtest.errors import ConfigError
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+API_PAGE = Path(__file__).resolve().parents[2] / "docs" / "api.md"
 
 
-def _readme_block(title: str) -> str:
-    """The first ```python block after the README heading ``title``."""
-    text = README.read_text(encoding="utf-8")
+def _page_block(title: str) -> str:
+    """The first ```python block after the heading ``title`` of docs/api.md."""
+    text = API_PAGE.read_text(encoding="utf-8")
     section = text[text.index(title):]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
-def test_the_readme_python_block_runs(tmp_path, capsys):
-    code = _readme_block("## Python API")
+def test_the_api_page_python_block_runs(tmp_path, capsys):
+    code = _page_block("# Python API")
     here = os.getcwd()
     os.chdir(tmp_path)
     try:
-        exec(compile(code, "README.md (Python API)", "exec"), {})
+        exec(compile(code, "docs/api.md", "exec"), {})
     finally:
         os.chdir(here)
     out = capsys.readouterr().out.splitlines()
