@@ -22,14 +22,15 @@ $(BASE): pyproject.toml
 	$(PY) -m pip install -qq -e ".[pbr,ray]"
 	touch $(BASE)
 
-# The test suite needs the test tools and the train extra too (torch, onnx, onnxscript).
+# The test suite needs the test tools, the train extra (torch, onnx, onnxscript) and the docs extra (MkDocs: the
+# tests build the documentation site).
 $(TESTS): $(BASE)
 ifneq ($(TORCH_WHEEL),)
-	@echo "make: installing the dev and train extras, torch from the local CPU wheel $(TORCH_WHEEL)"
-	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray]" -c constraints/ci.txt
+	@echo "make: installing the dev, train and docs extras, torch from the local CPU wheel $(TORCH_WHEEL)"
+	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray,docs]" -c constraints/ci.txt
 else
 	@echo "make: no local CPU torch wheel in /opt/wheels: installing the train extra with torch from the package index (a large download)"
-	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray]"
+	$(PY) -m pip install -qq -e ".[dev,train,pbr,ray,docs]"
 endif
 	touch $(TESTS)
 
