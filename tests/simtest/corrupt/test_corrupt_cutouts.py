@@ -102,3 +102,29 @@ def test_corrupt_command_with_object_cutouts(small_dataset, tmp_path):
     record = json.loads((out / "corruption.json").read_text())
     assert record["spec"]["occlusion_kind"] == "objects"
     assert record["occlusion"]["mean_fg_fraction"] > 0.2
+
+
+def test_enlarged_cutouts_have_smooth_antialiased_outlines():
+    """A cutout scaled up 12x keeps a straight diagonal outline (no steps as long as its source pixels), and
+    its edge is blended into the image rather than cut at a hard pixel step."""
+    from simtest.corrupt.occlusion import bank_coverage, paste_occluders
+
+    tri = np.tril(np.ones((8, 8), bool))  # the lower-left triangle: a 45 degree edge in 8 source pixels
+    mask = bank_coverage(tri, 48.0) >= 0.5  # 96 x 96 pixels
+    widths = mask.sum(axis=1)[10:-10].astype(int)  # the outline's x in each row, away from the corners
+    steps = np.abs(np.diff(widths))
+    assert mask.shape == (96, 96) and steps.max() <= 2, steps  # a staircase would step by 12 every 12 rows
+    # Shrunk, a fine checkerboard averages to grey instead of aliasing into stripes.
+    from simtest.corrupt.occlusion import resample
+
+    checker = ((np.indices((60, 60)).sum(axis=0) % 2) * 255).astype(np.uint8)
+    assert np.abs(resample(checker, (17, 17)).astype(int) - 127).max() <= 4  # bilinear: up to 113
+    # Pasted: some pixels just outside the occluder mask take a blend of the patch and the image.
+    rgb = np.zeros((120, 160, 3), np.uint8)
+    obj = np.zeros((120, 160), bool)
+    obj[40:80, 60:100] = True
+    white = np.dstack([np.full((8, 8, 3), 255, np.uint8), np.where(tri, 255, 0).astype(np.uint8)])
+    out, occ, _ = paste_occluders(rgb, obj, "L2", np.random.default_rng(0), occluder_bank=[white])
+    assert (out[occ] == 255).all()
+    edge = out[~occ].max(axis=1)
+    assert ((edge > 0) & (edge < 255)).any()
