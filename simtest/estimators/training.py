@@ -17,7 +17,8 @@ import numpy as np
 from simtest.errors import ConfigError
 
 __all__ = ["TrainResult", "export_beside", "epoch_generator", "lr_at", "epoch_loader", "pad16", "optimizer_step", "check_device",
-           "check_settings", "settings_dict", "init_conv_weights"]
+           "check_settings", "settings_dict", "init_conv_weights", "make_optimizer", "set_lr", "train_mode",
+           "check_encoder_settings"]
 
 
 @dataclass
@@ -80,6 +81,57 @@ def optimizer_step(net, opt, losses: dict, sums: dict[str, float]) -> None:
     opt.step()
     for k in sums:
         sums[k] += float(losses[k].detach())
+
+
+def make_optimizer(net, lr: float, weight_decay: float, encoder_lr_scale: float = 1.0):
+    """AdamW over ``net``'s parameters; a pretrained encoder (``net.encoder``) learns at ``encoder_lr_scale``
+    times the rate of the rest (its group carries ``lr_scale``, see :func:`set_lr`), and with 0 it is frozen
+    (no gradient, not in the optimizer): the ImageNet features then reach the real images unchanged, which is
+    what transfers from renders to photographs (Hinterstoisser et al., 2018)."""
+    import torch
+
+    enc = getattr(net, "encoder", None)
+    scale = float(encoder_lr_scale)
+    if enc is None or scale == 1.0:
+        return torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
+    enc_ids = {id(p) for p in enc.parameters()}
+    rest = [p for p in net.parameters() if id(p) not in enc_ids]
+    groups = [{"params": rest, "lr_scale": 1.0}]
+    if scale > 0:
+        groups.append({"params": list(enc.parameters()), "lr_scale": scale})
+    else:
+        for p in enc.parameters():
+            p.requires_grad_(False)
+    return torch.optim.AdamW(groups, lr=lr, weight_decay=weight_decay)
+
+
+def set_lr(opt, lr: float) -> None:
+    """Set every parameter group of ``opt`` to ``lr`` times its ``lr_scale`` (1 when absent)."""
+    for g in opt.param_groups:
+        g["lr"] = lr * g.get("lr_scale", 1.0)
+
+
+def train_mode(net, freeze_encoder_bn: bool = False) -> None:
+    """``net.train()``; with ``freeze_encoder_bn`` the batch norms of a pretrained encoder keep normalising with
+    their ImageNet statistics (eval mode), so small batches of renders do not re-centre the features."""
+    from torch import nn
+
+    net.train()
+    enc = getattr(net, "encoder", None)
+    if freeze_encoder_bn and enc is not None:
+        for m in enc.modules():
+            if isinstance(m, nn.BatchNorm2d):
+                m.eval()
+
+
+def check_encoder_settings(cfg: Any, who: str) -> None:
+    """``encoder_lr_scale`` in [0, 1] and ``freeze_encoder_bn`` only with a pretrained backbone."""
+    scale, frozen = float(getattr(cfg, "encoder_lr_scale", 1.0)), bool(getattr(cfg, "freeze_encoder_bn", False))
+    if not 0.0 <= scale <= 1.0:
+        raise ConfigError(f"{who}: encoder_lr_scale must be in [0, 1], got {scale!r}")
+    if (scale != 1.0 or frozen) and getattr(cfg, "backbone", "plain") == "plain":
+        raise ConfigError(f"{who}: encoder_lr_scale and freeze_encoder_bn apply to a pretrained encoder; "
+                          "use backbone efficientnet-lite0 (the plain encoder trains from scratch)")
 
 
 def check_device(device: str, who: str) -> None:

@@ -25,8 +25,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from simtest.errors import ConfigError
-from simtest.estimators.training import (TrainResult, check_settings, epoch_generator, epoch_loader, export_beside,
-                                        lr_at, optimizer_step, pad16, settings_dict)
+from simtest.estimators.training import (TrainResult, check_encoder_settings, check_settings, epoch_generator,
+                                        epoch_loader, export_beside, lr_at, make_optimizer, optimizer_step, pad16,
+                                        set_lr, settings_dict, train_mode)
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model", "build_crop_model", "ARCHS"]
 
@@ -71,6 +72,8 @@ class TrainConfig:
             architecture and object set) whose weights start the run instead of a random initialisation (warm
             start: fine-tuning on other data, a second schedule); the optimiser and the schedule start afresh.
             Its SHA-256 is recorded in the checkpoints.
+        encoder_lr_scale: The pretrained encoder's learning rate as a fraction of ``lr`` (0: frozen).
+        freeze_encoder_bn: The pretrained encoder's batch norms keep their ImageNet statistics.
     """
 
     data: str | tuple[str, ...]
@@ -103,9 +106,12 @@ class TrainConfig:
     kp_weight: float = 1.0
     init: str | None = None
     backbone: str = "plain"
+    encoder_lr_scale: float = 1.0
+    freeze_encoder_bn: bool = False
 
     def __post_init__(self) -> None:
         check_settings(self, "keypoint training")
+        check_encoder_settings(self, "keypoint training")
         if self.arch not in ARCHS:
             raise ConfigError(f"keypoint training: arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
         if self.arch == "crop" and self.crop is not None and (self.crop[0] != self.crop[1] or self.crop[0] % 16):
@@ -227,8 +233,7 @@ def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoc
         if cfg.arch == "crop" and len(batch["labels"]) == 0:
             continue
         step = epoch * steps_per_epoch + i
-        for g in opt.param_groups:
-            g["lr"] = lr_at(step, total_steps, cfg.lr)
+        set_lr(opt, lr_at(step, total_steps, cfg.lr))
         optimizer_step(net, opt, _losses(net, batch, cfg), sums)
         n += 1
         bar.set_postfix({k: f"{v / n:.3f}" for k, v in sums.items()})
@@ -320,7 +325,7 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
     resuming = resume and last_path.exists()
     # a resumed run takes its weights from last.pt; the init checkpoint only starts a new one
     init_sha = _warm_start(net, cfg, objects, fmt) if cfg.init is not None and not resuming else None
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = make_optimizer(net, cfg.lr, cfg.weight_decay, cfg.encoder_lr_scale)
     history: list[dict[str, Any]] = []
     start_epoch = 0
     best = -1.0
@@ -343,8 +348,8 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
                 "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
                 "train": {**cfg.to_dict(), **({"init_sha256": init_sha} if init_sha else {})}}
 
-    net.train()
     for epoch in range(start_epoch, cfg.epochs):
+        train_mode(net, cfg.freeze_encoder_bn)
         t0 = time.perf_counter()
         sums, n = _train_epoch(net, opt, dataset, cfg, epoch, steps_per_epoch, total_steps, progress)
         rec: dict[str, Any] = {"epoch": epoch, **{k: v / max(n, 1) for k, v in sums.items()},

@@ -28,8 +28,9 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.segicp.infer import FORMAT
-from simtest.estimators.training import (TrainResult, check_settings, epoch_loader, export_beside, lr_at,
-                                        optimizer_step, settings_dict)
+from simtest.estimators.training import (TrainResult, check_encoder_settings, check_settings, epoch_loader,
+                                        export_beside, lr_at, make_optimizer, optimizer_step, set_lr,
+                                        settings_dict, train_mode)
 
 __all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
            "FORMAT", "data_roots"]
@@ -54,6 +55,8 @@ class SegTrainConfig:
         widths: Encoder channels at strides 2, 4, 8, 16 (``backbone="plain"``).
         backbone: ``"plain"`` (from scratch) or ``"efficientnet-lite0"`` (ImageNet-pretrained encoder, RGB only;
             training crops then need sides that are multiples of 32).
+        encoder_lr_scale: The pretrained encoder's learning rate as a fraction of ``lr`` (0: frozen).
+        freeze_encoder_bn: The pretrained encoder's batch norms keep their ImageNet statistics.
         device, seed, workers, threads: As ``simtest train keypoints``.
         max_images: Train on the first N images only (None: all).
     """
@@ -80,9 +83,12 @@ class SegTrainConfig:
     threads: int | None = None
     max_images: int | None = None
     data_weights: tuple[float, ...] | None = None
+    encoder_lr_scale: float = 1.0
+    freeze_encoder_bn: bool = False
 
     def __post_init__(self) -> None:
         check_settings(self, "segmentation training")
+        check_encoder_settings(self, "segmentation training")
         from simtest.estimators.segicp.model import BACKBONES
 
         if self.backbone not in BACKBONES:
@@ -157,8 +163,7 @@ def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int,
     bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
                dynamic_ncols=True, leave=False)
     for i, batch in enumerate(bar):
-        for g in opt.param_groups:
-            g["lr"] = lr_at(epoch * steps + i, total, cfg.lr)
+        set_lr(opt, lr_at(epoch * steps + i, total, cfg.lr))
         x = net_input(batch["rgb"], batch["depth"], cfg.depth_input, size_multiple(net.cfg.to_dict())).to(cfg.device)
         target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
         losses = seg_loss(net(x), target)
@@ -253,7 +258,7 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
     first = dataset.datasets[0] if hasattr(dataset, "datasets") else dataset
     focal = float(first.load_numpy(0)["K"][0, 0])
     net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths, cfg.backbone).to(cfg.device)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = make_optimizer(net, cfg.lr, cfg.weight_decay, cfg.encoder_lr_scale)
     history: list[dict[str, Any]] = []
     start_epoch, best = 0, -1.0
     if resume and last_path.exists():
@@ -273,8 +278,8 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
                 "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
                 "train": cfg.to_dict(), "focal_px": focal}
 
-    net.train()
     for epoch in range(start_epoch, cfg.epochs):
+        train_mode(net, cfg.freeze_encoder_bn)
         t0 = time.perf_counter()
         rec: dict[str, Any] = {"epoch": epoch, **_train_epoch(net, opt, dataset, cfg, epoch, steps,
                                                               steps * cfg.epochs, progress)}

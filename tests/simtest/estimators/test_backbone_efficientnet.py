@@ -277,3 +277,36 @@ def test_the_segmentation_network_starts_from_the_pretrained_encoder(checkpoint)
         SegTrainConfig(data="x", out="y", crop=(96, 100), backbone="efficientnet-lite0")
     with pytest.raises(ConfigError, match="backbone must be one of"):
         SegTrainConfig(data="x", out="y", backbone="resnet")
+
+
+def test_the_pretrained_encoder_can_learn_slower_be_frozen_and_keep_its_batch_norm_statistics():
+    """``--encoder-lr-scale``: the encoder's parameter group learns at that fraction of the rate (0: no gradient,
+    its weights unchanged by a step while the decoder moves); ``--freeze-encoder-bn``: its batch norms stay in
+    eval mode in training (running statistics untouched), the decoder's train; both refused for the plain
+    encoder."""
+    from simtest.estimators.segicp.train import SegTrainConfig, build_segnet
+    from simtest.estimators.training import make_optimizer, set_lr, train_mode
+
+    net = build_segnet(3, seed=0, backbone="efficientnet-lite0")
+    opt = make_optimizer(net, 1e-3, 1e-4, encoder_lr_scale=0.1)
+    set_lr(opt, 2e-3)
+    assert sorted(g["lr"] for g in opt.param_groups) == pytest.approx([2e-4, 2e-3])
+    frozen = build_segnet(3, seed=0, backbone="efficientnet-lite0")
+    opt = make_optimizer(frozen, 1e-3, 1e-4, encoder_lr_scale=0.0)
+    assert len(opt.param_groups) == 1
+    assert not any(p.requires_grad for p in frozen.encoder.parameters())
+    train_mode(frozen, freeze_encoder_bn=True)
+    bns = [m for m in frozen.encoder.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert bns and not any(m.training for m in bns) and frozen.up8.training
+    enc_before = {k: v.clone() for k, v in frozen.encoder.state_dict().items()}
+    head_before = frozen.head.weight.detach().clone()
+    x = torch.rand(2, 3, 64, 64, generator=torch.Generator().manual_seed(1))
+    loss = frozen(x).square().mean()
+    loss.backward()
+    opt.step()
+    assert all(torch.equal(v, frozen.encoder.state_dict()[k]) for k, v in enc_before.items())
+    assert not torch.equal(head_before, frozen.head.weight)
+    with pytest.raises(ConfigError, match="encoder_lr_scale must be in"):
+        SegTrainConfig(data="x", out="y", backbone="efficientnet-lite0", encoder_lr_scale=2.0)
+    with pytest.raises(ConfigError, match="pretrained encoder"):
+        SegTrainConfig(data="x", out="y", freeze_encoder_bn=True)
