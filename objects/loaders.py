@@ -9,7 +9,7 @@
   with their names, categories, units, symmetries, mass and friction.
 - any other folder: the mesh files in it (``.glb .gltf .obj .ply .stl .off``) and one level of subfolders,
   read as ``category/instance.ext``. One object per base name: of ``mug.obj``, ``mug.stl`` and ``mug.glb`` the
-  textured visual file wins (glb > gltf > obj > ply > stl > off); skipped files are reported in a warning.
+  textured visual file wins (glb > gltf > obj > ply > stl > off); skipped files are reported in one logged warning.
   Ids come from ``obj_000005``-style names when every file is named so, else from the sorted paths (1..N).
 - a single mesh file: one object with id 1 (or the id in an ``obj_000005``-style name).
 
@@ -27,8 +27,8 @@ Mesh files carry no symmetries unless a manifest declares them; ``load_object_se
 from __future__ import annotations
 
 import dataclasses
+import logging
 import re
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -45,6 +45,8 @@ from simtest.objects.manifest import Manifest, ManifestEntry, read_manifest
 from simtest.objects.model import (ContinuousSymmetry, ObjectEntry, ObjectModel, ObjectSet, mesh_diameter,
                                    validate_mesh)
 from simtest.objects.symmetry_detect import SYMMETRY_POLICIES, apply_symmetry_policy
+
+log = logging.getLogger(__name__)
 
 __all__ = ["load_object_set", "load_mesh_file", "load_mesh_folder", "load_mesh", "unit_scale",
            "read_bop_models", "load_dataset_objects", "MESH_EXTENSIONS", "UNITS", "MIN_DIAMETER_M",
@@ -161,8 +163,8 @@ def _visual(loaded: trimesh.Trimesh, path: Path) -> tuple[Appearance | None, tup
     try:
         return appearance_from_visual(loaded.visual, np.asarray(loaded.faces))
     except Exception as exc:  # appearance is secondary: a strange visual never blocks loading geometry
-        warnings.warn(f"{path}: cannot read its colours or texture ({type(exc).__name__}: {exc}); it is drawn in "
-                      "the default grey", stacklevel=3)
+        log.warning("%s: cannot read its colours or texture (%s: %s); it is drawn in the default grey", path,
+                    type(exc).__name__, exc)
         return None, None
 
 
@@ -251,7 +253,7 @@ def load_mesh_file(path: str | Path, obj_id: int | None = None, units: str = "au
     if e.mass is not None:
         obj = dataclasses.replace(obj, density=e.mass / (obj.mass / obj.density))
     if not mesh.is_watertight:
-        warnings.warn(f"{path}: {open_mesh_note(obj)}", stacklevel=2)
+        log.warning("%s: %s", path, open_mesh_note(obj))
     return obj
 
 
@@ -315,8 +317,7 @@ def _manifest_objects(folder: Path, manifest: Manifest, units: str, scale: float
     unlisted = sorted(str(p.relative_to(folder)) for p in folder.rglob("*")
                       if p.is_file() and p.suffix.lower() in MESH_EXTENSIONS and p.resolve() not in listed)
     if unlisted:
-        warnings.warn(f"{folder}: mesh files not listed in {manifest.path.name} skipped: {', '.join(unlisted)}",
-                      stacklevel=3)
+        log.warning("%s: mesh files not listed in %s skipped: %s", folder, manifest.path.name, ", ".join(unlisted))
     paths = [folder / e.file for e in entries]
     by_id: dict[int, ManifestEntry] = {}
     out = []
@@ -363,7 +364,7 @@ def _read_all(folder: Path, entries: list[ObjectEntry], load: Callable[[ObjectEn
                 raise
             notes.append(f"rejected {exc}")
     if notes:
-        warnings.warn(f"{folder}: " + "; ".join(notes), stacklevel=3)
+        log.warning("%s: %s", folder, "; ".join(notes))
     if not objects:
         raise AssetError(f"{folder}: no usable mesh: " + "; ".join(notes))
     objects.sort(key=lambda o: o.obj_id)
@@ -384,7 +385,7 @@ def _manifest_ids(entries: tuple[ManifestEntry, ...], paths: list[Path]) -> list
 def load_mesh_folder(folder: str | Path, units: str = "auto", scale: float = 1.0,
                      lazy: bool | None = None) -> ObjectSet:
     """The objects of a mesh folder: as its ``objects.toml`` says, else one per base name (see the module
-    docstring). Skipped files and degenerate meshes are reported in one warning naming them.
+    docstring). Skipped files and degenerate meshes are reported in one logged warning naming them.
 
     Args:
         folder: The folder.
@@ -418,7 +419,7 @@ def load_mesh_folder(folder: str | Path, units: str = "auto", scale: float = 1.0
     if not lazy:
         return _read_all(folder, entries, load, notes, skip_degenerate=manifest is None)
     if notes:
-        warnings.warn(f"{folder}: " + "; ".join(notes), stacklevel=2)
+        log.warning("%s: %s", folder, "; ".join(notes))
     return LazyObjectSet(entries, load, name=str(folder))
 
 
@@ -505,9 +506,8 @@ def read_bop_models(models_dir: str | Path, units: str = "mm", scale: float = 1.
         center = 0.5 * (mesh.bounds[0] + mesh.bounds[1])
         extra = {"units": unit, "scale": factor, "path": str(ply)}
         if np.linalg.norm(center) > CENTER_TOLERANCE:
-            warnings.warn(f"{ply}: bbox centre is {np.round(center * 1000, 2).tolist()} mm off the model origin "
-                          "(BOP models are centred); the file frame is kept so dataset poses stay valid",
-                          stacklevel=2)
+            log.warning("%s: bbox centre is %s mm off the model origin (BOP models are centred); the file frame is "
+                        "kept so dataset poses stay valid", ply, np.round(center * 1000, 2).tolist())
             extra["bbox_center"] = center.tolist()
         rgba = tuple(m.get("rgba", loaded.rgba or (0.7, 0.7, 0.7, 1.0)))
         objects.append(ObjectModel(
@@ -518,8 +518,7 @@ def read_bop_models(models_dir: str | Path, units: str = "mm", scale: float = 1.
     listed = {f"obj_{o.obj_id:06d}.ply" for o in objects}
     extra_files = sorted(p.name for p in root.glob("obj_*.ply") if p.name not in listed)
     if extra_files:
-        warnings.warn(f"{root}: model files not listed in {INFO_FILE} are ignored: {', '.join(extra_files)}",
-                      stacklevel=2)
+        log.warning("%s: model files not listed in %s are ignored: %s", root, INFO_FILE, ", ".join(extra_files))
     objects.sort(key=lambda o: o.obj_id)
     return ObjectSet(objects, name=str(root))
 

@@ -12,7 +12,7 @@ import logging
 from collections.abc import Iterator
 
 __all__ = ["common_parser", "add_no_progress_alias", "add_fault_options", "add_backend_options", "configure_logging",
-           "LazyChoices"]
+           "CommandLineFormatter", "LazyChoices"]
 
 
 def common_parser() -> argparse.ArgumentParser:
@@ -44,21 +44,23 @@ def add_fault_options(parser: argparse.ArgumentParser, unit: str, over_limit: st
                              f"without it the run goes on ({goes_on})")
 
 
-def add_backend_options(parser: argparse.ArgumentParser, unit: str) -> None:
+def add_backend_options(parser: argparse.ArgumentParser, unit: str, workers: str = "--workers") -> None:
     """``--backend local|ray`` and ``--ray-address ADDR``: where the command's units of work run
     (:mod:`simtest.backend`). Both default to ``None`` so a config file's values stay in force.
 
     Args:
         unit: What one unit of work is (``"scene"``, ``"episode"``, ``"cell"``), for the help text.
+        workers: What sets the number of workers, for the help text (``"--workers"``, or e.g. the config key
+            of a command without that option).
     """
     parser.add_argument("--backend", choices=["local", "ray"], default=None,
-                        help=f"where the {unit}s run: local (default; --workers processes on this machine) or ray "
+                        help=f"where the {unit}s run: local (default; {workers} processes on this machine) or ray "
                              f"(Ray tasks, one {unit} each; needs simtest[ray]; see docs/distributed.md)")
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="with --backend ray: join the running cluster at ADDR ('auto' on a cluster node, or "
                              "HOST:PORT of the head: the --port of `ray start --head`, 6379 by default; "
                              "ray://HOST:PORT needs ray[client]); it is joined and checked before any output is "
-                             "written; default: start a local Ray with --workers CPUs. A head with token auth "
+                             f"written; default: start a local Ray with {workers} CPUs. A head with token auth "
                              "needs RAY_AUTH_TOKEN (docs/distributed.md)")
 
 
@@ -89,13 +91,31 @@ class _BarSafeHandler(logging.StreamHandler):
             self.handleError(record)
 
 
+class CommandLineFormatter(logging.Formatter):
+    """``simtest: warning: <message>``: the level in lower case and the message, no file or line of simtest's
+    code. The logger's name follows the level for other libraries' records, and for every record when
+    ``show_names`` (``-vv``), e.g. ``simtest: debug: simtest.objects.collision: ...``."""
+
+    def __init__(self, show_names: bool = False) -> None:
+        super().__init__()
+        self.show_names = show_names
+
+    def format(self, record: logging.LogRecord) -> str:
+        line = super().format(record)
+        own = record.name == "simtest" or record.name.startswith("simtest.")
+        name = f"{record.name}: " if self.show_names or not own else ""
+        return f"simtest: {record.levelname.lower()}: {name}{line}"
+
+
 def configure_logging(verbose: int, quiet: bool = False) -> None:
-    """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each;
-    ``--quiet`` without ``-v``: errors only (a command's own summary lines are printed, not logged)."""
-    if not any(isinstance(h, _BarSafeHandler) for h in logging.getLogger().handlers):
+    """Log records of the ``simtest`` loggers at WARNING (0), INFO (1) or DEBUG (2+) to stderr, one line each
+    (:class:`CommandLineFormatter`); ``--quiet`` without ``-v``: errors only (a command's own summary lines are
+    printed, not logged)."""
+    handler = next((h for h in logging.getLogger().handlers if isinstance(h, _BarSafeHandler)), None)
+    if handler is None:
         handler = _BarSafeHandler()
-        handler.setFormatter(logging.Formatter("simtest %(levelname)s %(name)s: %(message)s"))
         logging.getLogger().addHandler(handler)
+    handler.setFormatter(CommandLineFormatter(show_names=verbose >= 2))
     level = logging.WARNING if verbose <= 0 else logging.INFO if verbose == 1 else logging.DEBUG
     if quiet and verbose <= 0:
         level = logging.ERROR

@@ -53,3 +53,22 @@ def test_preview_renders(tmp_path):
     img = np.asarray(Image.open(out))
     assert img.shape == (96, 4 * 96, 3)
     assert img.std() > 5  # the object is visible, not a blank frame
+
+
+def test_library_warnings_are_one_line_without_simtest_file_and_line(tmp_path, monkeypatch, capsys, recwarn):
+    """A mesh that is not watertight: the loader's note reaches the terminal as ``simtest: warning: ...``, one
+    line, with no file:line of simtest's code and no Python warning; -vv adds the logger's name."""
+    import trimesh
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path / "cache"))
+    box = trimesh.creation.box(extents=(0.05, 0.04, 0.03))
+    trimesh.Trimesh(box.vertices, box.faces[:-2]).export(tmp_path / "open.ply")
+    assert main(["objects", "list", "--set", str(tmp_path / "open.ply"), "--no-grasps"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    (line,) = [e for e in err if "open.ply" in e]
+    assert line.startswith("simtest: warning: ") and "not watertight" in line, err
+    assert not any(".py:" in e or "UserWarning" in e for e in err), err
+    assert not [w for w in recwarn if issubclass(w.category, UserWarning) and "simtest" in str(w.filename)]
+    assert main(["objects", "list", "--set", str(tmp_path / "open.ply"), "--no-grasps", "-vv"]) == 0
+    err = capsys.readouterr().err
+    assert "simtest: warning: simtest.objects.loaders: " in err

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import logging
+import re
 
 import numpy as np
 import pytest
@@ -11,6 +13,13 @@ import trimesh
 from simtest.errors import AssetError
 from simtest.objects import load_mesh_file, load_object_set
 from simtest.io.bop_models import write_bop_models
+
+
+def assert_logged(caplog, pattern: str) -> None:
+    """One warning line of ``simtest.objects.loaders`` matches ``pattern`` (logged, not a Python warning)."""
+    lines = [r.getMessage() for r in caplog.records
+             if r.name == "simtest.objects.loaders" and r.levelno == logging.WARNING]
+    assert any(re.search(pattern, line) and "\n" not in line for line in lines), lines
 
 
 def box_mesh(size_m=(0.05, 0.04, 0.03), offset=(0.1, 0.2, 0.3)) -> trimesh.Trimesh:
@@ -118,13 +127,14 @@ def test_nan_vertices(tmp_path):
         load_object_set(path, units="m")
 
 
-def test_non_watertight_warns(tmp_path):
+def test_non_watertight_warns(tmp_path, caplog):
     mesh = box_mesh()
     open_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[:-2])
     path = tmp_path / "open.ply"
     open_mesh.export(path)
-    with pytest.warns(UserWarning, match=r"open\.ply.*not watertight"):
+    with caplog.at_level(logging.WARNING, logger="simtest"):
         (obj,) = load_object_set(path, units="m")
+    assert_logged(caplog, r"open\.ply.*not watertight")
     assert obj.mass > 0
 
 
@@ -250,15 +260,16 @@ symmetry = "none"
 """
 
 
-def test_manifest_names_categories_symmetries_mass(tmp_path):
+def test_manifest_names_categories_symmetries_mass(tmp_path, caplog):
     (tmp_path / "cans").mkdir()
     trimesh.creation.cylinder(radius=3.3, height=10.0).export(tmp_path / "cans" / "soup.obj")  # cm
     box_mesh((60.0, 40.0, 20.0), (0, 0, 0)).export(tmp_path / "box.ply")  # mm
     box_mesh((0.2, 0.03, 0.02), (0, 0, 0)).export(tmp_path / "tool.stl")  # m
     box_mesh().export(tmp_path / "helper.stl")  # not listed: skipped with a warning
     (tmp_path / "objects.toml").write_text(MANIFEST)
-    with pytest.warns(UserWarning, match=r"not listed in objects\.toml skipped: helper\.stl"):
+    with caplog.at_level(logging.WARNING, logger="simtest"):
         objs = load_object_set(tmp_path)
+    assert_logged(caplog, r"not listed in objects\.toml skipped: helper\.stl")
     can, box, tool = objs
     assert [o.obj_id for o in objs] == [1, 2, 3]
     assert (can.name, can.category) == ("soup_can", "can")
@@ -293,7 +304,7 @@ def test_folder_tree_gives_categories(tmp_path):
     assert sorted((o.category, o.name) for o in objs) == [("bowl", "bowl_red"), ("mug", "blue"), ("mug", "mug_red")]
 
 
-def test_folder_keeps_one_file_per_base_name_preferring_the_textured_one(tmp_path):
+def test_folder_keeps_one_file_per_base_name_preferring_the_textured_one(tmp_path, caplog):
     from tests.objects.test_appearance import write_textured_cube
 
     write_textured_cube(tmp_path, "mug")
@@ -301,16 +312,18 @@ def test_folder_keeps_one_file_per_base_name_preferring_the_textured_one(tmp_pat
     box_mesh((0.06, 0.06, 0.06), (0, 0, 0)).export(tmp_path / "mug.ply")
     (tmp_path / "mug.msh").write_text("$MeshFormat\n")
     box_mesh().export(tmp_path / "plate.stl")
-    with pytest.warns(UserWarning, match=r"mug\.obj used, mug\.ply, mug\.stl skipped.*does not read skipped: mug\.msh"):
+    with caplog.at_level(logging.WARNING, logger="simtest"):
         objs = load_object_set(tmp_path, units="m")
+    assert_logged(caplog, r"mug\.obj used, mug\.ply, mug\.stl skipped.*does not read skipped: mug\.msh")
     assert [o.name for o in objs] == ["mug", "plate"]
     assert objs.by_name("mug").appearance.kind == "texture"
 
 
-def test_folder_rejects_degenerate_meshes_by_name(tmp_path):
+def test_folder_rejects_degenerate_meshes_by_name(tmp_path, caplog):
     box_mesh().export(tmp_path / "good.stl")
     box_mesh((0.004, 0.002, 0.002), (0, 0, 0)).export(tmp_path / "crumb.stl")
     (tmp_path / "points.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\n")
-    with pytest.warns(UserWarning, match=r"rejected .*crumb\.stl: mesh is degenerate.*rejected .*points\.obj.*empty"):
+    with caplog.at_level(logging.WARNING, logger="simtest"):
         objs = load_object_set(tmp_path, units="m")
+    assert_logged(caplog, r"rejected .*crumb\.stl: mesh is degenerate.*rejected .*points\.obj.*empty")
     assert [o.name for o in objs] == ["good"]
