@@ -74,6 +74,7 @@ def convex_parts(obj: "ObjectModel") -> tuple[trimesh.Trimesh, ...]:
                 return tuple(trimesh.Trimesh(data[f"v{i}"], data[f"f{i}"], process=False) for i in range(n))
         except Exception as exc:  # a corrupt cache entry is recomputed, never trusted
             log.warning("ignoring unreadable collision cache %s: %s", path, exc)
+    _say_why_computed(obj)
     parts = _decompose(obj.mesh)
     buf = io.BytesIO()
     arrays = {"n": np.array(len(parts))}
@@ -83,6 +84,23 @@ def convex_parts(obj: "ObjectModel") -> tuple[trimesh.Trimesh, ...]:
     np.savez(buf, **arrays)
     atomic_write_bytes(path, buf.getvalue())
     return parts
+
+
+def collision_key(obj: "ObjectModel") -> dict:
+    """The fields the collision cache entry of ``obj`` depends on: its units and scale (which change the mesh),
+    the decomposition's version and threshold, the settings for open meshes, and the mesh hash itself."""
+    return {"units": obj.extra.get("units"), "scale": obj.extra.get("scale"), "version": _CACHE_VERSION,
+            "threshold": COACD_THRESHOLD,
+            "open mesh settings": None if obj.mesh.is_watertight else _OPEN_CACHE_VERSION, "mesh": obj.mesh_hash}
+
+
+def _say_why_computed(obj: "ObjectModel") -> None:
+    """Log one line when a decomposition this source had in the cache is computed again for a changed key."""
+    from simtest.objects.cache import key_change
+
+    why = key_change("coacd", obj.source, collision_key(obj))
+    if why:
+        log.warning("%s: collision parts computed again: the cache key changed (%s)", obj.source or obj.name, why)
 
 
 def _decompose(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, ...]:

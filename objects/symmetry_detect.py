@@ -281,11 +281,24 @@ def detect_symmetries(obj: ObjectModel | trimesh.Trimesh, tol: float = DEFAULT_T
             _CACHE.pop(next(iter(_CACHE)))
         found = _read_cached(key_hash, tol)
         if found is None:
+            if isinstance(obj, ObjectModel):
+                _say_why_detected(obj, key_hash, tol)
             found = _detect(mesh, mesh_hash, diameter, tol, appearance)
             _write_cached(key_hash, tol, found)
         _CACHE[key] = found
     discrete, continuous = _CACHE[key]
     return [d.copy() for d in discrete], list(continuous)
+
+
+def _say_why_detected(obj: ObjectModel, key_hash: str, tol: float) -> None:
+    """Log one line when symmetries this source had in the cache are detected again for a changed key."""
+    from simtest.objects.cache import key_change
+
+    key = {"units": obj.extra.get("units"), "scale": obj.extra.get("scale"), "tolerance": float(tol),
+           "version": _DISK_VERSION, "colours": "_c" in key_hash, "mesh": key_hash}
+    why = key_change("symmetry", obj.source, key)
+    if why:
+        log.warning("%s: symmetries detected again: the cache key changed (%s)", obj.source or obj.name, why)
 
 
 def uses_colors(obj: ObjectModel) -> bool:
@@ -366,7 +379,8 @@ def _detect(mesh: trimesh.Trimesh, mesh_hash: str, diameter: float, tol: float, 
     return tuple(T for T in group if _deviation(s, T, limit) <= limit), ()
 
 
-def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float = DEFAULT_TOLERANCE) -> ObjectSet:
+def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float = DEFAULT_TOLERANCE,
+                          progress: bool | None = None) -> ObjectSet:
     """The set with detected symmetries on the objects that declare none (``policy="auto"``).
 
     An object keeps its own symmetries when it declares any, or when ``extra["symmetry"]`` is already set
@@ -375,12 +389,26 @@ def apply_symmetry_policy(objects: ObjectSet, policy: str = "auto", tol: float =
     colours"``), or ``"off"`` (``policy="none"``: not detected). ``policy="geometry"`` detects by shape alone. A
     :class:`~simtest.objects.lazy.LazyObjectSet` gets the policy applied to each object as it is read.
 
+    A set read now is examined object by object under a progress bar with ETA
+    (:class:`~simtest.objects.progress.ObjectProgress`): it appears when the work takes more than a few seconds
+    (detection not cached yet), names the object being examined, and work over 10 s ends with a line naming the
+    slowest object. ``progress``: draw it (``None``: unless the ``simtest`` logger is set to errors only).
+
     Raises:
         ConfigError: ``policy`` is not one of :data:`SYMMETRY_POLICIES`.
     """
     if policy not in SYMMETRY_POLICIES:
         raise ConfigError(f"symmetry must be one of {', '.join(SYMMETRY_POLICIES)}, got {policy!r}")
-    return objects.mapped(lambda obj: with_symmetry_policy(obj, policy, tol))
+    if type(objects) is not ObjectSet:  # a lazy set applies the policy as each object is read
+        return objects.mapped(lambda obj: with_symmetry_policy(obj, policy, tol))
+    from simtest.objects.progress import ObjectProgress
+
+    out = []
+    with ObjectProgress(len(objects), "symmetries", progress) as bar:
+        for obj in objects:
+            with bar.step(obj.name):
+                out.append(with_symmetry_policy(obj, policy, tol))
+    return ObjectSet(out, objects.name)
 
 
 def with_symmetry_policy(obj: ObjectModel, policy: str = "auto", tol: float = DEFAULT_TOLERANCE) -> ObjectModel:

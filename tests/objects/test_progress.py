@@ -108,3 +108,41 @@ def test_objects_list_first_use_shows_bar_naming_objects_and_slowest(mesh_folder
     monkeypatch.setattr(progress, "SHOW_AFTER_S", 30.0)
     assert main(args) == 0
     assert "collision parts" not in capsys.readouterr().err
+
+
+def test_symmetry_detection_of_a_set_shows_a_bar_naming_each_object(mesh_folder, monkeypatch, capsys):
+    monkeypatch.setattr(logging.getLogger("simtest"), "level", logging.WARNING)  # not --quiet
+    monkeypatch.setattr(progress, "SHOW_AFTER_S", 0.0)
+    monkeypatch.setattr(progress, "SUMMARY_MIN_S", 0.0)
+    objects = load_object_set(str(mesh_folder), units="m")
+    assert {o.extra["symmetry"] for o in objects} == {"detected"}
+    err = capsys.readouterr().err
+    assert "symmetries: banana" in err and "symmetries: box" in err and "2/2" in err
+    assert re.search(r"simtest: symmetries of 2 objects took \d+\.\d s; slowest: (banana|box) \(\d+\.\d s\)", err)
+
+
+def test_a_scale_change_says_which_key_field_forced_the_recomputation(mesh_folder, caplog, monkeypatch):
+    from simtest.objects import symmetry_detect
+
+    monkeypatch.setattr(symmetry_detect, "_CACHE", {})  # symmetries of these meshes found by earlier tests
+    with caplog.at_level(logging.WARNING, logger="simtest"):
+        prepare_set(load_object_set(str(mesh_folder), units="m"), progress=False)
+        assert not [r for r in caplog.records if "again" in r.getMessage()]  # a first computation says nothing
+        prepare_set(load_object_set(str(mesh_folder), units="m"), progress=False)  # cached: nothing to say
+        assert not [r for r in caplog.records if "again" in r.getMessage()]
+        prepare_set(load_object_set(str(mesh_folder), units="m", scale=0.5), progress=False)
+    lines = [r.getMessage() for r in caplog.records if "again" in r.getMessage()]
+    banana = str(mesh_folder / "banana.obj")
+    assert f"{banana}: collision parts computed again: the cache key changed (scale 1 -> 0.5)" in lines
+    assert f"{banana}: symmetries detected again: the cache key changed (scale 1 -> 0.5)" in lines
+    assert len(lines) == 3  # the box: its symmetries (a convex box has no decomposition)
+
+
+def test_key_changes_name_the_field():
+    from simtest.objects.cache import describe_key_change
+
+    before = {"units": "m", "scale": 1.0, "version": 2, "mesh": "a" * 40}
+    assert describe_key_change(before, dict(before)) is None
+    assert describe_key_change(before, {**before, "scale": 0.01, "mesh": "b" * 40}) == "scale 1 -> 0.01"
+    assert describe_key_change(before, {**before, "mesh": "b" * 40}) == f"mesh {'a' * 12} -> {'b' * 12}"
+    assert describe_key_change(before, {**before, "version": 3, "units": "cm"}) == "units m -> cm, version 2 -> 3"
