@@ -107,7 +107,8 @@ def test_corrupt_command_with_object_cutouts(small_dataset, tmp_path):
 def test_enlarged_cutouts_have_smooth_antialiased_outlines():
     """A cutout scaled up 12x keeps a straight diagonal outline (no steps as long as its source pixels), and
     its edge is blended into the image rather than cut at a hard pixel step."""
-    from simtest.corrupt.occlusion import bank_coverage, paste_occluders
+    from simtest.corrupt.occlusion import paste_occluders
+    from simtest.corrupt.patches import bank_coverage, resample
 
     tri = np.tril(np.ones((8, 8), bool))  # the lower-left triangle: a 45 degree edge in 8 source pixels
     mask = bank_coverage(tri, 48.0) >= 0.5  # 96 x 96 pixels
@@ -115,8 +116,6 @@ def test_enlarged_cutouts_have_smooth_antialiased_outlines():
     steps = np.abs(np.diff(widths))
     assert mask.shape == (96, 96) and steps.max() <= 2, steps  # a staircase would step by 12 every 12 rows
     # Shrunk, a fine checkerboard averages to grey instead of aliasing into stripes.
-    from simtest.corrupt.occlusion import resample
-
     checker = ((np.indices((60, 60)).sum(axis=0) % 2) * 255).astype(np.uint8)
     assert np.abs(resample(checker, (17, 17)).astype(int) - 127).max() <= 4  # bilinear: up to 113
     # Pasted: some pixels just outside the occluder mask take a blend of the patch and the image.
