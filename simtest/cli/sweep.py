@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "sweep without recomputing them.")
     p.add_argument("config", help="sweep config file (.toml or .json)")
     p.add_argument("--out", required=True, help="output folder")
-    add_backend_options(p, "cell")
+    add_backend_options(p, "cell", workers="the config's `workers`")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue the sweep in --out")
     g.add_argument("--overwrite", action="store_true", help="replace the contents of --out")

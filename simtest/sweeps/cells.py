@@ -3,18 +3,21 @@
 A cell is (estimator, condition, kind) with kind ``pose`` or ``grasp``; it lives in
 ``OUT/cells/<estimator>/<condition>/<kind>/`` and is finished once its ``cell.json`` exists (written last,
 atomically). :func:`write_tables` gathers every finished cell into ``results.csv`` (one row per target or
-episode) and ``summary.csv`` (one row per metric), which is all :mod:`simtest.sweeps.report` reads.
+episode) and ``summary.csv`` (one row per metric, with its count ``n`` and 95 % interval,
+:mod:`simtest.sweeps.uncertainty`), which is all :mod:`simtest.sweeps.report` reads.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 from simtest.io.files import atomic_write_json, read_csv, write_csv
+from simtest.sweeps.uncertainty import Interval, pose_intervals
 
-__all__ = ["cell_dir", "is_finished", "finish_cell", "collect", "write_tables", "labels", "RESULT_COLUMNS",
+__all__ = ["cell_dir", "is_finished", "finish_cell", "collect", "write_tables", "labels", "Scores", "RESULT_COLUMNS",
            "SUMMARY_COLUMNS", "RESULTS_FILE", "SUMMARY_FILE"]
 
 RESULTS_FILE = "results.csv"
@@ -22,7 +25,11 @@ SUMMARY_FILE = "summary.csv"
 RESULT_COLUMNS = ["estimator", "condition", "factor", "level", "severity", "kind", "scene_id", "im_id", "obj_id",
                   "episode", "target_name", "matched", "visib_fract", "diameter_m", "add_m", "adi_m",
                   "add_s_or_add_m", "re_deg", "re_sym_deg", "te_m", "mssd_m", "success", "reason"]
-SUMMARY_COLUMNS = ["estimator", "condition", "factor", "level", "severity", "kind", "metric", "value"]
+#: ``n``: the targets (pose) or episodes (grasp) a score is over; ``ci95_low`` / ``ci95_high``: its 95 % interval,
+#: in the unit of ``value``; ``interval``: how it was made (``wilson`` | ``bootstrap``;
+#: :mod:`simtest.sweeps.uncertainty`), empty for values without one (counts, timings, AP).
+SUMMARY_COLUMNS = ["estimator", "condition", "factor", "level", "severity", "kind", "metric", "value", "n",
+                   "ci95_low", "ci95_high", "interval"]
 _MARKER = "cell.json"
 
 
@@ -45,12 +52,22 @@ def _read_cell(cdir: Path) -> dict[str, Any] | None:
     return json.loads((cdir / _MARKER).read_text()) if is_finished(cdir) else None
 
 
+def _interval_columns(iv: Interval | None) -> dict[str, Any]:
+    if iv is None:
+        return {"n": "", "ci95_low": "", "ci95_high": "", "interval": ""}
+    return {"n": iv.n, "ci95_low": "" if math.isnan(iv.low) else iv.low,
+            "ci95_high": "" if math.isnan(iv.high) else iv.high, "interval": iv.method}
+
+
 def _pose_rows(base: dict, cdir: Path, cell: dict) -> tuple[list[dict], list[dict]]:
-    summary = [{**base, "kind": "pose", "metric": key, "value": "" if value is None else value}
+    errors = read_csv(cdir / "errors.csv") if (cdir / "errors.csv").exists() else []
+    intervals = pose_intervals(cell["overall"], errors)
+    summary = [{**base, "kind": "pose", "metric": key, "value": "" if value is None else value,
+                **_interval_columns(intervals.get(key))}
                for key, value in cell["overall"].items() if isinstance(value, (int, float)) or value is None]
     results = []
-    if (cdir / "errors.csv").exists():
-        for r in read_csv(cdir / "errors.csv"):
+    if errors:
+        for r in errors:
             results.append({**base, "kind": "pose", "scene_id": r["scene_id"], "im_id": r["im_id"],
                             "obj_id": r["obj_id"], "matched": r["matched"], "visib_fract": r["visib_fract"],
                             "diameter_m": r["diameter_m"], "add_m": r["add"], "adi_m": r["adi"],
@@ -61,10 +78,10 @@ def _pose_rows(base: dict, cdir: Path, cell: dict) -> tuple[list[dict], list[dic
 
 def _grasp_rows(base: dict, cdir: Path, cell: dict) -> tuple[list[dict], list[dict]]:
     s = cell["summary"]
-    summary = [{**base, "kind": "grasp", "metric": key, "value": s[key]}
+    rate = Interval(int(s["episodes"]), float(s["ci95"][0]), float(s["ci95"][1]), "wilson")
+    summary = [{**base, "kind": "grasp", "metric": key, "value": s[key],
+                **_interval_columns(rate if key == "success_rate" else None)}
                for key in ("success_rate", "episodes", "successes")]
-    summary.append({**base, "kind": "grasp", "metric": "ci95_low", "value": s["ci95"][0]})
-    summary.append({**base, "kind": "grasp", "metric": "ci95_high", "value": s["ci95"][1]})
     results = []
     if (cdir / "episodes.csv").exists():
         for r in read_csv(cdir / "episodes.csv"):
@@ -119,3 +136,31 @@ def write_tables(out: str | Path, estimators: list[str], conds: list) -> dict[st
     write_csv(out / RESULTS_FILE, results, RESULT_COLUMNS)
     write_csv(out / SUMMARY_FILE, summary, SUMMARY_COLUMNS)
     return {"results": out / RESULTS_FILE, "summary": out / SUMMARY_FILE}
+
+
+def _number(text: Any) -> float:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+class Scores:
+    """``summary.csv`` rows looked up by (estimator, condition, kind, metric): the value and its
+    :class:`~simtest.sweeps.uncertainty.Interval` (NaN and ``n = 0`` where the sweep has no such score)."""
+
+    def __init__(self, summary: list[dict[str, Any]]) -> None:
+        self._rows = {(r["estimator"], r["condition"], r["kind"], r["metric"]): r for r in summary}
+
+    def get(self, estimator: str, condition: str, kind: str, metric: str) -> tuple[float, Interval]:
+        """``(value, interval)`` of one score."""
+        r = self._rows.get((estimator, condition, kind, metric))
+        if r is None:
+            return math.nan, Interval(0)
+        n = _number(r.get("n"))
+        return _number(r["value"]), Interval(0 if math.isnan(n) else int(n), _number(r.get("ci95_low")),
+                                             _number(r.get("ci95_high")), str(r.get("interval") or ""))
+
+    def value(self, estimator: str, condition: str, kind: str, metric: str) -> float:
+        """The value of one score (NaN if absent)."""
+        return self.get(estimator, condition, kind, metric)[0]

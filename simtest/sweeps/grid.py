@@ -69,11 +69,13 @@ class DatasetSection:
 
 @dataclass(frozen=True)
 class FactorsSection:
-    occlusion: tuple[str, ...] = ("L1", "L2", "L3")
+    """The conditions beside ``clean``: exactly those listed (a factor left out adds no condition)."""
+
+    occlusion: tuple[str, ...] = ()
     occlusion_definition: str = field(default="pascal3d+", metadata=bounds(choices=("pascal3d+", "objectcentric")))
-    corruptions: tuple[str, ...] = ("brightness", "frost", "snow", "fog")
+    corruptions: tuple[str, ...] = ()
     severities: tuple[int, ...] = (4,)
-    depth_noise: tuple[str, ...] = ("realsense-d435",)
+    depth_noise: tuple[str, ...] = ()
     # 2D paste occluders of L1..L3: cutouts of the dataset's own unoccluded objects, or procedural noise shapes
     occlusion_kind: str = field(default="objects", metadata=bounds(choices=("objects", "paste")))
     # generation conditions (the clean scenes generated again): render profiles and simulated depth sensors

@@ -7,6 +7,7 @@ import base64
 import importlib.util
 import csv
 import json
+import re
 import shutil
 from html.parser import HTMLParser
 from pathlib import Path
@@ -103,8 +104,9 @@ def test_depth_sensor_condition_senses_depth_and_keeps_the_exact_one(sweep):
 def test_renderer_and_sensor_columns_are_filled(sweep):
     _, out, _ = sweep
     tables = (out / "tables.md").read_text()
-    header = "| estimator | L0 | realsense-d435 | d435-stereo | fast | quality |"
-    assert header in tables
+    header = re.compile(r"\| estimator \| L0 \(n=(\d+)\) \| realsense-d435 \(n=\1\) \| d435-stereo \(n=\1\) \| "
+                        r"fast \(n=\1\) \| quality \(n=\1\) \|")  # the same targets in every column
+    assert header.search(tables), tables
     rows = [line for line in tables.splitlines() if line.startswith("| icp (GT masks) |")]
     assert rows and all("-" not in [c.strip() for c in r.strip("|").split("|")] for r in rows), rows
     assert "renderer: fast quality" in tables
@@ -258,8 +260,8 @@ def test_pbr_render_condition_at_one_sample_per_pixel(tmp_path):
     for folder in ("mask", "mask_visib", "depth"):
         assert all(_same_bytes(clean / folder / f, pbr / folder / f) for f in _files(clean / folder)), folder
     assert not _same_bytes(clean / "rgb" / "000000.jpg", pbr / "rgb" / "000000.jpg")
-    assert "| estimator | L0 | pbr |" in (out / "tables.md").read_text()
-    assert "| oracle | 100.0 | 100.0 |" in (out / "tables.md").read_text()
+    assert "| estimator | L0 (n=3) | pbr (n=3) |" in (out / "tables.md").read_text()
+    assert "| oracle | 100.0 [43.9, 100.0] | 100.0 [43.9, 100.0] |" in (out / "tables.md").read_text()
 
 
 def test_paste_occlusion_uses_object_cutouts_unless_told(tmp_path):
