@@ -8,7 +8,7 @@ BASE := $(VENV)/.installed
 TESTS := $(VENV)/.installed-tests
 # The CPU build of torch, when it lies on local disk (pinned by constraints/ci.txt so pip takes it).
 TORCH_WHEEL := $(wildcard /opt/wheels/torch-2.13.0+cpu-*.whl)
-SYSTEM_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libllvm19
+SYSTEM_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libllvm19 chromium
 # The GL backend (EGL, else OSMesa) is chosen by simtest itself; set MUJOCO_GL to override it.
 
 .PHONY: venv demo test clean system-packages
