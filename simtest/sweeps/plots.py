@@ -16,6 +16,7 @@ from __future__ import annotations
 import base64
 import io
 import math
+import textwrap
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +95,7 @@ def metric_plot(cfg, conds, scores: Scores, key: str) -> Plot:
     spec = metric(key)
     names = [e.name for e in cfg.estimators]
     severities = sorted({c.severity for c in conds if c.severity is not None})
-    fig, ax = plt.subplots(figsize=(6.4, 3.3))
+    fig, ax = plt.subplots(figsize=(max(6.4, 2.4 + 0.6 * len(conds)), 3.3))
     if len(severities) > 1:
         _severity_lines(ax, conds, scores, names, key, severities)
         title = f"{spec.label} vs corruption severity"
@@ -140,7 +141,9 @@ def _bars(ax, conds, scores: Scores, names: list[str], key: str) -> None:
     ax.set_ylim(-0.03 * top, top * 1.08)
     ns = [_common_n(scores, names, c.name, "pose", key) for c in conds]
     ax.set_xticks(x0 + width * (len(names) - 1) / 2)
-    ax.set_xticklabels([column_label(c) + (f"\nn={n}" if n else "") for c, n in zip(conds, ns)], fontsize=7)
+    many = len(conds) > 6
+    ax.set_xticklabels([column_label(c) + (f"\nn={n}" if n else "") for c, n in zip(conds, ns)], fontsize=7,
+                       rotation=30 if many else 0, ha="right" if many else "center")
 
 
 def _severity_lines(ax, conds, scores: Scores, names: list[str], key: str, severities: list[int]) -> None:
@@ -274,7 +277,7 @@ def error_vs_grasp_plot(results: list[dict]) -> Plot:
             lo, hi, x50 = logistic_band(x, y, xs)
             ax.fill_between(xs, lo, hi, color="gray", alpha=0.25, lw=0, label="95 % band (bootstrap)")
             note = fifty_percent_note(a, b, x, y, x50)
-            ax.plot(xs, _logistic(a, b, xs), "k-", label=f"logistic fit; {note}")
+            ax.plot(xs, _logistic(a, b, xs), "k-", label="logistic fit:\n" + textwrap.fill(note, 34))
             if note.startswith("50 % at"):
                 ax.axvline(-a / b, color="gray", ls="--")
             ax.legend(**_LEGEND)
