@@ -114,7 +114,7 @@ def test_estimator_failures_print_one_traceback_and_a_summary(tmp_path, small_da
     assert "the estimator failed on 6 of 6 images (exception 6)" in proc.stderr and "failures.csv" in proc.stderr
     verbose = subprocess.run([*base, "-v", "--out", str(tmp_path / "e2")], capture_output=True, text=True)
     assert verbose.stderr.count("Traceback (most recent call last)") == 1
-    assert verbose.stderr.count("INFO simtest.evaluation.images: estimator failed on scene") == 5
+    assert verbose.stderr.count("simtest: info: estimator failed on scene") == 5
     quiet = subprocess.run([*base, "--quiet", "--out", str(tmp_path / "e3")], capture_output=True, text=True)
     assert quiet.stderr.strip().splitlines() == [
         l for l in quiet.stderr.strip().splitlines() if l.startswith("simtest eval: error: the estimator failed")]
