@@ -36,6 +36,8 @@ __all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkp
 
 #: ``format`` entry of segmentation checkpoints.
 FORMAT = "simtest-segmentation/1"
+#: How :meth:`Segmenter.regions` orders the regions of one class.
+REGION_RANKS = ("area", "prob")
 #: File name of the shipped checkpoint (in ``simtest/estimators/weights/``).
 DEFAULT_CHECKPOINT_NAME = "segicp_builtin-small_320x240.pt"
 
@@ -179,11 +181,16 @@ class Segmenter:
         inner = cv2.erode(mask.astype(np.uint8), k).astype(bool)
         return inner if np.count_nonzero(inner) >= max(self.min_region_pixels // 2, 1) else mask
 
-    def regions(self, obs: Observation, per_instance: int = 1) -> list[tuple[int, np.ndarray, float]]:
+    def regions(self, obs: Observation, per_instance: int = 1, rank: str = "area"
+                ) -> list[tuple[int, np.ndarray, float]]:
         """``(obj_id, mask (H, W) bool, mean class probability)`` per found object (see the module doc).
 
-        ``per_instance``: with target ids, up to this many regions per expected instance (largest first), as
-        candidates for a caller that checks them (``keypoints --opt candidates=N``)."""
+        ``per_instance``: with target ids, up to this many regions per expected instance, as candidates for a
+        caller that checks them (``keypoints --opt candidates=N``). ``rank``: which regions of a class come
+        first, ``"area"`` (largest first) or ``"prob"`` (highest mean class probability first: on real
+        photographs clutter a network trained on renders takes for an object is large but less certain)."""
+        if rank not in REGION_RANKS:
+            raise ConfigError(f"region rank must be one of {', '.join(REGION_RANKS)}, got {rank!r}")
         prob = self.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64))
         label = prob.argmax(0)
         wanted = None if obs.target_obj_ids is None else [int(o) for o in obs.target_obj_ids]
@@ -195,9 +202,11 @@ class Segmenter:
             n, comp, stats, _ = cv2.connectedComponentsWithStats((label == c).astype(np.uint8), connectivity=8)
             order = [i for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable") + 1
                      if stats[i, cv2.CC_STAT_AREA] >= self.min_region_pixels]
-            for i in order[:limit]:
-                mask = comp == i
-                out.append((oid, self._erode(mask), float(prob[c][mask].mean())))
+            found = [(comp == i, float(prob[c][comp == i].mean())) for i in order]
+            if rank == "prob":
+                found.sort(key=lambda mp: -mp[1])
+            for mask, p in found[:limit]:
+                out.append((oid, self._erode(mask), p))
         return out
 
 

@@ -320,6 +320,28 @@ def test_detector_candidates_keep_one_pose_per_expected_instance(small_dataset):
         assert len(b) >= len(a)
 
 
+def test_detector_regions_ranked_by_probability_or_area(small_dataset):
+    """``region_rank``: the same regions of a class come back, ordered by mean class probability (``prob``,
+    the keypoint estimator's default) or by size (``area``); other names are refused."""
+    from simtest.estimators import load_estimator
+
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=1)
+    obs, _ = _observation(ds, 0, objects)
+    obs = replace(obs, masks=None, target_obj_ids=None)
+    seg = load_estimator("keypoints").segmenter
+    assert load_estimator("keypoints").region_rank == "prob"
+    by_prob, by_area = seg.regions(obs, rank="prob"), seg.regions(obs, rank="area")
+    assert by_prob and sorted(p for _, _, p in by_prob) == sorted(p for _, _, p in by_area)
+    for oid in {o for o, _, _ in by_prob}:
+        probs = [p for o, _, p in by_prob if o == oid]
+        sizes = [int(m.sum()) for o, m, _ in by_area if o == oid]
+        assert probs == sorted(probs, reverse=True)
+        assert len(sizes) == len(probs)
+    with pytest.raises(ConfigError, match="region_rank must be one of area, prob, got 'size'"):
+        CropKeypointEstimator(region_rank="size")
+
+
 def test_estimator_options_are_checked():
     with pytest.raises(ConfigError, match="detect 'depth'"):
         CropKeypointEstimator(detect="depth")
