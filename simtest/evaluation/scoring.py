@@ -20,7 +20,7 @@ from simtest.io.dataset import ImageRef, image_size, image_targets, select_image
 from simtest.metrics.auc import ADDS_2CM, ycb_auc
 from simtest.metrics.bop19 import VISIB_GT_MIN, VSD_DELTA, VSD_TAUS, EvalImage, GroundTruthPose, ResultRow
 from simtest.metrics.bop19 import evaluate_bop19
-from simtest.metrics.intervals import wilson_interval
+from simtest.metrics.intervals import cluster_bootstrap_interval, wilson_interval
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, re_sym, te, vsd
 from simtest.metrics.registry import NDEG_MCM
 from simtest.metrics.viewpoint import PI_6, PI_18, accuracy_at
@@ -92,6 +92,12 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"{nd:g}deg{mc:g}cm"] = float(np.mean(hits[f"{nd:g}deg{mc:g}cm"]))
     #: 95 % Wilson intervals of the proportions of targets, [low, high] fractions
     out["ci95"] = {k: list(wilson_interval(int(np.sum(h)), n)) for k, h in hits.items()}
+    scenes = [r.get("scene_id") for r in rows]
+    if len(set(scenes)) > 1:
+        #: 95 % percentile-bootstrap intervals over scenes (targets of one scene are not independent)
+        out["ci95_scenes"] = {k: list(cluster_bootstrap_interval(h.astype(np.float64), scenes))
+                              for k, h in hits.items()}
+        out["num_scenes"] = len(set(scenes))
     return out
 
 

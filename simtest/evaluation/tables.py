@@ -90,7 +90,14 @@ def _interval_line(overall: dict[str, Any]) -> str:
     ci = overall.get("ci95") or {}
     parts = [f"{metric(k).label} {metric(k).format(ci[k][0])}-{metric(k).format(ci[k][1])} {metric(k).unit}"
              for k in ("add_s_or_add_01d", "adds_lt_2cm", "acc_pi_6", "5deg5cm") if k in ci]
-    return f"95 % intervals (Wilson, over targets): {', '.join(parts)}.\n" if parts else ""
+    line = f"95 % intervals (Wilson, over targets): {', '.join(parts)}.\n" if parts else ""
+    cs = overall.get("ci95_scenes") or {}
+    scene_parts = [f"{metric(k).label} {metric(k).format(cs[k][0])}-{metric(k).format(cs[k][1])} {metric(k).unit}"
+                   for k in ("add_s_or_add_01d", "adds_lt_2cm", "acc_pi_6", "5deg5cm") if k in cs]
+    if scene_parts:
+        line += (f"95 % intervals (bootstrap over {overall.get('num_scenes')} scenes, as scenes differ more than "
+                 f"targets): {', '.join(scene_parts)}.\n")
+    return line
 
 
 _DETECTION_NOTE = ("Detection task: no target ids or counts given; at most 100 estimates per image. AP: BOP24 "

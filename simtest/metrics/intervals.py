@@ -1,12 +1,13 @@
 """95 % intervals of the reported accuracies: Wilson's score interval for a proportion of targets (episodes,
-images) and a normal interval for a mean of per-target values in [0, 1]. Pure functions."""
+images), a normal interval for a mean of per-target values in [0, 1], and a percentile bootstrap over clusters
+(scenes) for a proportion whose targets are not independent. Pure functions."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 
-__all__ = ["Z95", "wilson_interval", "mean_interval"]
+__all__ = ["Z95", "wilson_interval", "mean_interval", "cluster_bootstrap_interval"]
 
 #: The standard normal quantile of a two-sided 95 % interval.
 Z95 = 1.959963984540054
@@ -43,3 +44,35 @@ def mean_interval(values: Sequence[float], z: float = Z95, bounds: tuple[float, 
     sd = math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1))
     h = z * sd / math.sqrt(n)
     return max(bounds[0], m - h), min(bounds[1], m + h)
+
+
+def cluster_bootstrap_interval(values: Sequence[float], clusters: Sequence[object], n_boot: int = 2000,
+                               seed: int = 0, level: float = 0.95) -> tuple[float, float] | None:
+    """Percentile bootstrap interval of the pooled mean of ``values`` (per-target hits or scores) resampling
+    whole ``clusters`` (e.g. scene ids) with replacement: targets of one scene share its camera path, clutter
+    and lighting, so they are not independent and a binomial interval over targets is too narrow when scenes
+    differ. Each replicate is the ratio ``sum(values) / count`` over the drawn clusters. Deterministic in
+    ``seed``. None for fewer than two clusters (nothing to resample).
+
+    Raises:
+        ValueError: ``values`` and ``clusters`` of different lengths, ``n_boot < 100`` or ``level`` outside (0, 1).
+    """
+    import numpy as np
+
+    if len(values) != len(clusters):
+        raise ValueError(f"values and clusters must have the same length, got {len(values)} and {len(clusters)}")
+    if n_boot < 100 or not 0.0 < level < 1.0:
+        raise ValueError(f"need n_boot >= 100 and 0 < level < 1, got {n_boot!r}, {level!r}")
+    keys = sorted(set(clusters), key=repr)
+    if len(keys) < 2:
+        return None
+    index = {k: i for i, k in enumerate(keys)}
+    c = np.array([index[k] for k in clusters])
+    sums = np.bincount(c, weights=np.asarray(values, np.float64), minlength=len(keys))
+    counts = np.bincount(c, minlength=len(keys)).astype(np.float64)
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
+    draws = rng.integers(0, len(keys), size=(int(n_boot), len(keys)))
+    means = sums[draws].sum(1) / np.maximum(counts[draws].sum(1), 1.0)
+    a = (1.0 - level) / 2.0
+    lo, hi = np.quantile(means, [a, 1.0 - a])
+    return float(lo), float(hi)

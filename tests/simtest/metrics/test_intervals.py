@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from simtest.metrics.intervals import mean_interval, wilson_interval
+from simtest.metrics.intervals import cluster_bootstrap_interval, mean_interval, wilson_interval
 
 
 def test_wilson_interval_known_values_and_ends():
@@ -41,4 +41,29 @@ def test_the_report_gives_each_proportion_its_interval(small_dataset, tmp_path):
         assert lo <= rep.overall[key] <= hi, key
     for m in rep.per_object.values():
         assert set(m["ci95"]) == set(ci)
-    assert "95 % intervals (Wilson, over targets): ADD(-S)-0.1d" in (tmp_path / "run" / "metrics.md").read_text()
+    md = (tmp_path / "run" / "metrics.md").read_text()
+    assert "95 % intervals (Wilson, over targets): ADD(-S)-0.1d" in md
+    # two scenes: the interval over scenes is the bootstrap of the scene-clustered hits, and it is printed
+    scenes = [int(r["scene_id"]) for r in rows]
+    assert len(set(scenes)) == 2
+    hit = [float(float(r["add_s_or_add"]) < 0.1 * float(r["diameter_m"])) if r["matched"] == "1" else 0.0
+           for r in rows]
+    by_scene = json.loads((tmp_path / "run" / "metrics.json").read_text())["overall"]["ci95_scenes"]
+    assert by_scene["add_s_or_add_01d"] == pytest.approx(list(cluster_bootstrap_interval(hit, scenes)))
+    assert "95 % intervals (bootstrap over 2 scenes" in md
+
+
+def test_cluster_bootstrap_interval_resamples_whole_scenes():
+    """Two scenes of 10 targets, one all correct and one all wrong: the replicates are 1, 0.5, 0.5 and 0 (each
+    pair of scenes equally likely), so the 95 % interval is [0, 1], where Wilson over the 20 targets as if
+    independent gives [0.30, 0.70]; the same seed gives the same interval; one scene gives none."""
+    values, scenes = [1.0] * 10 + [0.0] * 10, [0] * 10 + [1] * 10
+    assert cluster_bootstrap_interval(values, scenes) == (0.0, 1.0)
+    assert wilson_interval(10, 20) == pytest.approx((0.299, 0.701), abs=1e-3)
+    mixed = [1.0, 0.0] * 10
+    a = cluster_bootstrap_interval(mixed, [i // 2 for i in range(20)], seed=3)
+    assert a == cluster_bootstrap_interval(mixed, [i // 2 for i in range(20)], seed=3)
+    assert a == (0.5, 0.5)  # every scene holds one hit in two targets: no spread between scenes
+    assert cluster_bootstrap_interval([1.0, 0.0], ["a", "a"]) is None
+    with pytest.raises(ValueError, match="same length"):
+        cluster_bootstrap_interval([1.0], [0, 1])
