@@ -18,6 +18,16 @@ With zero noise every metric must report a perfect score; with noise the errors 
   also given, apply on top. Its draws come from a stream of their own, ``default_rng([seed, scene_id, im_id,
   2])``, so the other options' draws are unchanged.
 
+* ``error_axis`` with ``error``: one error of exact size along one axis (tolerance maps,
+  ``simtest tolerance``), applied before the other noise: ``t_x``, ``t_y``, ``t_z`` move the estimate by
+  ``error`` millimetres along the object's own x, y or z axis (``t_e = t_g + R_g[:, k] * d``); ``t_ray``
+  moves it along the camera's viewing ray through the object's origin (a depth error); ``r_x``, ``r_y``,
+  ``r_z`` rotate it by ``error`` degrees about the object's own axis through its origin
+  (``R_e = R_g Exp(angle e_k)``, ``t`` unchanged). ``error_sign`` is ``"random"`` (default: +1 or -1 with
+  equal probability, from a stream of its own, ``default_rng([seed, scene_id, im_id, 3, k])`` for target
+  ``k``), ``"+"`` or
+  ``"-"``.
+
 The random stream is ``np.random.default_rng([seed, scene_id, im_id])``: the same seed gives the same noise
 for an image however the images are ordered or split between runs.
 
@@ -45,10 +55,14 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.options import check_int_options
 
-__all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix"]
+__all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix", "axis_error", "ERROR_AXES"]
 
 _MODES = ("halfnormal", "fixed")
 _KEYPOINTS = ("bbox", "fps")
+#: Axes of ``error_axis``: translation along the object's x, y, z and the viewing ray; rotation about the
+#: object's x, y, z.
+ERROR_AXES = ("t_x", "t_y", "t_z", "t_ray", "r_x", "r_y", "r_z")
+_SIGNS = ("random", "+", "-")
 
 
 def random_unit_vector(rng: np.random.Generator) -> np.ndarray:
@@ -63,6 +77,26 @@ def axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
     k = np.asarray(axis, dtype=np.float64)
     Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     return np.eye(3) + np.sin(angle) * Kx + (1.0 - np.cos(angle)) * (Kx @ Kx)
+
+
+def axis_error(R_g: np.ndarray, t_g: np.ndarray, axis: str, error: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pose ``(R_g, t_g)`` (camera frame, metres) moved by ``error`` along one axis of :data:`ERROR_AXES`:
+    millimetres for the ``t_*`` axes, degrees for the ``r_*`` axes (signed; see the module doc).
+
+    Raises:
+        ConfigError: ``axis`` is not one of :data:`ERROR_AXES`.
+    """
+    R_g, t_g = np.asarray(R_g, dtype=np.float64), np.asarray(t_g, dtype=np.float64)
+    if axis not in ERROR_AXES:
+        raise ConfigError(f"oracle: error_axis must be one of {', '.join(ERROR_AXES)} or none, got {axis!r}")
+    if axis == "t_ray":
+        n = float(np.linalg.norm(t_g))
+        ray = t_g / n if n > 0 else np.array([0.0, 0.0, 1.0])
+        return R_g.copy(), t_g + ray * error / 1000.0
+    k = "xyz".index(axis[-1])
+    if axis.startswith("t_"):
+        return R_g.copy(), t_g + R_g[:, k] * error / 1000.0
+    return R_g @ axis_angle_matrix(np.eye(3)[k], float(np.radians(error))), t_g.copy()
 
 
 class OracleEstimator:
@@ -82,6 +116,9 @@ class OracleEstimator:
         keypoint_noise_px: Standard deviation (pixels) of the noise on projected ground-truth keypoints, whose
             PnP solution then replaces the ground-truth pose; 0 (default) leaves the pose exact.
         keypoints: The keypoints of ``keypoint_noise_px``: ``"bbox"`` (default) or ``"fps"``.
+        error_axis: ``"none"`` (default) or one of :data:`ERROR_AXES`: the axis of an exact error ``error``.
+        error: Size of that error: millimetres (``t_*`` axes) or degrees (``r_*`` axes), >= 0.
+        error_sign: ``"random"`` (default), ``"+"`` or ``"-"``: the sign of that error.
 
     Attributes:
         needs_gt: Always True: the evaluation passes ground-truth poses in ``Observation.gt_poses``.
@@ -96,7 +133,8 @@ class OracleEstimator:
     def __init__(self, rot_noise_deg: float = 0.0, trans_noise_mm: float = 0.0, seed: int = 0,
                  drop_rate: float = 0.0, rot_noise_mode: str = "halfnormal", false_positives: float = 0.0,
                  duplicates: float = 0.0, random_scores: bool = False, keypoint_noise_px: float = 0.0,
-                 keypoints: str = "bbox") -> None:
+                 keypoints: str = "bbox", error_axis: str = "none", error: float = 0.0,
+                 error_sign: str = "random") -> None:
         if not rot_noise_deg >= 0:
             raise ConfigError(f"oracle: rot_noise_deg must be >= 0 degrees, got {rot_noise_deg!r}")
         if not trans_noise_mm >= 0:
@@ -113,7 +151,14 @@ class OracleEstimator:
             raise ConfigError(f"oracle: keypoint_noise_px must be >= 0 pixels, got {keypoint_noise_px!r}")
         if keypoints not in _KEYPOINTS:
             raise ConfigError(f"oracle: keypoints must be one of {', '.join(_KEYPOINTS)}, got {keypoints!r}")
+        if error_axis != "none" and error_axis not in ERROR_AXES:
+            raise ConfigError(f"oracle: error_axis must be one of none, {', '.join(ERROR_AXES)}, got {error_axis!r}")
+        if not error >= 0:
+            raise ConfigError(f"oracle: error must be >= 0 (mm for t_* axes, degrees for r_* axes), got {error!r}")
+        if error_sign not in _SIGNS:
+            raise ConfigError(f"oracle: error_sign must be one of {', '.join(_SIGNS)}, got {error_sign!r}")
         check_int_options("oracle", ("seed", seed, 0))
+        self.error_axis, self.error, self.error_sign = error_axis, float(error), error_sign
         self.keypoint_noise, self.keypoints = float(keypoint_noise_px), keypoints
         self.false_positives, self.duplicates = float(false_positives), float(duplicates)
         self.random_scores = bool(random_scores)
@@ -128,7 +173,9 @@ class OracleEstimator:
                 f"trans_noise_mm={self.trans_noise * 1000:g}, seed={self.seed}, drop_rate={self.drop_rate:g}, "
                 f"rot_noise_mode={self.mode!r}, false_positives={self.false_positives:g}, "
                 f"duplicates={self.duplicates:g}, random_scores={self.random_scores}, "
-                f"keypoint_noise_px={self.keypoint_noise:g}, keypoints={self.keypoints!r})")
+                f"keypoint_noise_px={self.keypoint_noise:g}, keypoints={self.keypoints!r}"
+                + (f", error_axis={self.error_axis!r}, error={self.error:g}, error_sign={self.error_sign!r}"
+                   if self.error_axis != "none" else "") + ")")
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """One estimate per target, from ``observation.gt_poses`` (and the extras of the module doc).
@@ -154,6 +201,10 @@ class OracleEstimator:
                 R_g, t_g, info = self._keypoint_pose(observation, int(obj_id), R_g, t_g, kp_rng)
             if drop or R_g is None:
                 continue
+            if self.error_axis != "none":
+                signed = self._signed_error(observation, k)
+                R_g, t_g = axis_error(R_g, t_g, self.error_axis, signed)
+                info["axis_error"] = signed
             if self.mode == "fixed":
                 angle, dt = self.rot_noise, d_dir * self.trans_noise
             else:
@@ -166,6 +217,13 @@ class OracleEstimator:
         if self.false_positives or self.duplicates or self.random_scores:
             out = self._extras(observation, out)
         return out
+
+    def _signed_error(self, obs: Observation, k: int) -> float:
+        """``error`` with its sign for target ``k`` (see ``error_sign``)."""
+        if self.error_sign != "random":
+            return self.error if self.error_sign == "+" else -self.error
+        rng = np.random.default_rng([self.seed, max(obs.scene_id, 0), max(obs.im_id, 0), 3, k])
+        return self.error if rng.random() < 0.5 else -self.error
 
     def _keypoint_pose(self, obs: Observation, obj_id: int, R_g, t_g, rng: np.random.Generator):
         """``(R, t, info)`` solved by PnP from the ground-truth keypoints projected with ``obs.K`` plus noise
