@@ -25,7 +25,7 @@ from simtest.io.lock import output_lock
 
 #: Sub-command modules, in the order ``simtest --help`` lists them.
 COMMAND_MODULES = ["objects", "generate", "corrupt", "eval", "grasp", "train", "export", "sweep", "bench", "demo",
-                   "show", "masks"]
+                   "show", "masks", "tolerance", "calibrate"]
 
 
 def build_parser() -> argparse.ArgumentParser:
