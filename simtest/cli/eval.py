@@ -46,6 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", metavar="ID,ID", help="scene ids to evaluate (default: all)")
     p.add_argument("--max-images", type=int, metavar="N", help="evaluate only the first N images")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD (faster; AR is then mean of MSSD and MSPD)")
+    p.add_argument("--grasp-tolerance", metavar="TOLERANCE_CSV", default=None,
+                   help="a tolerance.csv of simtest tolerance: also score grasp_tolerance, the targets whose "
+                        "estimate lies within the object's measured grasp tolerance on every axis "
+                        "(docs/grasp_tolerance.md)")
     p.add_argument("--tracking", action="store_true",
                    help="also score as tracking (tracking.md, tracking.csv, tracking.png); the default for a "
                         "dataset generated with --rig sequence")
@@ -75,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--targets applies to --task localization; the detection task tells the estimator nothing")
     common = dict(split=args.split, scenes=scenes, max_images=args.max_images, vsd=not args.no_vsd,
                   progress=not args.quiet, out_dir=args.out, overwrite=args.overwrite, labels=args.labels,
-                  tracking=True if args.tracking else None, task=args.task)
+                  tracking=True if args.tracking else None, task=args.task,
+                  grasp_tolerance=args.grasp_tolerance)
     if args.results:
         if args.opt:
             raise ConfigError("--opt applies to --estimator, not to --results")

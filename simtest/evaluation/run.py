@@ -171,7 +171,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
              fail_fast: bool = False, labels: str | Path | None = None, tracking: bool | None = None,
              backend: Backend | None = None, stats: RunStats | None = None,
-             task: str = "localization") -> EvalReport:
+             task: str = "localization", grasp_tolerance: str | Path | None = None) -> EvalReport:
     """Run ``estimator`` on every selected image of a BOP dataset and score it.
 
     Args:
@@ -210,6 +210,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         task: ``"localization"`` (BOP19: the estimator is told the targets as ``targets`` says) or
             ``"detection"`` (BOP24: it is told nothing, ``targets`` is ignored; an estimator that needs the
             targets is refused; scored by :mod:`simtest.evaluation.detection` as well).
+        grasp_tolerance: A ``tolerance.csv`` of ``simtest tolerance`` (see :func:`score_results`).
 
     Returns:
         The :class:`EvalReport`.
@@ -234,6 +235,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if targets not in TARGET_MODES:
         raise ConfigError(f"targets must be one of {', '.join(TARGET_MODES)}, got {targets!r}")
     _check_task(task)
+    tolerance = _tolerance_map(grasp_tolerance)  # a bad file fails before the estimator runs
     root = Path(dataset_dir)
     split = resolve_split(root, split)
     preflight(backend or Backend())  # before the output is touched
@@ -249,13 +251,11 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     gt_masks = gt_masks and targets == "gt-masks"
     limit = check_timeout(timeout)
     objects = _objects_for(root, est)
-    known = set(objects.ids)
     notes = DataNotes()
-    refs = select_images(root, split, scenes, max_images, known, labels, notes)
+    refs = select_images(root, split, scenes, max_images, set(objects.ids), labels, notes)
     vsd = _check_inputs(estimator, est, notes, gt_masks, vsd)
     width, height = image_size(root)
-    backend = backend if backend is not None else Backend()
-    stats = stats if stats is not None else RunStats()
+    backend, stats = backend or Backend(), stats or RunStats()
     run = run_scene_shards(est, estimator, estimator_options, scene_shards(refs), backend, stats, progress,
                       WorkerSetup(str(root.resolve()), targets, width, height, needs_gt, gt_masks, limit, fail_fast,
                                    gt_init, task),
@@ -264,14 +264,14 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     if task == "detection":  # the highest-scored 100 per image, as the BOP toolkit reads them
         results, scales = _keep_top(results, scales)
     overall, per_object, rows, names = score_estimates(root, results, objects=objects, vsd_enabled=vsd,
-                                                       scales=scales, progress=False, _refs=refs)
+                                                       scales=scales, progress=False, _refs=refs, tolerance=tolerance)
     overall.update(_run_counts(len(refs), len(results), failures, times))
     labelled = gt_masks and not needs_gt  # the oracle's name says it
     settings = {"dataset": str(root), "split": split,
                 "estimator": _describe(estimator, est) + (GT_MASKS_LABEL if labelled else "")
                 + (GT_INIT_LABEL if gt_init else ""),
                 "gt_masks": labelled, "gt_init": gt_init, "targets": targets,
-                **_selection_settings(scenes, max_images, vsd, labels, task, notes),
+                **_selection_settings(scenes, max_images, vsd, labels, task, notes, grasp_tolerance),
                 "estimator_options": jsonable(estimator_options or {}), "timeout_s": limit,
                 "backend": backend.name, "workers": backend.workers}
     report = EvalReport(overall=overall, per_object=per_object, errors=rows, failures=failures, estimates=results,
@@ -286,12 +286,21 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
     return report
 
 
+def _tolerance_map(path: str | Path | None):
+    """The grasp tolerance map of ``path`` (a ``tolerance.csv``), or None."""
+    from simtest.metrics.tolerance import read_tolerance_map
+
+    return None if path is None else read_tolerance_map(path)
+
+
 def _selection_settings(scenes: Sequence[int] | None, max_images: int | None, vsd: bool,
-                        labels: str | Path | None, task: str, notes: DataNotes) -> dict[str, Any]:
+                        labels: str | Path | None, task: str, notes: DataNotes,
+                        grasp_tolerance: str | Path | None = None) -> dict[str, Any]:
     """The ``settings`` entries that say which images were scored and how (with the data notes, if any)."""
     return {"scenes": None if scenes is None else [int(s) for s in scenes], "max_images": max_images,
             "vsd": bool(vsd), "labels": None if labels is None else str(labels),
             **({"task": task} if task == "detection" else {}),
+            **({"grasp_tolerance": str(grasp_tolerance)} if grasp_tolerance is not None else {}),
             **({"data_notes": notes.summary()} if notes.summary() else {})}
 
 
@@ -394,7 +403,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
                   scenes: Sequence[int] | None = None, max_images: int | None = None, vsd: bool = True,
                   progress: bool = True, out_dir: str | Path | None = None, overwrite: bool = False,
                   labels: str | Path | None = None, tracking: bool | None = None,
-                  task: str = "localization") -> EvalReport:
+                  task: str = "localization", grasp_tolerance: str | Path | None = None) -> EvalReport:
     """Score a BOP results CSV (from any estimator) against a dataset, as :func:`evaluate` scores its own.
 
     Every target of the selected images counts (images without rows are misses), so select the same images
@@ -408,11 +417,15 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
             or objects) and ``metrics.md``.
         overwrite, labels, tracking, task: As in :func:`evaluate` (with ``"detection"`` the 100 rows of
             highest score per image are scored, as the BOP toolkit reads the file).
+        grasp_tolerance: A ``tolerance.csv`` of ``simtest tolerance``: adds the ``grasp_tolerance`` metric
+            (targets whose estimate lies within the object's measured grasp tolerance on every axis) and the
+            ``grasp_ready`` column of ``errors.csv``, for the objects the map covers.
 
     Returns:
         The :class:`EvalReport` (``failures`` lists rows for images or objects not in the selection).
     """
     _check_task(task)
+    tolerance = _tolerance_map(grasp_tolerance)
     root = Path(dataset_dir)
     _check_out(out_dir, root, overwrite)
     rows = read_bop_results(results_csv)
@@ -432,7 +445,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
             failures.append({"scene_id": r.scene_id, "im_id": r.im_id, "obj_id": r.obj_id, "kind": "unknown-object",
                              "message": f"obj_id {r.obj_id} not in the dataset's models {sorted(known)}"})
     overall, per_object, err_rows, names = score_estimates(root, rows, objects=objects, vsd_enabled=vsd,
-                                                           progress=progress, _refs=refs)
+                                                           progress=progress, _refs=refs, tolerance=tolerance)
     used = [r for r in rows if (r.scene_id, r.im_id) in selected]
     img_times: dict[tuple[int, int], float] = {}
     for r in used:
@@ -445,7 +458,7 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
     overall["mean_time_per_image_s"] = float(np.mean(t)) if t else float("nan")
     overall["median_time_per_image_s"] = float(np.median(t)) if t else float("nan")
     settings = {"dataset": str(root), "split": split, "results": str(results_csv),
-                **_selection_settings(scenes, max_images, vsd, labels, task, notes)}
+                **_selection_settings(scenes, max_images, vsd, labels, task, notes, grasp_tolerance)}
     report = EvalReport(overall=overall, per_object=per_object, errors=err_rows, failures=failures, estimates=used,
                         object_names=names, num_images=len(refs), settings=settings,
                         per_category=_per_category(objects, err_rows, per_object))
@@ -461,7 +474,8 @@ def score_results(results_csv: str | Path, dataset_dir: str | Path, *, split: st
 # ---------------------------------------------------------------------------------------------------------
 # Output files
 _ERROR_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "visib_fract", "diameter_m", "symmetric", "matched",
-                  "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale"]
+                  "score", "add", "adi", "add_s_or_add", "re", "re_sym", "te", "mssd", "mspd", "vsd", "scale",
+                  "grasp_ready"]
 _CLASSIFICATION_COLUMNS = ["scene_id", "im_id", "gt_id", "obj_id", "category", "matched", "est_obj_id",
                            "est_category", "classified", "re_sym"]
 _FAILURE_COLUMNS = ["scene_id", "im_id", "obj_id", "kind", "message", "exception_type", "traceback"]

@@ -23,6 +23,7 @@ from simtest.metrics.bop19 import evaluate_bop19
 from simtest.metrics.intervals import cluster_bootstrap_interval, wilson_interval
 from simtest.metrics.pose import MSPD_REFERENCE_WIDTH, add, adi, mspd, mssd, re, re_sym, te, vsd
 from simtest.metrics.registry import NDEG_MCM
+from simtest.metrics.tolerance import ToleranceMap, error_components
 from simtest.metrics.viewpoint import PI_6, PI_18, accuracy_at
 from simtest.objects.loaders import load_dataset_objects
 
@@ -92,6 +93,11 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"{nd:g}deg{mc:g}cm"] = float(np.mean(hits[f"{nd:g}deg{mc:g}cm"]))
     #: 95 % Wilson intervals of the proportions of targets, [low, high] fractions
     out["ci95"] = {k: list(wilson_interval(int(np.sum(h)), n)) for k, h in hits.items()}
+    ready = [bool(r["grasp_ready"]) for r in rows if r.get("grasp_ready") is not None]
+    if ready:  # scored with a tolerance map: over the targets of the objects it covers
+        out["grasp_tolerance"] = float(np.mean(ready))
+        out["num_grasp_targets"] = len(ready)
+        out["ci95"]["grasp_tolerance"] = list(wilson_interval(int(sum(ready)), len(ready)))
     scenes = [r.get("scene_id") for r in rows]
     if len(set(scenes)) > 1:
         #: 95 % percentile-bootstrap intervals over scenes (targets of one scene are not independent)
@@ -157,6 +163,7 @@ def _errors(e: ResultRow, g: bop.ImageGT, obj, syms: np.ndarray, K: np.ndarray, 
 def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, split: str | None = None,
                     scenes: Sequence[int] | None = None, max_images: int | None = None, vsd_enabled: bool = True,
                     scales: Sequence[float] | None = None, objects=None, progress: bool = False,
+                    tolerance: ToleranceMap | None = None,
                     _refs: list[ImageRef] | None = None) -> tuple[dict, dict, list[dict], dict[int, str]]:
     """Score estimates (metres) against the dataset's ground truth.
 
@@ -171,6 +178,9 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
             matched ones when it is not 1.
         objects: The object set (default :func:`simtest.objects.loaders.load_dataset_objects`).
         progress: Show a progress bar.
+        tolerance: A grasp tolerance map (``simtest tolerance``): each target of an object it covers gets
+            ``grasp_ready`` (its estimate's error within the object's limit on every axis; a miss is not) and
+            the aggregates ``grasp_tolerance``.
 
     Returns:
         ``(overall, per_object, error_rows, object_names)``; every target of the selected images counts,
@@ -209,6 +219,9 @@ def score_estimates(dataset_dir: str | Path, estimates: Iterable[ResultRow], *, 
                 row.update(_errors(e, g, obj, syms, K, width, depth if vsd_enabled else None))
                 if id(e) in scale_of:
                     row["scale"] = scale_of[id(e)]
+            if tolerance is not None and g.obj_id in tolerance.limits:
+                row["grasp_ready"] = bool(j in match and tolerance.allows(g.obj_id, error_components(
+                    ests[match[j]].R, ests[match[j]].t, g.T_cam_obj.R, g.T_cam_obj.t, syms)))
             rows.append(row)
         # BOP19 on this image.
         gts = [GroundTruthPose(ref.scene_id, ref.im_id, j, g.obj_id, g.T_cam_obj.R, g.T_cam_obj.t, g.visib_fract)

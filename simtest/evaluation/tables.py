@@ -65,8 +65,9 @@ def format_table(report: Any) -> str:
     """Markdown tables of an :class:`~simtest.evaluation.run.EvalReport`: one row per object and one overall; units in
     the headers (percent, degrees, centimetres)."""
     rows = [(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
-    table = metric_table("Object", DETECTION_TABLE_METRICS if _detection(report) else TABLE_METRICS,
-                         rows + [("**All**", report.overall)], _vsd_on(report))
+    keys = DETECTION_TABLE_METRICS if _detection(report) else TABLE_METRICS
+    keys = (*keys, "grasp_tolerance") if "grasp_tolerance" in report.overall else keys
+    table = metric_table("Object", keys, rows + [("**All**", report.overall)], _vsd_on(report))
     s = report.settings
     o = report.overall
     title = s.get("estimator") or s.get("results", "")
@@ -124,7 +125,8 @@ def overall_table(report: Any) -> str:
     """A short plain-text summary of the overall scores (for terminals): label, value and unit per line."""
     o = report.overall
     items = []
-    for k in DETECTION_SUMMARY_METRICS if _detection(report) else SUMMARY_METRICS:
+    keys = DETECTION_SUMMARY_METRICS if _detection(report) else SUMMARY_METRICS
+    for k in (*keys, "grasp_tolerance") if "grasp_tolerance" in o else keys:
         m = metric(k)
         digits = 2 if k in ("median_re_deg", "median_te_m") else None
         text = m.format(o.get(k), digits) if k in o else ""

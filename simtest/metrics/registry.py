@@ -106,6 +106,12 @@ METRICS: tuple[Metric, ...] = (
     Metric("ar_mssd", "AR_MSSD", "BOP19 recall of MSSD at 0.05..0.5 x diameter, averaged over thresholds"),
     Metric("ar_mspd", "AR_MSPD", "BOP19 recall of MSPD at 5..50 px (scaled to a 640 px wide image), averaged over "
            "thresholds"),
+    Metric("grasp_tolerance", "Grasp-ready", "fraction of targets whose estimate lies within the object's "
+           "measured grasp tolerance on every axis (simtest tolerance map: the largest error along each axis "
+           "keeping Panda grasp success >= 90 %); targets of objects the map covers; misses count as not ready",
+           sweepable=False),
+    Metric("num_grasp_targets", "grasp targets", "targets scored by grasp_tolerance (objects in the map)", 1.0,
+           "", None, sweepable=False),
     Metric("num_images", "images", "images evaluated", 1.0, "", None, sweepable=False),
     Metric("num_estimates", "estimates", "valid pose estimates returned by the estimator", 1.0, "", None,
            sweepable=False),
