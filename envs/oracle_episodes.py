@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import functools
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -183,7 +182,6 @@ def run_oracle_units(setup: EpisodeSetup, units: Sequence[OracleUnit], *, progre
     ctx = _make_context(setup) if backend.in_process(len(units)) else None
     fn = _run_unit if ctx is None else functools.partial(_run_unit, ctx=ctx)
     ok = 0
-    t0 = time.perf_counter()
     try:
         for row in run_units(fn, list(units), backend, init=_worker_init, init_args=(setup,), stats=stats):
             ok += bool(row["success"])
