@@ -5,9 +5,14 @@ images), a normal interval for a mean of per-target values in [0, 1], and a perc
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
-__all__ = ["Z95", "wilson_interval", "mean_interval", "cluster_bootstrap_interval"]
+import numpy as np
+
+__all__ = ["Z95", "wilson_interval", "mean_interval", "bootstrap_interval", "cluster_bootstrap_interval"]
+
+_CHUNK = 250  # bootstrap resamples drawn at once (bounds the memory of a large set)
+_HUGE = 1e300
 
 #: The standard normal quantile of a two-sided 95 % interval.
 Z95 = 1.959963984540054
@@ -57,8 +62,6 @@ def cluster_bootstrap_interval(values: Sequence[float], clusters: Sequence[objec
     Raises:
         ValueError: ``values`` and ``clusters`` of different lengths, ``n_boot < 100`` or ``level`` outside (0, 1).
     """
-    import numpy as np
-
     if len(values) != len(clusters):
         raise ValueError(f"values and clusters must have the same length, got {len(values)} and {len(clusters)}")
     if n_boot < 100 or not 0.0 < level < 1.0:
@@ -76,3 +79,30 @@ def cluster_bootstrap_interval(values: Sequence[float], clusters: Sequence[objec
     a = (1.0 - level) / 2.0
     lo, hi = np.quantile(means, [a, 1.0 - a])
     return float(lo), float(hi)
+
+
+def bootstrap_interval(values: np.ndarray, stat: Callable[[np.ndarray], np.ndarray], *, seed: int = 0,
+                       resamples: int = 2000) -> tuple[float, float]:
+    """Percentile bootstrap 95 % interval of ``stat`` over the rows of ``values``.
+
+    Args:
+        values: Per-target values, ``(n,)``.
+        stat: The statistic of a batch of resamples: ``(b, n) -> (b,)`` (e.g. a mean or median over axis 1).
+        seed: Seed of the resampling.
+        resamples: Number of resamples.
+
+    Raises:
+        ValueError: ``values`` empty or not one-dimensional.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 1 or v.size == 0:
+        raise ValueError(f"values must be a non-empty 1-D array, got shape {v.shape}")
+    rng = np.random.default_rng(seed)
+    stats = []
+    for start in range(0, resamples, _CHUNK):
+        idx = rng.integers(0, v.size, size=(min(_CHUNK, resamples - start), v.size))
+        stats.append(stat(v[idx]))
+    # a median of misses is inf: percentiles between two infs would be NaN, so they go through a finite stand-in
+    found = np.clip(np.concatenate(stats), -_HUGE, _HUGE)
+    lo, hi = (float(q) if abs(q) < _HUGE else math.copysign(math.inf, q) for q in np.percentile(found, [2.5, 97.5]))
+    return lo, hi

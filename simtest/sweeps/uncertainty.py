@@ -5,12 +5,12 @@ Every score is over the cell's targets (``n``: the ground-truth instances with `
 * **Proportions of targets** (ADD(-S)-0.1d, ADD-S<2cm, Acc@pi/6, Acc@pi/18, n deg m cm): the binomial Wilson
   interval ``simtest eval`` records in ``overall["ci95"]`` (method ``wilson``).
 * **Means over targets and medians** (AR and its AR_VSD / AR_MSSD / AR_MSPD, the AUCs, median errors, mean
-  ADD(-S)): a percentile bootstrap over targets (:data:`RESAMPLES` resamples, seeded, so the same cell always
-  gives the same interval; method ``bootstrap``). A target's share of AR is the mean over the BOP19 thresholds
-  of whether its error is under each (a miss counts 0), from the per-target errors (VSD: its mean over the
-  taus); where the pooled BOP19 matching makes the reported score differ from the mean of those shares (several
-  instances of one object in an image), the interval is moved by that difference, so it is always around the
-  reported score.
+  ADD(-S)): a percentile bootstrap over targets (:func:`simtest.metrics.intervals.bootstrap_interval`,
+  :data:`RESAMPLES` resamples, seeded, so the same cell always gives the same interval; method ``bootstrap``).
+  A target's share of AR is the mean over the BOP19 thresholds of whether its error is under each (a miss
+  counts 0), from the per-target errors (VSD: its mean over the taus); where the pooled BOP19 matching makes
+  the reported score differ from the mean of those shares (several instances of one object in an image), the
+  interval is moved by that difference, so it is always around the reported score.
 * Scores with no per-target form (the detection task's AP and classification accuracy) have ``n`` and no
   interval.
 
@@ -21,20 +21,19 @@ other's interval.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from simtest.metrics.auc import YCB_AUC_MAX_THRESHOLD
 from simtest.metrics.bop19 import MSPD_THETAS, MSSD_THETAS, VSD_THETAS
+from simtest.metrics.intervals import bootstrap_interval
 
-__all__ = ["Interval", "RESAMPLES", "pose_intervals", "bootstrap_interval", "differs"]
+__all__ = ["Interval", "RESAMPLES", "pose_intervals", "differs"]
 
 #: Bootstrap resamples per score.
 RESAMPLES = 2000
-_CHUNK = 250  # resamples drawn at once (bounds the memory of a large cell)
-_HUGE = 1e300
 
 
 @dataclass(frozen=True)
@@ -51,33 +50,6 @@ class Interval:
     def known(self) -> bool:
         """Whether both ends are numbers (``inf`` included: a median of misses)."""
         return not (math.isnan(self.low) or math.isnan(self.high))
-
-
-def bootstrap_interval(values: np.ndarray, stat: Callable[[np.ndarray], np.ndarray], *, seed: int = 0,
-                       resamples: int = RESAMPLES) -> tuple[float, float]:
-    """Percentile bootstrap 95 % interval of ``stat`` over the rows of ``values``.
-
-    Args:
-        values: Per-target values, ``(n,)``.
-        stat: The statistic of a batch of resamples: ``(b, n) -> (b,)`` (e.g. a mean or median over axis 1).
-        seed: Seed of the resampling.
-        resamples: Number of resamples.
-
-    Raises:
-        ValueError: ``values`` empty or not one-dimensional.
-    """
-    v = np.asarray(values, dtype=np.float64)
-    if v.ndim != 1 or v.size == 0:
-        raise ValueError(f"values must be a non-empty 1-D array, got shape {v.shape}")
-    rng = np.random.default_rng(seed)
-    stats = []
-    for start in range(0, resamples, _CHUNK):
-        idx = rng.integers(0, v.size, size=(min(_CHUNK, resamples - start), v.size))
-        stats.append(stat(v[idx]))
-    # a median of misses is inf: percentiles between two infs would be NaN, so they go through a finite stand-in
-    found = np.clip(np.concatenate(stats), -_HUGE, _HUGE)
-    lo, hi = (float(q) if abs(q) < _HUGE else math.copysign(math.inf, q) for q in np.percentile(found, [2.5, 97.5]))
-    return lo, hi
 
 
 def _float(text: str | None, missing: float) -> float:
@@ -158,18 +130,18 @@ def pose_intervals(overall: Mapping, errors: Sequence[Mapping[str, str]], *, see
     for key, shares in _target_shares(overall, errors).items():
         value = _float(str(overall.get(key, "")), math.nan)
         if key in overall and math.isfinite(value):
-            lo, hi = bootstrap_interval(shares, _mean, seed=seed)
+            lo, hi = bootstrap_interval(shares, _mean, seed=seed, resamples=RESAMPLES)
             lo, hi = _shifted(value, float(shares.mean()), lo, hi, (0.0, 1.0))
             found[key] = Interval(n, lo, hi, "bootstrap")
     medians = {"median_re_deg": _column(errors, "re_sym", 180.0), "median_te_m": _column(errors, "te", math.inf)}
     for key, values in medians.items():
         if key in overall:
-            lo, hi = bootstrap_interval(values, _median, seed=seed)
+            lo, hi = bootstrap_interval(values, _median, seed=seed, resamples=RESAMPLES)
             found[key] = Interval(n, lo, hi, "bootstrap")
     adds = _column(errors, "add_s_or_add", math.inf)
     adds = adds[np.isfinite(adds)]
     if "mean_add_s_or_add_m" in overall and adds.size:
-        lo, hi = bootstrap_interval(adds, _mean, seed=seed)
+        lo, hi = bootstrap_interval(adds, _mean, seed=seed, resamples=RESAMPLES)
         found["mean_add_s_or_add_m"] = Interval(int(adds.size), lo, hi, "bootstrap")
     return found
 
