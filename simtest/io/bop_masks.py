@@ -24,11 +24,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from simtest.errors import ConfigError, DatasetError
-from simtest.io.bop import decode_depth, read_image, read_json, read_scene
+from simtest.io.bop import read_depth, read_image, read_json, read_scene
 from simtest.io.files import write_new_file
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs
 from simtest.io.png import encode_mask_png
@@ -126,7 +125,7 @@ def _scene_masks(scene_dir: Path, out_scene: Path, meshes: Mapping[int, Mesh], d
                                    f"has no model (models: {sorted(meshes)})")
             V, F = meshes[g.obj_id]
             depths.append(render_depth(V, F, g.T_cam_obj.R, g.T_cam_obj.t, im["K"], w, h))
-        measured = decode_depth(_depth_raw(scene_dir, im_id), im["depth_scale"]) if has_depth else None
+        measured = read_depth(scene_dir, im_id, im["depth_scale"]) if has_depth else None
         for k, (d, vis) in enumerate(zip(depths, visible_masks(depths, im["K"], measured, delta_m))):
             name = f"{im_id:06d}_{k:06d}.png"
             write_new_file(parts["mask"] / name, encode_mask_png(d > 0))
@@ -136,18 +135,6 @@ def _scene_masks(scene_dir: Path, out_scene: Path, meshes: Mapping[int, Mesh], d
     for sub, p in parts.items():
         p.rename(out_scene / sub)
     return len(images), n_masks, has_depth
-
-
-def _depth_raw(scene_dir: Path, im_id: int) -> np.ndarray:
-    for ext in (".png", ".tif"):
-        p = scene_dir / "depth" / f"{im_id:06d}{ext}"
-        if p.is_file():
-            raw = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-            if raw is None:
-                raise DatasetError(f"{p}: not a readable depth image")
-            return raw
-    raise DatasetError(f"{scene_dir}/depth: no depth image for image {im_id} (the scene has a depth/ folder, so "
-                       "every image needs one)")
 
 
 def write_gt_masks(dataset_dir: str | Path, meshes: Mapping[int, Mesh], out_dir: str | Path | None = None,

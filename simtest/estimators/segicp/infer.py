@@ -202,7 +202,8 @@ class Segmenter:
             n, comp, stats, _ = cv2.connectedComponentsWithStats((label == c).astype(np.uint8), connectivity=8)
             order = [i for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable") + 1
                      if stats[i, cv2.CC_STAT_AREA] >= self.min_region_pixels]
-            found = [(comp == i, float(prob[c][comp == i].mean())) for i in order]
+            masks = [comp == i for i in order]
+            found = [(m, float(prob[c][m].mean())) for m in masks]
             if rank == "prob":
                 found.sort(key=lambda mp: -mp[1])
             for mask, p in found[:limit]:
