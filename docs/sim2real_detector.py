@@ -1,0 +1,86 @@
+"""How often a detector's region holds the object, on a BOP dataset with visible masks (docs/sim2real.md).
+
+Per target (``visib_fract >= 0.1``): the detector's class map of the image, the connected regions of the
+target's class (``min_region_pixels`` and up), and whether the region a rule picks overlaps the target's
+``mask_visib`` with IoU >= 0.3. Rules: ``area`` (largest region), ``prob`` (highest mean class probability),
+``top3`` (any of the three largest: what ``--opt candidates=3`` could reach with a perfect verifier). Also the
+class IoU of the whole class map, per object. Run from the repository root::
+
+    simtest masks --data LMO --out LMO-masked          # real sets ship without masks
+    python docs/sim2real_detector.py simtest/estimators/weights/keypoints_detector_lmo_640x480.onnx LMO-masked
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from simtest.estimators.segicp.infer import Segmenter  # noqa: E402
+from simtest.io import bop  # noqa: E402
+from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
+
+HIT_IOU = 0.3
+RULES = ("area", "prob", "top3")
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def score(detector: str, data: Path, max_images: int | None, threads: int) -> dict:
+    """``{"targets": n, "hits": {rule: count}, "class_iou": {obj_id: iou}}`` over the dataset's images."""
+    seg = Segmenter(detector, "cpu", 40, threads, runtime="auto")
+    hits, n = dict.fromkeys(RULES, 0), 0
+    inter: dict[int, int] = {}
+    union: dict[int, int] = {}
+    images = [(s, im, d) for s in scene_dirs(dataset_split_dir(data)) for im, d in sorted(bop.read_scene(s).items())]
+    for scene, im, d in images[:max_images]:
+        rgb = bop.read_image(scene, im)
+        prob = seg.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), d["K"])
+        label = prob.argmax(0)
+        for k, g in enumerate(d["gt"]):
+            if g.visib_fract < 0.1 or g.obj_id not in seg.class_ids:
+                continue
+            c = seg.class_ids.index(g.obj_id) + 1
+            m = bop.read_mask(scene, im, k)
+            p = label == c
+            inter[g.obj_id] = inter.get(g.obj_id, 0) + int((p & m).sum())
+            union[g.obj_id] = union.get(g.obj_id, 0) + int((p | m).sum())
+            n += 1
+            count, comp, stats, _ = cv2.connectedComponentsWithStats(p.astype(np.uint8), connectivity=8)
+            regions = [comp == i for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= seg.min_region_pixels]
+            if not regions:
+                continue
+            ious = [_iou(r, m) for r in regions]
+            by_area = np.argsort([-r.sum() for r in regions], kind="stable")
+            by_prob = int(np.argmax([prob[c][r].mean() for r in regions]))
+            hits["area"] += ious[by_area[0]] >= HIT_IOU
+            hits["prob"] += ious[by_prob] >= HIT_IOU
+            hits["top3"] += max(ious[i] for i in by_area[:3]) >= HIT_IOU
+    return {"targets": n, "hits": hits, "class_iou": {o: inter[o] / max(union[o], 1) for o in sorted(inter)}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("detector", help="segmentation checkpoint (.pt or .onnx)")
+    ap.add_argument("data", type=Path, help="BOP dataset with mask_visib/")
+    ap.add_argument("--max-images", type=int, default=None)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    r = score(args.detector, args.data, args.max_images, args.threads)
+    n = r["targets"]
+    for rule in RULES:
+        print(f"{rule:5s} {r['hits'][rule]}/{n} = {100 * r['hits'][rule] / max(n, 1):.1f} %")
+    ious = r["class_iou"]
+    print("class IoU: " + ", ".join(f"{o}: {v:.3f}" for o, v in ious.items())
+          + f"; mean {np.mean(list(ious.values())):.3f}")
+
+
+if __name__ == "__main__":
+    main()
