@@ -18,6 +18,9 @@ import trimesh
 from simtest.errors import AssetError
 from simtest.objects.cache import cache_dir
 from simtest.objects.appearance import Appearance
+from simtest.objects.collision import convex_parts, open_mesh_is_concave
+from simtest.objects.grasps import sample_grasps
+from simtest.objects.symmetry import symmetry_transforms
 
 __all__ = [
     "ContinuousSymmetry",
@@ -211,8 +214,6 @@ class ObjectModel:
         if self.concave is not None:
             return bool(self.concave)
         if not self.mesh.is_watertight:
-            from simtest.objects.collision import open_mesh_is_concave
-
             return open_mesh_is_concave(self.mesh)
         if self.mesh.volume <= 0:
             return False
@@ -224,8 +225,6 @@ class ObjectModel:
 
         Convex shapes give their hull; concave ones a CoACD decomposition, cached on disk by mesh hash.
         """
-        from simtest.objects.collision import convex_parts
-
         return convex_parts(self)
 
     # --- annotations ---------------------------------------------------------------------------------------
@@ -298,15 +297,11 @@ class ObjectModel:
             max_step: Maximum angular step (radians) of a discretised continuous symmetry... expressed as in
                 the BOP toolkit's ``max_sym_disc_step`` (0.01: ``ceil(pi / 0.01) = 315`` steps per turn).
         """
-        from simtest.objects.symmetry import symmetry_transforms
-
         return symmetry_transforms(self.symmetries_discrete, self.symmetries_continuous, max_step)
 
     @functools.cached_property
     def grasps(self):  # -> simtest.objects.grasps.GraspSet
         """Antipodal parallel-jaw grasp candidates in the model frame (see :mod:`simtest.objects.grasps`)."""
-        from simtest.objects.grasps import sample_grasps
-
         return sample_grasps(self)
 
     @property
