@@ -196,7 +196,8 @@ def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, in
     import mujoco
 
     from simtest.generators.builder import DRAWN_GROUPS
-    from simtest.generators.pipeline import prepare_scene, scene_cameras
+    from simtest.generators.pipeline import prepare_scene
+    from simtest.generators.recorder import scene_cameras
 
     scene, _, _, _ = prepare_scene(cfg, objects, scene_id)
     cams = scene_cameras(cfg, scene)
@@ -281,7 +282,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
     ``overrides``: further generation values (dotted keys), e.g. the plain look of earlier releases.
     """
-    from simtest.render.gl import available_cores
+    from simtest.backend.threads import available_cores
     from simtest.generators.pipeline import load_objects, generate, prepare_scene
 
     cfg = GenerateConfig().replace(**{
