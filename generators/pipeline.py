@@ -33,8 +33,9 @@ from simtest.schema import config_changes
 
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
 
-#: Names that moved to :mod:`simtest.generators.recorder`; they forward there.
-MOVED = ("scene_cameras",)
+#: Names this module no longer holds, and the module each lives in; they forward there.
+MOVED = {"scene_cameras": "simtest.generators.recorder", "ViewsBehind": "simtest.generators.views_behind",
+         "DenseViews": "simtest.generators.dense"}
 
 MANIFEST = "manifest.json"
 
@@ -98,15 +99,14 @@ def load_objects(cfg: GenerateConfig):
 
 
 def __getattr__(name: str) -> Any:
-    """The moved names (:data:`MOVED`), from :mod:`simtest.generators.recorder`, with a DeprecationWarning."""
+    """The moved names (:data:`MOVED`), from their module, with a DeprecationWarning."""
     if name in MOVED:
+        import importlib
         import warnings
 
-        from simtest.generators import recorder
-
-        warnings.warn(f"simtest.generators.pipeline.{name} moved to simtest.generators.recorder.{name}",
-                      DeprecationWarning, stacklevel=2)
-        return getattr(recorder, name)
+        warnings.warn(f"simtest.generators.pipeline.{name} moved to {MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(importlib.import_module(MOVED[name]), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -114,7 +114,8 @@ def cpu_seconds(children: bool = False) -> float:
 def thread_groups() -> tuple[tuple[str, str], ...]:
     """``(thread name prefix, group)`` pairs of :class:`ThreadCpu`: Python's thread names as the pipeline's
     thread owners give them, or the OS's for native threads (llvmpipe's rasterizers)."""
-    from simtest.generators.pipeline import ScenesAhead, ViewsBehind
+    from simtest.generators.pipeline import ScenesAhead
+    from simtest.generators.views_behind import ViewsBehind
     from simtest.io.bop import SceneWriter
 
     return (("MainThread", "rendering"), (ViewsBehind.THREAD_NAME, "annotation"),

@@ -29,8 +29,13 @@ def test_a_recorded_scene_is_written_only_through_its_writer(small_config, tmp_p
     assert (final / "scene_captions.json").is_file()
 
 
-def test_scene_cameras_still_import_from_the_pipeline_with_a_warning():
+def test_moved_names_still_import_from_the_pipeline_with_a_warning():
     import simtest.generators.pipeline as pipeline
+    from simtest.generators.dense import DenseViews
+    from simtest.generators.views_behind import ViewsBehind
 
-    with pytest.warns(DeprecationWarning, match="simtest.generators.recorder.scene_cameras"):
-        assert pipeline.scene_cameras is scene_cameras
+    for name, value in (("scene_cameras", scene_cameras), ("ViewsBehind", ViewsBehind), ("DenseViews", DenseViews)):
+        with pytest.warns(DeprecationWarning, match=f"simtest.generators.pipeline.{name} moved"):
+            assert getattr(pipeline, name) is value
+    with pytest.raises(AttributeError, match="no_such_name"):
+        pipeline.no_such_name  # noqa: B018
