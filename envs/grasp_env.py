@@ -364,7 +364,7 @@ class PandaGraspEnv(gym.Env):
         self._q_cmd = self.data.ctrl[self.ids.arm_actuators].copy()
 
     def _workspace(self) -> tuple[np.ndarray, np.ndarray]:
-        sc = self._builders[self.config.objects].cfg.scene
+        sc = self._builders[self.config.objects].options.room
         z0 = float(sc.table_height)
         lo = np.array([-sc.table_size[0] / 2, -sc.table_size[1] / 2, z0 + 0.005])
         hi = np.array([sc.table_size[0] / 2, sc.table_size[1] / 2, z0 + 0.7])

@@ -122,9 +122,9 @@ def _make_context(setup: EpisodeSetup) -> dict:
 
 
 def _worker_init(setup: EpisodeSetup) -> None:
-    from simtest.render.gl import apply_thread_budget, workers_per_machine
+    from simtest.backend.threads import worker_threads
 
-    apply_thread_budget(workers_per_machine(setup.workers, setup.ray_address))
+    worker_threads(setup.workers, setup.ray_address, apply=True)
     _WORKER.clear()
     _WORKER.update(_make_context(setup))
 

@@ -169,9 +169,9 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
-    from simtest.render.gl import apply_thread_budget, workers_per_machine
+    from simtest.backend.threads import worker_threads
 
-    apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores
+    worker_threads(cfg.workers, cfg.ray_address, apply=True)  # its share of the cores
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 

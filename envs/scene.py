@@ -28,11 +28,13 @@ import numpy as np
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
-from simtest.camera import look_at_pose
+from simtest.camera import CameraModel, default_intrinsics, look_at_pose
 from simtest.corrupt.occlusion import OCCLUSION_BANDS
 from simtest.errors import ConfigError
+from simtest.generators.build_options import BuildOptions, SettleOptions
 from simtest.generators.builder import SceneBuilder, SimScene
-from simtest.generators.config import GenerateConfig, MaterialConfig
+from simtest.generators.config import MaterialConfig
+from simtest.generators.settle import settle
 from simtest.generators.occlusion import bisect_occlusion
 from simtest.generators.scene_spec import (DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec,
                                           object_colour, random_quat_wxyz)
@@ -52,6 +54,7 @@ __all__ = [
     "observation_directions",
     "tune_occluder",
     "scene_config",
+    "SETTLE_MAX_TIME",
     "OCCLUDER_HALF_SIZE",
     "POOL_DISTRACTORS",
 ]
@@ -78,11 +81,15 @@ POOL_DISTRACTORS = (("box", OCCLUDER_HALF_SIZE),)
 _OCCLUDER_PARK_XY = (0.33, 0.24)
 
 
-def scene_config(width: int, height: int) -> GenerateConfig:
-    """The generation config of grasp scenes: the default table, the Panda, a ``width`` x ``height`` wrist
-    camera with D435-like intrinsics (fx = fy = 615 px at 640 px width)."""
-    return GenerateConfig().replace(**{"camera.width": int(width), "camera.height": int(height),
-                                       "scene.panda": True, "scene.settle_max_time": 2.0})
+#: Simulated seconds a grasp scene settles at most.
+SETTLE_MAX_TIME = 2.0
+
+
+def scene_config(width: int, height: int) -> BuildOptions:
+    """The building options of grasp scenes: the default table and room, the Panda, a ``width`` x ``height``
+    wrist camera with D435-like intrinsics (fx = fy = 615 px at 640 px width)."""
+    return BuildOptions(camera=CameraModel(default_intrinsics(int(width), int(height)), int(width), int(height)),
+                        panda=True)
 
 
 @dataclass
@@ -246,7 +253,8 @@ def build_grasp_scene(
     """Sample, build and settle one grasp scene.
 
     Args:
-        builder: A :class:`SceneBuilder` for ``objects`` with the Panda in the scene (see :func:`scene_config`).
+        builder: A :class:`SceneBuilder` for ``objects`` with the Panda in the scene (see :func:`scene_config`);
+            its room is the one settling keeps the objects on.
         objects: The object set.
         target_id: obj_id of the target.
         rng: The episode's scene generator; every random choice is drawn from it in a fixed order.
@@ -265,13 +273,13 @@ def build_grasp_scene(
     spec = sample_grasp_spec(builder, objects, target_id, rng, n_distractors=n_distractors, occlusion=occlusion,
                              placement=placement, scene_index=scene_index)
     sim = builder.build(spec) if models is None else models.build(spec)
-    _settle(sim, builder.cfg)
+    settle(sim, SettleOptions(max_time=SETTLE_MAX_TIME, room=builder.options.room))
     if not sim.active[0]:
         raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")
     occluder = -1
     if occlusion > 0:
         occluder = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "distractor_0")
-    return GraspScene(sim, 0, occluder, float(builder.cfg.scene.table_height))
+    return GraspScene(sim, 0, occluder, float(builder.options.room.table_height))
 
 
 def sample_grasp_spec(
@@ -294,7 +302,7 @@ def sample_grasp_spec(
         raise ConfigError(f"placement must be 'upright' or 'random', got {placement!r}")
     if isinstance(n_distractors, bool) or not isinstance(n_distractors, (int, np.integer)) or n_distractors < 0:
         raise ConfigError(f"n_distractors must be an integer >= 0, got {n_distractors!r}")
-    sc = builder.cfg.scene
+    sc = builder.options.room
     table_z = float(sc.table_height)
     upright = placement == "upright"
     target = objects.get(int(target_id))
@@ -376,17 +384,6 @@ def sample_grasp_spec(
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v)
-
-
-def _settle(sim: SimScene, cfg: GenerateConfig) -> None:
-    """Settle with the generator's :func:`settle`, then undo its temporary rotational damping of free bodies."""
-    from simtest.generators.settle import settle
-
-    m = sim.model
-    damping = m.dof_damping.copy()
-    settle(sim, cfg.scene)
-    m.dof_damping[:] = damping
-    mujoco.mj_forward(m, sim.data)
 
 
 def _free_joint(model: mujoco.MjModel, body: int) -> tuple[int, int]:

@@ -15,7 +15,8 @@ import numpy as np
 
 from simtest.corrupt.depth_presets import apply_depth_noise
 from simtest.generators.config import GenerateConfig
-from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+from simtest.generators.pipeline import load_objects, prepare_scene
+from simtest.generators.recorder import scene_cameras
 from simtest.render.rasterizer import Renderer
 from simtest.sensors.stereo import stereo_preset
 from simtest.viz.channels import colourize_depth

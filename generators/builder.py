@@ -16,9 +16,9 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.camera import CameraModel
-from simtest.errors import AssetError
-from simtest.generators.config import GenerateConfig
-from simtest.generators.looks import environment_of, skin_of, surface_maps
+from simtest.errors import AssetError, ConfigError
+from simtest.generators.build_options import N_OCCLUDERS, BuildOptions
+from simtest.generators.looks import environment_of, material_maps, skin_of
 from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
@@ -29,8 +29,6 @@ VISUAL_GROUP = 1
 COLLISION_GROUP = 3
 DRAWN_GROUPS = (0, 1, 2)
 CAMERA_NAME = "render_cam"
-#: Mocap occluder boxes pre-allocated when physical occlusion is on.
-N_OCCLUDERS = 1
 #: Height of the ceiling panel above the floor (metres).
 CEILING_HEIGHT = 10.0
 #: Contact parameters of object collision geoms: sliding, torsional, rolling friction.
@@ -54,6 +52,8 @@ class SimScene:
         panda: :mod:`simtest.robot` handles when the arm is in the scene.
         rng: The scene's random stream after sampling its spec; views, wrist configurations and occluder
             levels continue it (``None`` when the scene was built without one).
+        camera: The render camera its builder made (intrinsics, image size; posed per view), the one camera
+            object of the scene.
     """
 
     model: mujoco.MjModel
@@ -68,6 +68,7 @@ class SimScene:
     active: list[bool] = field(default_factory=list)
     panda: object | None = None
     rng: np.random.Generator | None = None
+    camera: CameraModel | None = None
 
     def object_pose_world(self, instance: int) -> tuple[np.ndarray, np.ndarray]:
         """(R (3x3), t (3,) metres) of an instance's model frame in the world."""
@@ -123,40 +124,49 @@ class SceneState:
 
 
 class SceneBuilder:
-    """Builds MuJoCo scenes for one object set and one config.
+    """Builds MuJoCo scenes for one object set with one set of building options.
 
     Args:
         objects: The object set (meshes, collision parts, inertia).
-        cfg: Generation config (table, timestep, camera intrinsics, render profile).
+        options: What building needs (camera, room, timestep, render quality, Panda, occluder slots); a
+            dataset makes them from its config (its ``build_options()``; a config given here is converted so,
+            with a DeprecationWarning).
         panda_physics: When the Panda is in the scene, also apply its tuned contact physics
             (:func:`simtest.robot.configure_physics`: 2 ms implicitfast steps, elliptic friction cones,
             impratio 10), which grasping needs. Off by default: generation keeps its own physics options.
+
+    Raises:
+        ConfigError: If ``options`` is neither :class:`BuildOptions` nor a config that makes them.
     """
 
-    def __init__(self, objects: ObjectSet, cfg: GenerateConfig, *, panda_physics: bool = False) -> None:
+    def __init__(self, objects: ObjectSet, options: BuildOptions, *, panda_physics: bool = False) -> None:
         self.objects = objects
-        self.cfg = cfg
+        self.options = _build_options(options)
         self.panda_physics = bool(panda_physics)
-        self.camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
+
+    @property
+    def camera(self) -> CameraModel:
+        """The render camera (intrinsics, image size) of every scene this builder makes."""
+        return self.options.camera
 
     # ------------------------------------------------------------------------------------------------------
     def build(self, spec: SceneSpec, rng: np.random.Generator | None = None) -> SimScene:
         """Compile ``spec`` into a :class:`SimScene`; ``rng`` (the stream the spec was sampled from) is kept as
         the scene's ``rng``."""
-        cfg = self.cfg
+        opt, room = self.options, self.options.room
         ms = mujoco.MjSpec()
         ms.modelname = f"scene_{spec.scene_index:06d}"
-        ms.option.timestep = cfg.scene.timestep
+        ms.option.timestep = opt.timestep
         ms.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
         ms.option.noslip_iterations = 0
         ms.stat.extent = 2.0
-        ms.stat.center = [0.0, 0.0, cfg.scene.table_height]
+        ms.stat.center = [0.0, 0.0, room.table_height]
         ms.visual.map.znear = 0.005  # x extent: 1 cm near plane
         ms.visual.map.zfar = 5.0  # x extent: 10 m far plane
-        ms.visual.global_.offwidth = max(cfg.camera.width, 64)
-        ms.visual.global_.offheight = max(cfg.camera.height, 64)
-        ms.visual.quality.offsamples = 4 if cfg.render.profile == "quality" else 0
-        ms.visual.quality.shadowsize = 2048 if cfg.render.profile == "quality" else 0
+        ms.visual.global_.offwidth = max(opt.camera.width, 64)
+        ms.visual.global_.offheight = max(opt.camera.height, 64)
+        ms.visual.quality.offsamples = 4 if opt.quality == "quality" else 0
+        ms.visual.quality.shadowsize = 2048 if opt.quality == "quality" else 0
         ms.visual.headlight.diffuse = [0.0, 0.0, 0.0]
         ms.visual.headlight.specular = [0.0, 0.0, 0.0]
 
@@ -206,22 +216,21 @@ class SceneBuilder:
             b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=rgba, density=400,
                        friction=list(OBJECT_FRICTION), condim=6, group=0, **textured)
 
-        if cfg.occlusion.level is not None:
-            for k in range(N_OCCLUDERS):
-                body = ms.worldbody.add_body(name=f"occluder_{k}", mocap=True, pos=[500.0, 600.0 + k, -500.0])
-                mat = self._texture_material(ms, f"occluder_{k}", spec.walls, 4.0)
-                body.add_geom(name=f"occluder_{k}_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05],
-                              material=mat, group=0, contype=0, conaffinity=0)
+        for k in range(opt.occluder_slots):
+            body = ms.worldbody.add_body(name=f"occluder_{k}", mocap=True, pos=[500.0, 600.0 + k, -500.0])
+            mat = self._texture_material(ms, f"occluder_{k}", spec.walls, 4.0)
+            body.add_geom(name=f"occluder_{k}_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05],
+                          material=mat, group=0, contype=0, conaffinity=0)
 
         ms.worldbody.add_camera(name=CAMERA_NAME, pos=[0, 0, 1], **self.camera.mujoco_intrinsics())
 
         panda = None
-        if cfg.scene.panda or cfg.rig == "wrist":
+        if opt.panda:
             from simtest.robot import attach_panda
             from simtest.geometry import Pose
 
-            panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-cfg.scene.table_size[0] / 2 - 0.1, 0.0,
-                                                               cfg.scene.table_height]),
+            panda = attach_panda(ms, base_pose=Pose(np.eye(3), [-room.table_size[0] / 2 - 0.1, 0.0,
+                                                               room.table_height]),
                                  wrist_camera=self.camera, physics=self.panda_physics)
 
         model = ms.compile()
@@ -240,7 +249,7 @@ class SceneBuilder:
             reset_arm(model, data, panda)
         mujoco.mj_forward(model, data)
         return SimScene(model, data, spec, [p.obj_id for p in spec.objects], ids, qpos, dofs, geom_instance, cam_id,
-                        [True] * len(spec.objects), panda, rng)
+                        [True] * len(spec.objects), panda, rng, self.camera)
 
     # ------------------------------------------------------------------------------------------------------
     def _lights(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
@@ -250,9 +259,8 @@ class SceneBuilder:
         ceiling panel lights the rasterized profiles as a directional light straight down."""
         from simtest.render.colour import linear_to_srgb
 
-        cfg = self.cfg
-        shadows = cfg.render.profile == "quality"
-        pbr = cfg.render.profile == "pbr"
+        shadows = self.options.quality == "quality"
+        pbr = self.options.quality == "pbr"
         if spec.environment is None:
             ms.visual.headlight.ambient = [spec.ambient] * 3
             for i, light in enumerate(spec.lights):
@@ -297,7 +305,7 @@ class SceneBuilder:
         profile (the rasterizer draws the colour alone, so the other profiles do not upload them)."""
         roles = [""] * int(mujoco.mjtTextureRole.mjNTEXROLE)
         roles[int(mujoco.mjtTextureRole.mjTEXROLE_RGB)] = rgb
-        if self.cfg.render.profile == "pbr":
+        if self.options.quality == "pbr":
             for role, image, suffix in ((mujoco.mjtTextureRole.mjTEXROLE_ROUGHNESS, roughness, "rough"),
                                         (mujoco.mjtTextureRole.mjTEXROLE_NORMAL, normal, "normal"),
                                         (mujoco.mjtTextureRole.mjTEXROLE_METALLIC, metallic, "metal")):
@@ -307,7 +315,7 @@ class SceneBuilder:
 
     def _library_material(self, ms: mujoco.MjSpec, name: str, s: SurfaceSpec, size: float) -> str:
         """Material ``{name}_mat`` of a library material (:func:`simtest.generators.looks.surface_maps`)."""
-        maps = surface_maps(self.cfg, s.material)
+        maps = material_maps(s.material, self.options.material_folder, self.options.texture_size)
         self._add_map(ms, f"{name}_tex", maps.albedo)
         rough = float(maps.roughness.mean() / 255.0)  # the rasterizer's shininess; pbr reads the map
         mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False,
@@ -361,7 +369,7 @@ class SceneBuilder:
         return f"{name}_mat"
 
     def _room(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
-        sc = self.cfg.scene
+        sc = self.options.room
         r, wh = sc.room_half_size, sc.wall_height
         floor_mat = self._texture_material(ms, "floor", spec.floor, 1.0)
         ms.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[r, r, 0.1],
@@ -424,3 +432,21 @@ def _full_inertia(I: np.ndarray) -> list[float]:
     """MuJoCo ``fullinertia`` order: Ixx, Iyy, Izz, Ixy, Ixz, Iyz (kg m^2)."""
     I = np.asarray(I, dtype=np.float64)
     return [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+
+
+def _build_options(options: BuildOptions) -> BuildOptions:
+    """``options``, or the building options of a run config handed in their place (with a DeprecationWarning).
+
+    Raises:
+        ConfigError: If ``options`` is neither.
+    """
+    if isinstance(options, BuildOptions):
+        return options
+    convert = getattr(options, "build_options", None)
+    if not callable(convert):
+        raise ConfigError(f"SceneBuilder needs BuildOptions; got {type(options).__name__} {options!r:.80}")
+    import warnings
+
+    warnings.warn("SceneBuilder takes BuildOptions; pass cfg.build_options() instead of the config",
+                  DeprecationWarning, stacklevel=3)
+    return convert()

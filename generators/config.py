@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from simtest.backend import check_backend
 from simtest.errors import ConfigError, DatasetError
+from simtest.generators.build_options import N_OCCLUDERS, BuildOptions, Room, SettleOptions
 from simtest.schema import bounds as _bounds
 from simtest.schema import build, pair as _rng_pair, read_config_file, to_plain, to_toml
 
@@ -276,6 +277,30 @@ class GenerateConfig:
         if not camera_file:
             data["camera"]["file"] = None
         return data
+
+    def build_options(self) -> BuildOptions:
+        """What :class:`~simtest.generators.builder.SceneBuilder` needs of this config: the camera, the room,
+        the timestep, the render profile, the Panda (asked for, or the wrist rig), occluder slots (physical
+        occlusion on) and where library materials come from."""
+        from simtest.camera import CameraModel
+
+        sc = self.scene
+        return BuildOptions(
+            camera=CameraModel(self.camera.K(), self.camera.width, self.camera.height), room=self.room(),
+            timestep=sc.timestep, quality=self.render.profile, panda=bool(sc.panda or self.rig == "wrist"),
+            occluder_slots=N_OCCLUDERS if self.occlusion.level is not None else 0,
+            material_folder=self.materials.textures, texture_size=self.materials.texture_size)
+
+    def room(self) -> Room:
+        """The table and room of ``scene.*``."""
+        sc = self.scene
+        return Room(table_size=sc.table_size, table_height=sc.table_height, container=sc.container,
+                    room_half_size=sc.room_half_size, wall_height=sc.wall_height)
+
+    def settle_options(self) -> SettleOptions:
+        """When settling stops (``scene.settle_max_time``, ``scene.settle_velocity``) on this config's room."""
+        return SettleOptions(max_time=self.scene.settle_max_time, velocity=self.scene.settle_velocity,
+                             room=self.room())
 
     def to_toml(self) -> str:
         """The config as TOML text that :func:`load_config` reads back (``None`` values are omitted)."""

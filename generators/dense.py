@@ -265,20 +265,32 @@ class DenseViews:
     Args:
         channels: The channels asked for (subset of :data:`CHANNELS`).
         model: The scene's ``mujoco.MjModel`` (geom types, sizes, meshes). objects: The object set.
-        writer: The scene's :class:`~simtest.io.bop.SceneWriter` (flow images go to it one view late).
+        writer: Deprecated: a :class:`~simtest.io.bop.SceneWriter` the flow images go to directly. Without it
+            the caller takes each flow image (:meth:`take_flow`) and hands it to the writer.
     """
 
-    def __init__(self, channels: tuple[str, ...], model, objects, writer) -> None:
+    def __init__(self, channels: tuple[str, ...], model, objects, writer=None) -> None:
         self.channels = tuple(channels)
         self.model, self.objects, self.writer = model, objects, writer
         self.meshes: dict[int, MeshTriangles] = {}
         self.previous: tuple[int, ViewGeometry] | None = None
+        self._flow: tuple[int, np.ndarray] | None = None
+        #: ``{obj_id: (bbox corners, surface keypoints)}`` (the keypoints channel), for the COCO categories.
+        self.keypoint_counts: dict[int, tuple[int, int]] | None = None
         if "keypoints" in self.channels:
-            writer.keypoint_counts = {int(o.obj_id): (len(o.keypoints_bbox), len(o.keypoints_fps)) for o in objects}
+            self.keypoint_counts = {int(o.obj_id): (len(o.keypoints_bbox), len(o.keypoints_fps)) for o in objects}
+        if writer is not None:
+            import warnings
+
+            warnings.warn("DenseViews no longer takes the writer: hand take_flow() and keypoint_counts to it",
+                          DeprecationWarning, stacklevel=2)
+            if self.keypoint_counts is not None:
+                writer.keypoint_counts = self.keypoint_counts
 
     def view(self, im_id: int, frame, camera: CameraModel, state, annotations: list
              ) -> tuple[dict[str, np.ndarray], list[np.ndarray] | None]:
-        """``({folder: encoded image}, keypoints or None)`` of one view; writes the previous view's flow."""
+        """``({folder: encoded image}, keypoints or None)`` of one view; the previous view's flow, finished by
+        this one, waits in :meth:`take_flow`."""
         from simtest.io import dense as files
 
         view = view_geometry(camera, frame.depth, frame.seg, state.geom_xpos, state.geom_xmat)
@@ -293,7 +305,14 @@ class DenseViews:
         if "flow" in self.channels:
             if self.previous is not None:
                 prev_id, prev = self.previous
-                self.writer.add_image("flow", prev_id, files.encode_flow(*forward_flow(prev, view)))
+                self._flow = (prev_id, files.encode_flow(*forward_flow(prev, view)))
+                if self.writer is not None:
+                    self.writer.add_image("flow", *self.take_flow())
             self.previous = (im_id, view)
         kps = keypoints_2d(view, annotations, self.objects, inst) if "keypoints" in self.channels else None
         return images, kps
+
+    def take_flow(self) -> tuple[int, np.ndarray] | None:
+        """``(image id, encoded flow image)`` of the view the last :meth:`view` finished, once; else ``None``."""
+        flow, self._flow = self._flow, None
+        return flow

@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from simtest.errors import ConfigError
-from simtest.generators.config import GenerateConfig
+
+if TYPE_CHECKING:  # the samplers read the dataset config; resolving a key (the builder's side) does not
+    from simtest.generators.config import GenerateConfig
 
 __all__ = ["appearance_rng", "EnvironmentSpec", "sample_material", "sample_environment", "surface_maps",
-           "environment_of", "skin_of", "APPEARANCE_KEY"]
+           "material_maps", "environment_of", "skin_of", "APPEARANCE_KEY"]
 
 #: Last spawn key of a scene's appearance stream (below the scene's own ``(scene, attempt)`` key).
 APPEARANCE_KEY = 0xA99E
@@ -76,20 +79,27 @@ def _folder(folder: str):
 
 
 def surface_maps(cfg: GenerateConfig, key: str):
-    """The :class:`simtest.materials.MaterialMaps` of material ``key`` (cached by the library).
+    """The :class:`simtest.materials.MaterialMaps` of material ``key`` with the config's ``materials.textures``
+    folder and ``materials.texture_size`` (see :func:`material_maps`)."""
+    return material_maps(key, cfg.materials.textures, cfg.materials.texture_size)
+
+
+def material_maps(key: str, folder: str | None, texture_size: int):
+    """The :class:`simtest.materials.MaterialMaps` of material ``key`` (cached by the library), ``texture_size``
+    pixels per side; ``folder``: where ``"folder:NAME"`` keys are found (``materials.textures``).
 
     Raises:
-        ConfigError: If a folder material is not in ``materials.textures`` any more.
+        ConfigError: If a folder material is not in ``folder`` any more.
     """
     import simtest.materials as materials
 
     kind, _, name = key.partition(":")
     if kind == "folder":
-        sources = {s.name: s for s in _folder(cfg.materials.textures)}
+        sources = {s.name: s for s in _folder(folder)}
         if name not in sources:
-            raise ConfigError(f"material {name!r} is not in materials.textures = {cfg.materials.textures!r}")
-        return materials.load_folder_material(sources[name], cfg.materials.texture_size)
-    return materials.procedural_material(kind, int(name), cfg.materials.texture_size)
+            raise ConfigError(f"material {name!r} is not in materials.textures = {folder!r}")
+        return materials.load_folder_material(sources[name], texture_size)
+    return materials.procedural_material(kind, int(name), texture_size)
 
 
 def sample_environment(cfg: GenerateConfig, look: np.random.Generator) -> EnvironmentSpec | None:

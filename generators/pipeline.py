@@ -7,7 +7,6 @@ which worker ran it, on how many workers there were, on the back end (``local`` 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 import platform
@@ -22,12 +21,9 @@ import numpy as np
 
 import simtest
 from simtest.backend import RUN_FIELDS, Backend, BackendError, RunStats, preflight, run_units
-from simtest.camera import CameraModel
 from simtest.errors import DatasetError
 from simtest.generators.config import GenerateConfig, camera_file_values
-from simtest.generators.dense import DenseViews
-from simtest.generators.views_behind import ViewsBehind
-from simtest.io.bop import SceneWriter, encode_depth, scene_dirs, write_camera_json
+from simtest.io.bop import SceneWriter, scene_dirs, write_camera_json
 from simtest.io.bop_targets import TARGETS_BOP19, TARGETS_BOP24, write_targets
 from simtest.io.dataset import WITHHELD
 from simtest.io.files import atomic_write_json, prepare_out_dir
@@ -36,6 +32,10 @@ from simtest.rng import child_rng
 from simtest.schema import config_changes
 
 __all__ = ["generate", "GenerateReport", "SceneReport", "render_scene", "prepare_scene"]
+
+#: Names this module no longer holds, and the module each lives in; they forward there.
+MOVED = {"scene_cameras": "simtest.generators.recorder", "ViewsBehind": "simtest.generators.views_behind",
+         "DenseViews": "simtest.generators.dense"}
 
 MANIFEST = "manifest.json"
 
@@ -98,16 +98,28 @@ def load_objects(cfg: GenerateConfig):
     return load_object_set(cfg.objects, units=cfg.units, scale=cfg.scale)
 
 
+def __getattr__(name: str) -> Any:
+    """The moved names (:data:`MOVED`), from their module, with a DeprecationWarning."""
+    if name in MOVED:
+        import importlib
+        import warnings
+
+        warnings.warn(f"simtest.generators.pipeline.{name} moved to {MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(importlib.import_module(MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 # ---------------------------------------------------------------------------------------------------------
 # One scene (runs in a worker)
 _WORKER: dict = {}
 
 
 def _worker_init(cfg_dict: dict) -> None:
-    from simtest.render.gl import apply_thread_budget, workers_per_machine
+    from simtest.backend.threads import worker_threads
 
     cfg = GenerateConfig.from_dict(cfg_dict)
-    apply_thread_budget(workers_per_machine(cfg.workers, cfg.ray_address))  # its share of the cores (llvmpipe, OpenCV), before any render
+    worker_threads(cfg.workers, cfg.ray_address, apply=True)  # its share of the cores (llvmpipe, OpenCV), before any render
     _WORKER["cfg"] = cfg
     _WORKER["objects"] = load_objects(cfg)
 
@@ -125,7 +137,8 @@ def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
     from simtest.generators.scene_spec import PlacementError, sample_scene_spec
     from simtest.generators.settle import settle
 
-    builder = SceneBuilder(objects, cfg)
+    builder = SceneBuilder(objects, cfg.build_options())
+    settling = cfg.settle_options()
     reasons: list[str] = []
     for attempt in range(cfg.scene.max_attempts):
         rng = child_rng(cfg.seed, scene_id, attempt)
@@ -135,29 +148,13 @@ def prepare_scene(cfg: GenerateConfig, objects, scene_id: int):
             reasons.append(str(exc))
             continue
         scene = builder.build(spec, rng)  # views and wrist configurations continue this stream
-        result = settle(scene, cfg.scene)
+        result = settle(scene, settling)
         if not any(scene.active):
             reasons.append(f"scene {scene_id} attempt {attempt}: every object fell off the table")
             continue
         return scene, result, attempt + 1, reasons
     raise DatasetError(f"scene {scene_id}: no usable scene in {cfg.scene.max_attempts} attempts "
                        f"(scene.max_attempts); reasons: {'; '.join(reasons)}")
-
-
-def scene_cameras(cfg: GenerateConfig, scene) -> list[tuple[CameraModel, np.ndarray | None]]:
-    """Every view of a settled scene: its camera (OpenCV ``T_world_cam``) and, for the wrist rig, the arm
-    configuration that puts the wrist camera there (``None`` otherwise)."""
-    from simtest.generators.scene_spec import view_to_camera_pose
-
-    base = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
-    pts = np.array([scene.data.xpos[b] for b, a in zip(scene.instance_bodies, scene.active) if a])
-    poi = pts.mean(axis=0)
-    poi[2] = max(poi[2], cfg.scene.table_height)
-    if cfg.rig == "wrist":
-        from simtest.generators.wrist import wrist_cameras
-
-        return wrist_cameras(cfg, scene, poi, base)
-    return [(base.with_pose(view_to_camera_pose(v, poi)), None) for v in scene.spec.views]
 
 
 def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
@@ -168,11 +165,11 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
         prepared: The scene's :func:`prepare_scene` result when it was made ahead (see :class:`ScenesAhead`);
             the same as making it here.
         finish_behind: Annotate and write each view on a helper thread while the next one renders
-            (:class:`ViewsBehind`); ``False`` finishes each view before the next (the same files, one thread).
+            (:class:`~simtest.generators.views_behind.ViewsBehind`); ``False`` finishes each view before the next
+            (the same files, one thread).
     """
-    from simtest.generators.annotate import annotate
-    from simtest.render.gl import thread_budget, workers_per_machine
-    from simtest.render.rasterizer import Renderer
+    from simtest.backend.threads import worker_threads
+    from simtest.generators.recorder import SceneRecorder, scene_cameras
 
     t0, cpu0 = time.perf_counter(), time.process_time()
     scene, settled, attempts, reasons = prepared if prepared is not None else prepare_scene(cfg, objects, scene_id)
@@ -180,79 +177,13 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
     writer = SceneWriter(split_dir, scene_id, depth_scale=cfg.render.depth_scale,
                          rgb_format=cfg.render.rgb_format, jpg_quality=cfg.render.jpg_quality, coco=cfg.render.coco,
                          coco_bbox=cfg.render.coco_bbox, coco_categories=objects.ids,
-                         threads=thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).writers)
+                         threads=worker_threads(cfg.workers, cfg.ray_address).writers)
     try:
-        occ_cfg = cfg.occlusion
-        occlusion_log: dict[str, dict] = {}
-
-        channels = cfg.annotation.channels
-        dense = DenseViews(channels, scene.model, objects, writer) if channels else None
-
-        def finish_view(im_id: int, frame, cam: CameraModel, state, record, sensed=None) -> None:
-            """Annotate a rendered view from the scene's state when it was rendered and hand it to the writer
-            (``sensed``: a depth sensor's image for depth/, the exact one then goes to depth_exact/)."""
-            anns = annotate(state, frame, cam, objects)
-            images, kps = dense.view(im_id, frame, cam, state, anns) if dense is not None else (None, None)
-            writer.add(im_id, frame.rgb, frame.depth if sensed is None else sensed, cam, anns, [a.mask for a in anns],
-                       [a.mask_visib for a in anns], images=images, keypoints=kps)
-            if sensed is not None:
-                writer.add_image("depth_exact", im_id, encode_depth(frame.depth, writer.depth_scale))
-            if record is not None:
-                from simtest.generators.occlusion import measured_level
-
-                occlusion_log[str(im_id)] = record.to_dict(
-                    {a.instance: j for j, a in enumerate(anns)},
-                    [measured_level(1.0 - a.visib_fract, occ_cfg.definition) for a in anns])
-
-        sensor = None
-        if cfg.render.depth_sensor != "none":
-            from simtest.sensors.stereo import sensor_rng, stereo_preset
-
-            sensor = stereo_preset(cfg.render.depth_sensor)
-        pbr = _pbr_renderer(cfg, scene)  # the pbr profile: path-traced RGB; depth and masks stay exact (fast path)
-        with Renderer(scene.model, cfg.camera.width, cfg.camera.height,
-                      profile="fast" if pbr is not None else cfg.render.profile) as renderer, \
-                ViewsBehind(threaded=finish_behind) as behind:
-            for im_id, (cam, arm_q) in enumerate(cameras):
-                if arm_q is not None:
-                    scene.set_arm(arm_q)
-                scene.set_camera(cam)
-                record = None
-                if occ_cfg.level is not None:
-                    from simtest.generators.annotate import amodal_counts
-                    from simtest.generators.occlusion import occlude_view
-
-                    level = occ_cfg.level
-                    if level == "mixed":
-                        level = ("L0", "L1", "L2", "L3")[int(scene.rng.integers(4))]
-                    record = occlude_view(scene, cam, renderer, level, occ_cfg.definition,
-                                          amodal_counts(scene, cam, objects), cfg.scene.table_height, scene.rng,
-                                          occ_cfg.standing_first)
-                frame = renderer.render(scene.data, scene.camera_id, rgb=pbr is None)
-                if pbr is not None:
-                    from simtest.render.pbr import frame_seed
-
-                    rgb = pbr.render(scene.data, scene.camera_id, seed=frame_seed(cfg.seed, scene_id, im_id)).rgb
-                    frame = dataclasses.replace(frame, rgb=rgb)
-                sensed = None
-                if sensor is not None:  # renders through the same renderer, restores the camera; frame stays exact
-                    sensed = sensor.sense(renderer, scene.data, scene.camera_id, cam,
-                                          sensor_rng(cfg.seed, scene_id, im_id))
-                behind.submit(finish_view, im_id, frame, cam, scene.state(), record, sensed)
-        if occlusion_log:
-            from simtest.io.files import dump_json_keyed, atomic_write_text
-
-            atomic_write_text(writer.dir / "scene_occlusion.json", dump_json_keyed(occlusion_log))
+        recorder = SceneRecorder(cfg, objects, scene, writer, scene_id)
+        recorder.record(cameras, finish_behind)
         report = SceneReport(scene_id, len(cameras), attempts, reasons, len(settled.removed), settled.sim_time,
                              settled.at_rest, time.perf_counter() - t0, os.getpid())
-        atomic_write_json(writer.dir / "scene_info.json", {
-            "scene_id": scene_id, "attempts": attempts, "retry_reasons": reasons,
-            "removed_instances": list(settled.removed), "settle_time_s": settled.sim_time, "at_rest": settled.at_rest,
-            "spec": scene.spec.to_dict()})
-        if cfg.captions:  # per scene, after every frame: scene_captions.json from the settled poses and image 0
-            from simtest.generators.captions import write_scene_captions
-
-            write_scene_captions(writer.dir, scene, objects, cameras[0][0], cfg.scene.table_height)
+        recorder.write_records(settled, attempts, reasons, cameras[0][0])
         writer.close(labels_dir=withheld_dir(split_dir, scene_id) if cfg.unlabelled else None)
     except BaseException:  # a scene is written whole or not at all: no partial folder is left behind
         writer.discard()
@@ -264,24 +195,6 @@ def render_scene(cfg: GenerateConfig, objects, scene_id: int, split_dir: Path,
 def withheld_dir(split_dir: Path, scene_id: int) -> Path:
     """Where an unlabelled split's scene ``scene_id`` keeps its labels: ``<out>/withheld/<split>/<scene>``."""
     return split_dir.parent / WITHHELD / split_dir.name / f"{scene_id:06d}"
-
-
-def _pbr_renderer(cfg: GenerateConfig, scene):
-    """The path tracer of the ``pbr`` profile for ``scene``, or ``None`` for the rasterized profiles."""
-    if cfg.render.profile != "pbr":
-        return None
-    from simtest.render.gl import thread_budget, workers_per_machine
-    from simtest.render.pbr import PbrRenderer
-
-    camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
-    threads = thread_budget(workers_per_machine(cfg.workers, cfg.ray_address)).cores  # this worker's share
-    env = scene.spec.environment
-    if env is not None:
-        from simtest.generators.looks import environment_of
-
-        env = (environment_of(env).radiance, env.strength)
-    return PbrRenderer(scene.model, camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
-                       threads=threads, variant=cfg.render.pbr_variant, environment=env)
 
 
 def _worker_scene(args: tuple[int, str]) -> SceneReport:
@@ -349,10 +262,11 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
         DatasetError: Non-empty output without ``resume``/``overwrite``, or a resume with another config.
     """
     out = Path(out_dir)
+    camera = cfg.build_options().camera  # the dataset's intrinsics (camera.json); every scene's camera has them
     if cfg.render.profile == "pbr":  # fail before touching the output when the extra is missing
         from simtest.render.pbr import require_pbr, resolved_variant
 
-        require_pbr(CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height), cfg.render.pbr_variant)
+        require_pbr(camera, cfg.render.pbr_variant)
         # every worker renders with the variant this process resolved (the same bytes with 1 or N workers)
         cfg = cfg.replace(**{"render.pbr_variant": resolved_variant(cfg.render.pbr_variant)})
     preflight(Backend.of(cfg))  # before the output is touched
@@ -368,7 +282,6 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     out.mkdir(parents=True, exist_ok=True)
     split_dir = out / cfg.split
     split_dir.mkdir(exist_ok=True)
-    camera = CameraModel(cfg.camera.K(), cfg.camera.width, cfg.camera.height)
     if not (out / MANIFEST).exists():
         atomic_write_json(out / MANIFEST, {
             "format": "bop-scenewise", "generator": "simtest", "versions": _versions(cfg), "seed": cfg.seed,

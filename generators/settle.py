@@ -1,4 +1,8 @@
-"""Physics settling: drop the objects, step until they rest, and take off the ones that fell off the table."""
+"""Physics settling: drop the objects, step until they rest, and take off the ones that fell off the table.
+
+:func:`settle` changes the model only while it runs (rotational damping of free bodies, MuJoCo's sleeping) and
+restores both; what it leaves is the state at rest and the fallen instances parked (floating far away).
+"""
 
 from __future__ import annotations
 
@@ -9,8 +13,9 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
+from simtest.errors import ConfigError
+from simtest.generators.build_options import Room, SettleOptions
 from simtest.generators.builder import SimScene
-from simtest.generators.config import SceneConfig
 
 __all__ = ["SettleResult", "settle", "FAR_AWAY"]
 
@@ -62,25 +67,32 @@ def body_speed(model: mujoco.MjModel, data: mujoco.MjData, body: int, dof: int, 
     return float(np.linalg.norm(v[:3]) + np.linalg.norm(v[3:]) * radius)
 
 
-def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> SettleResult:
-    """Step the physics until all free bodies are at rest for ``quiet_time`` s, or ``cfg.settle_max_time``.
+def settle(scene: SimScene, options: SettleOptions, quiet_time: float = 0.1) -> SettleResult:
+    """Step the physics until all free bodies are at rest for ``quiet_time`` s, or ``options.max_time`` s.
 
-    At rest means no point of any body moves faster than ``cfg.settle_velocity`` (m/s).
+    At rest means no point of any body moves faster than ``options.velocity`` (m/s).
 
     A body that drops below the table top (it fell off) is parked at :data:`FAR_AWAY` as soon as it is seen,
     so it neither keeps the scene "moving" nor appears in images; fallen object instances, and those that end
-    outside the table's footprint (the room's floor without a table), are marked inactive in ``scene.active`` and reported in ``removed``.
+    outside the table's footprint (the room's floor without a table), are marked inactive in ``scene.active``
+    and reported in ``removed``. The model's damping and sleep flag are as they were when it returns.
+
+    Raises:
+        ConfigError: If ``options`` is not a :class:`SettleOptions`.
     """
+    options = _settle_options(options)
+    room = options.room
     m, d = scene.model, scene.data
     bodies = _free_bodies(m)
     dt = m.opt.timestep
-    steps_max = int(np.ceil(cfg.settle_max_time / dt))
+    steps_max = int(np.ceil(options.max_time / dt))
     quiet_steps = max(1, int(round(quiet_time / dt)))
-    floor_z = cfg.table_height - 0.02
+    floor_z = room.table_height - 0.02
     parked: set[int] = set()
     # Light rotational damping (time constant ~0.2 s) ends the slow rocking of curved objects (a banana on
     # its side) without changing where they come to rest; translation stays undamped so drops are free fall.
     radius = np.array([body_radius(m, b) for b, _, _ in bodies])
+    damping = m.dof_damping.copy()
     for b, _, vadr in bodies:
         m.dof_damping[vadr + 3:vadr + 6] = ROCKING_DAMPING * float(np.max(m.body_inertia[b]))
     # MuJoCo's sleeping: a group of bodies at rest (below opt.sleep_tolerance) stops being simulated until
@@ -89,22 +101,45 @@ def settle(scene: SimScene, cfg: SceneConfig, quiet_time: float = 0.1) -> Settle
     flags = int(m.opt.enableflags)
     m.opt.enableflags = flags | int(mujoco.mjtEnableBit.mjENBL_SLEEP)
     try:
-        step, quiet, speed = _step_until_rest(m, d, bodies, radius, parked, floor_z, cfg.settle_velocity,
+        step, quiet, speed = _step_until_rest(m, d, bodies, radius, parked, floor_z, options.velocity,
                                               steps_max, quiet_steps)
     finally:
         m.opt.enableflags = flags
+        m.dof_damping[:] = damping
     removed = []
-    hx, hy = cfg.table_size[0] / 2, cfg.table_size[1] / 2
-    if cfg.table_height <= 0.0:  # no table: objects rest anywhere on the room's floor
-        hx = hy = cfg.room_half_size
+    hx, hy = room.table_size[0] / 2, room.table_size[1] / 2
+    if room.table_height <= 0.0:  # no table: objects rest anywhere on the room's floor
+        hx = hy = room.room_half_size
     for i, b in enumerate(scene.instance_bodies):
         x, y, z = d.xpos[b]
-        if b in parked or z < cfg.table_height - 0.005 or abs(x) > hx or abs(y) > hy:
+        if b in parked or z < room.table_height - 0.005 or abs(x) > hx or abs(y) > hy:
             removed.append(i)
     for i in removed:
         park(scene, i)
     mujoco.mj_forward(m, d)
     return SettleResult(float(step * dt), bool(quiet >= quiet_steps), tuple(removed), float(speed))
+
+
+def _settle_options(options: SettleOptions) -> SettleOptions:
+    """``options``, or those of a config's ``scene`` section handed in their place (with a DeprecationWarning).
+
+    Raises:
+        ConfigError: If ``options`` is neither.
+    """
+    if isinstance(options, SettleOptions):
+        return options
+    if not all(hasattr(options, k) for k in ("settle_max_time", "settle_velocity", "table_height", "table_size",
+                                             "room_half_size")):
+        raise ConfigError(f"settle needs SettleOptions (a run config's settle_options()); got "
+                          f"{type(options).__name__}")
+    import warnings
+
+    warnings.warn("settle takes SettleOptions; pass cfg.settle_options() instead of cfg.scene", DeprecationWarning,
+                  stacklevel=3)
+    room = Room(table_size=options.table_size, table_height=options.table_height,
+                container=getattr(options, "container", "table"), room_half_size=options.room_half_size,
+                wall_height=getattr(options, "wall_height", 1.6))
+    return SettleOptions(max_time=options.settle_max_time, velocity=options.settle_velocity, room=room)
 
 
 def _step_until_rest(m: mujoco.MjModel, d: mujoco.MjData, bodies: list[tuple[int, int, int]], radius: np.ndarray,

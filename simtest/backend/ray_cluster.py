@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from simtest.backend.units import Backend, BackendError, RunStats, UnitFailure
+from simtest.backend.contract import Backend, BackendError, RunStats, UnitFailure
 
 # --- Ray -------------------------------------------------------------------------------------------------
 #: Initialisers already run in this (worker) process, by key.

@@ -19,7 +19,8 @@ def bench_channels(width: int = 640, height: int = 480, scenes: int = 2, views: 
     from simtest.generators.config import GenerateConfig
     from simtest.generators.dense import (forward_flow, instance_map, keypoints_2d, object_coords, surface_normals,
                                           view_geometry)
-    from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+    from simtest.generators.pipeline import load_objects, prepare_scene
+    from simtest.generators.recorder import scene_cameras
     from simtest.io import dense as files
     from simtest.render.rasterizer import Renderer
 

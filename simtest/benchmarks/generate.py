@@ -114,7 +114,8 @@ def cpu_seconds(children: bool = False) -> float:
 def thread_groups() -> tuple[tuple[str, str], ...]:
     """``(thread name prefix, group)`` pairs of :class:`ThreadCpu`: Python's thread names as the pipeline's
     thread owners give them, or the OS's for native threads (llvmpipe's rasterizers)."""
-    from simtest.generators.pipeline import ScenesAhead, ViewsBehind
+    from simtest.generators.pipeline import ScenesAhead
+    from simtest.generators.views_behind import ViewsBehind
     from simtest.io.bop import SceneWriter
 
     return (("MainThread", "rendering"), (ViewsBehind.THREAD_NAME, "annotation"),
@@ -196,7 +197,8 @@ def _raw_seconds(cfg: GenerateConfig, objects, scene_id: int) -> tuple[float, in
     import mujoco
 
     from simtest.generators.builder import DRAWN_GROUPS
-    from simtest.generators.pipeline import prepare_scene, scene_cameras
+    from simtest.generators.pipeline import prepare_scene
+    from simtest.generators.recorder import scene_cameras
 
     scene, _, _, _ = prepare_scene(cfg, objects, scene_id)
     cams = scene_cameras(cfg, scene)
@@ -281,7 +283,7 @@ def bench_generate(width: int = 640, height: int = 480, objects_per_scene: int =
     The datasets are written under :func:`tempfile.gettempdir` (``$TMPDIR``), whose file-creation cost counts.
     ``overrides``: further generation values (dotted keys), e.g. the plain look of earlier releases.
     """
-    from simtest.render.gl import available_cores
+    from simtest.backend.threads import available_cores
     from simtest.generators.pipeline import load_objects, generate, prepare_scene
 
     cfg = GenerateConfig().replace(**{

@@ -35,7 +35,8 @@ def run(width: int = 640, height: int = 480, preset: str = "d435-stereo", repeat
     frame, the sensor's view, their ratio, the sensed depth's valid fraction (of the pixels with exact depth) and
     the sensor's time split (see the module)."""
     from simtest.generators.config import GenerateConfig
-    from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+    from simtest.generators.pipeline import load_objects, prepare_scene
+    from simtest.generators.recorder import scene_cameras
     from simtest.render.rasterizer import Renderer
     from simtest.sensors.stereo import stereo_preset
 

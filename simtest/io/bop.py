@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import shutil
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,16 +31,32 @@ from simtest.io.bop_checks import (GT_INFO_FIELDS, ROT_TOL, RotationRepairs, sho
                                    validate_scene_camera, validate_scene_gt, validate_scene_gt_info)
 from simtest.io.coco import coco_annotation, coco_scene
 from simtest.io.dense import write_png16
-from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed, private_partial_dir,
+from simtest.io.files import (atomic_write_json, atomic_write_text, dump_json_keyed,
                               write_new_file)
 from simtest.io.png import encode_depth_png, encode_mask_png
+from simtest.io.scene_folder import SceneFolder
 
 __all__ = ["MM_PER_M", "ImageGT", "encode_image", "read_json", "SceneWriter", "write_camera_json",
     "read_camera_json", "encode_depth", "decode_depth", "rgb_to_bgr", "read_scene", "read_image", "read_depth",
     "read_mask", "scene_dirs", "pose_to_bop", "pose_from_bop", "dataset_split_dir", "split_names", "resolve_split",
     "SceneFiles", "read_scene_files", "validate_scene_camera", "validate_scene_gt", "validate_scene_gt_info",
-    "ROT_TOL", "RotationRepairs", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES", "withhold_labels",
-    "UNLABELLED_KEEP"]
+    "ROT_TOL", "RotationRepairs", "GT_INFO_FIELDS", "mask_bbox", "RGB_FORMATS", "COCO_BBOX_TYPES"]
+
+#: Names that moved to :mod:`simtest.io.scene_folder` (the atomic scene folder); they forward there.
+MOVED = ("withhold_labels", "UNLABELLED_KEEP")
+
+
+def __getattr__(name: str) -> Any:
+    """The moved names (:data:`MOVED`), from :mod:`simtest.io.scene_folder`, with a DeprecationWarning."""
+    if name in MOVED:
+        import warnings
+
+        from simtest.io import scene_folder
+
+        warnings.warn(f"simtest.io.bop.{name} moved to simtest.io.scene_folder.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(scene_folder, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 log = logging.getLogger(__name__)
 
@@ -178,11 +192,13 @@ class ImageGT:
 
 
 class SceneWriter:
-    """Writes one BOP scene folder; frames are added one by one, the JSON files at :meth:`close`.
+    """Writes one BOP scene folder; frames are added one by one, the JSON files at :meth:`close`. It alone
+    writes into the folder: images and their encodings, the scene's records (:meth:`write_json`).
 
-    The scene is assembled in a hidden sibling folder of its own (``.{scene:06d}.<random>.partial``) and
-    renamed into place when complete, so a scene folder either exists whole or not at all (a killed run leaves
-    only partial folders, which a resumed run deletes), and two writers of one scene never mix their files.
+    The scene is assembled in a hidden sibling folder of its own (``.{scene:06d}.<random>.partial``,
+    :class:`~simtest.io.scene_folder.SceneFolder`) and renamed into place when complete, so a scene folder
+    either exists whole or not at all (a killed run leaves only partial folders, which a resumed run deletes),
+    and two writers of one scene never mix their files.
     """
 
     #: Name prefix of the writer threads (benchmarks group CPU time by it).
@@ -211,8 +227,8 @@ class SceneWriter:
             raise ConfigError(f"coco_bbox = {coco_bbox!r} is invalid; allowed: {', '.join(COCO_BBOX_TYPES)}")
         if not 1 <= int(jpg_quality) <= 100:
             raise ConfigError(f"jpg_quality = {jpg_quality!r} is invalid; allowed: [1, 100]")
-        self.final_dir = Path(split_dir) / f"{scene_id:06d}"
-        self.dir = private_partial_dir(split_dir, f"{scene_id:06d}")
+        self.folder = SceneFolder(split_dir, f"{scene_id:06d}")
+        self.final_dir, self.dir = self.folder.final, self.folder.dir
         for sub in ("rgb", "depth", "mask", "mask_visib"):
             (self.dir / sub).mkdir()
         self.scene_id = scene_id
@@ -304,14 +320,26 @@ class SceneWriter:
 
     def add_image(self, folder: str, im_id: int, image: np.ndarray) -> None:
         """Write a 16-bit channel image ``folder/{im_id:06d}.png`` (a view's flow is written one view later)."""
-        (self.dir / folder).mkdir(exist_ok=True)
-        self._submit(lambda p, a: write_new_file(p, write_png16(p, a)), self.dir / folder / f"{im_id:06d}.png", image)
+        path = self.folder.path(f"{folder}/{im_id:06d}.png")
+        path.parent.mkdir(exist_ok=True)
+        self._submit(lambda p, a: write_new_file(p, write_png16(p, a)), path, image)
+
+    def add_depth(self, folder: str, im_id: int, depth_m: np.ndarray) -> None:
+        """Write a depth image ``folder/{im_id:06d}.png`` (metres, 0 = missing) in this scene's depth encoding
+        (``depth_exact/`` beside a depth sensor's ``depth/``)."""
+        self.add_image(folder, im_id, encode_depth(depth_m, self.depth_scale))
+
+    def write_json(self, name: str, data: Any, *, keyed: bool = False) -> Path:
+        """Write a scene record (``scene_info.json``, ``scene_occlusion.json``, captions) into the scene folder
+        atomically (``keyed``: one top-level key per line); names outside the folder are refused
+        (:meth:`SceneFolder.path <simtest.io.scene_folder.SceneFolder.path>`)."""
+        return self.folder.write_json(name, data, keyed=keyed)
 
     def discard(self) -> None:
         """Drop the unfinished scene: wait for the writes in flight (their errors ignored) and delete its partial
         folder; the scene's final folder is never touched."""
         self._pool.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(self.dir, ignore_errors=True)
+        self.folder.discard()
 
     def close(self, labels_dir: str | Path | None = None) -> Path:
         """Write the scene JSON files and move the finished scene into place; returns its folder.
@@ -333,39 +361,7 @@ class SceneWriter:
                 self.scene_id, self.coco_images, self.coco_annotations, cats, self.keypoint_counts), indent=None)
         if self.scene_keypoints:
             atomic_write_text(self.dir / "scene_keypoints.json", dump_json_keyed(self.scene_keypoints))
-        if labels_dir is not None:
-            withhold_labels(self.dir, Path(labels_dir))
-        _move_into_place(self.dir, self.final_dir)
-        return self.final_dir
-
-
-#: What a scene folder of an unlabelled split keeps (see :func:`withhold_labels`).
-UNLABELLED_KEEP: tuple[str, ...] = ("rgb", "depth", "scene_camera.json")
-
-
-def withhold_labels(scene_dir: Path, labels_dir: Path) -> None:
-    """Move every entry of ``scene_dir`` except :data:`UNLABELLED_KEEP` to ``labels_dir`` (replacing it), with a
-    copy of ``scene_camera.json``; ``labels_dir`` appears whole (assembled in a hidden sibling, then renamed)."""
-    partial = private_partial_dir(labels_dir.parent, labels_dir.name)
-    for entry in sorted(scene_dir.iterdir()):
-        if entry.name not in UNLABELLED_KEEP:
-            os.replace(entry, partial / entry.name)
-    shutil.copyfile(scene_dir / "scene_camera.json", partial / "scene_camera.json")
-    _move_into_place(partial, labels_dir)
-
-
-def _move_into_place(partial: Path, final: Path) -> None:
-    """Rename the finished folder ``partial`` to ``final``, replacing an older ``final``. When another writer
-    put the same folder in place meanwhile (a straggling worker of a killed run making the same scene from the
-    same seed, hence the same bytes), that one is kept and ``partial`` removed."""
-    if final.exists():
-        shutil.rmtree(final, ignore_errors=True)
-    try:
-        os.replace(partial, final)
-    except OSError:
-        if not final.is_dir():
-            raise
-        shutil.rmtree(partial, ignore_errors=True)
+        return self.folder.commit(labels_dir)
 
 
 # ---------------------------------------------------------------------------------------------------------

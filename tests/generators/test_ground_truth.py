@@ -235,7 +235,8 @@ def test_visib_fract_counts_and_bop_visibility_rule(small_dataset):
 def test_amodal_mask_equals_independent_silhouette(small_config):
     """Amodal masks vs a MuJoCo segmentation render of each object alone (others parked away): IoU >= 0.98."""
     from simtest.generators.annotate import annotate
-    from simtest.generators.pipeline import prepare_scene, scene_cameras
+    from simtest.generators.pipeline import prepare_scene
+    from simtest.generators.recorder import scene_cameras
     from simtest.generators.settle import park
     from simtest.render.rasterizer import Renderer
 

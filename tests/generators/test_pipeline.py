@@ -348,7 +348,7 @@ def test_scene_state_stays_as_taken():
 
 
 def test_views_behind_raise_a_failed_views_error_and_keep_the_first():
-    from simtest.generators.pipeline import ViewsBehind
+    from simtest.generators.views_behind import ViewsBehind
 
     done = []
 

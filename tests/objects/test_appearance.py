@@ -81,7 +81,7 @@ def render(obj, eye=(-0.06, -0.08, TABLE_Z + HALF + 0.2), lights=(), ambient=1.0
     Returns ``(frame, camera, T_world_obj translation)``.
     """
     cfg = GenerateConfig().replace(**{"camera.width": W, "camera.height": H})
-    builder = SceneBuilder(ObjectSet([obj], "one"), cfg)
+    builder = SceneBuilder(ObjectSet([obj], "one"), cfg.build_options())
     pos = (0.0, 0.0, TABLE_Z + HALF)
     flat = SurfaceSpec("flat", (0.2, 0.2, 0.2), (0.2, 0.2, 0.2), 1.0, 0.0)
     spec = SceneSpec(0, 0, (ObjectPlacement(obj.obj_id, pos, (1.0, 0.0, 0.0, 0.0), tuple(rgba), 0.0, 0.0, 0.0),),

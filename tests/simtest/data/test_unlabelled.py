@@ -12,7 +12,7 @@ from simtest.cli import main
 from simtest.errors import DatasetError
 from simtest.evaluation.run import evaluate
 from simtest.generators.pipeline import generate
-from simtest.io.bop import UNLABELLED_KEEP
+from simtest.io.scene_folder import UNLABELLED_KEEP
 
 
 def _files(root: Path) -> dict[str, bytes]:

@@ -156,7 +156,8 @@ def test_llvm_same_bytes_across_runs_and_worker_counts_and_the_fast_ground_truth
 def _views_rendered(variant: str, fresh: bool, threads: int | None = None) -> list[str]:
     from simtest.camera import CameraModel
     from simtest.generators.config import GenerateConfig
-    from simtest.generators.pipeline import load_objects, prepare_scene, scene_cameras
+    from simtest.generators.pipeline import load_objects, prepare_scene
+    from simtest.generators.recorder import scene_cameras
     from simtest.render.pbr import PbrRenderer
 
     cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 3,

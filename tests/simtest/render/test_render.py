@@ -8,7 +8,8 @@ import pytest
 
 from simtest.errors import RenderError
 from simtest.generators.builder import DRAWN_GROUPS
-from simtest.generators.pipeline import prepare_scene, scene_cameras
+from simtest.generators.pipeline import prepare_scene
+from simtest.generators.recorder import scene_cameras
 from simtest.objects import load_object_set
 from simtest.render.rasterizer import Renderer
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from simtest.render.gl import ThreadBudget, available_cores, thread_budget
+from simtest.backend.threads import ThreadBudget, available_cores, thread_budget
 from simtest.io.bop import SceneWriter, _png, encode_depth
 
 
@@ -32,7 +32,7 @@ def test_thread_budget_defaults_to_the_cores_this_process_may_use():
 
 
 def _budget_in_fresh_process(env: dict[str, str]) -> dict:
-    code = ("import json, cv2, os; from simtest.render.gl import apply_thread_budget; b = apply_thread_budget(2, 2); "
+    code = ("import json, cv2, os; from simtest.backend.threads import apply_thread_budget; b = apply_thread_budget(2, 2); "
             "print(json.dumps({'lp': os.environ['LP_NUM_THREADS'], 'llvmpipe': b.llvmpipe, "
             "'cv2': cv2.getNumThreads()}))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)

@@ -26,7 +26,7 @@ BRIGHT, DARK = (0.9, 0.9, 0.9, 1.0), (0.02, 0.02, 0.02, 1.0)
 @pytest.fixture(scope="module")
 def make_scene():
     cfg = GenerateConfig().replace(**{"camera.width": W, "camera.height": H})
-    builder = SceneBuilder(load_object_set("builtin"), cfg)
+    builder = SceneBuilder(load_object_set("builtin"), cfg.build_options())
     tz = cfg.scene.table_height
 
     def make(table, boxes, objects=()):
