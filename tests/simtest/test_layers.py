@@ -178,7 +178,6 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 #: Import loops still to be cut (function-level imports included); the list only shrinks.
 KNOWN_CYCLES: list[list[str]] = [
-    ["simtest.backend.ray_cluster", "simtest.backend.units"],
     ["simtest.estimators.keypoints.crop_model", "simtest.estimators.keypoints.loss",
      "simtest.estimators.keypoints.model", "simtest.estimators.onnx_export", "simtest.estimators.segicp.model",
      "simtest.estimators.training"],
