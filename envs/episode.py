@@ -39,6 +39,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 import simtest  # noqa: F401
@@ -52,6 +53,7 @@ from simtest.estimators.registry import load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate, log_fault
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
+from simtest.metrics import pose as pose_metrics
 from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, min_jerk, move_to,
                            set_gripper, tcp_pose)
 
@@ -162,8 +164,6 @@ class _Recorder:
 
     def _draw_frames(self, wrist: np.ndarray) -> None:
         """The true and estimated target axes on ``wrist`` (the wrist image, possibly resized)."""
-        import cv2
-
         task = self.task
         cam = task.camera_model()
         sx, sy = wrist.shape[1] / cam.width, wrist.shape[0] / cam.height
@@ -187,8 +187,6 @@ class _Recorder:
         tp = task.render_third_person()
         wrist = task.render_wrist_rgb()
         if wrist.shape[0] != tp.shape[0]:
-            import cv2
-
             scale = tp.shape[0] / wrist.shape[0]
             wrist = cv2.resize(wrist, (int(round(wrist.shape[1] * scale)), tp.shape[0]))
         if self.T_world_obj_est is not None:
@@ -334,15 +332,15 @@ def execute_grasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor | None = N
 def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray) -> dict[str, float]:
     """ADD(-S) (m), re and re_sym (deg), te (m) and MSSD (m) of one estimate against the ground truth (camera
     frame)."""
-    from simtest.metrics.pose import add_s_or_add, mssd, re, re_sym, te
-
     key = obj.mesh_hash
     if key not in _SYMMETRY_CACHE:
         _SYMMETRY_CACHE[key] = obj.symmetry_transforms()
     pts = np.asarray(obj.vertices)
     syms = _SYMMETRY_CACHE[key]
-    return {"add_s": add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": re(R_e, R_g),
-            "re_sym_deg": re_sym(R_e, R_g, syms), "te": te(t_e, t_g), "mssd": mssd(R_e, t_e, R_g, t_g, pts, syms)}
+    pm = pose_metrics
+    return {"add_s": pm.add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": pm.re(R_e, R_g),
+            "re_sym_deg": pm.re_sym(R_e, R_g, syms), "te": pm.te(t_e, t_g),
+            "mssd": pm.mssd(R_e, t_e, R_g, t_g, pts, syms)}
 
 
 def _pick_estimate(elements: list, obj_id: int, known: set[int]

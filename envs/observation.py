@@ -11,17 +11,15 @@ nothing from any other stream of the episode.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
 from simtest import robot
+from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
-
-if TYPE_CHECKING:
-    from simtest.envs.options import EpisodeConfig
 
 __all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space", "capture_images",
            "T_world_cam_matrix", "observation_dict"]
@@ -77,11 +75,11 @@ class ObservationModel:
         """The stereo sensor, or None for the exact depth."""
         return resolve_depth_sensor(self.depth_sensor)
 
-    def episode_defaults(self, base: "EpisodeConfig") -> "EpisodeConfig":
+    def episode_defaults(self, base: EpisodeConfig) -> EpisodeConfig:
         """``base`` (the episode defaults) with this model's corruption and depth noise, validated."""
         if self.corruption is None and self.depth_noise is None:
             return base
-        return type(base).build(base, {"corruption": self.corruption, "depth_noise": self.depth_noise})
+        return EpisodeConfig.build(base, {"corruption": self.corruption, "depth_noise": self.depth_noise})
 
 
 def sensor_stream(episode_stream: np.random.Generator) -> np.random.Generator:

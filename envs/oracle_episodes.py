@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from tqdm import tqdm
+
 from simtest.backend import Backend, RunStats, preflight, run_units
 from simtest.envs.episode import run_episode
 from simtest.envs.observation import ObservationModel
@@ -171,8 +173,6 @@ def run_oracle_units(setup: EpisodeSetup, units: Sequence[OracleUnit], *, progre
     preflight(backend)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(units), unit="episode", desc=desc, dynamic_ncols=True, file=sys.stderr)
     ctx = _make_context(setup) if backend.in_process(len(units)) else None
     fn = _run_unit if ctx is None else functools.partial(_run_unit, ctx=ctx)

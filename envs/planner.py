@@ -41,6 +41,9 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
+from scipy.spatial import cKDTree
+
+from simtest.camera import backproject
 from simtest.envs.task import GraspTask, as_task
 from simtest.robot import GRIPPER_OPEN, solve_ik, symmetric_grasp
 from simtest.errors import ConfigError
@@ -177,10 +180,6 @@ def observed_obstacles(task: GraspTask, obs: dict, obj, T_world_obj: Pose, *, ta
         obj: The target's :class:`simtest.objects.ObjectModel`.
         T_world_obj: The target's estimated pose in the world (m).
     """
-    from scipy.spatial import cKDTree
-
-    from simtest.camera import backproject
-
     task = as_task(task)
     T_world_cam = task.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
     pts = T_world_cam.apply(backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)))  # depth > 0 only

@@ -30,6 +30,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from gymnasium.utils import seeding
 
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
@@ -145,8 +146,6 @@ class GraspTask:
         if rng is not None:
             self.np_random = rng
         elif seed is not None or self.np_random is None:
-            from gymnasium.utils import seeding
-
             self.np_random, _ = seeding.np_random(seed)
         return self.np_random.spawn(3)
 
