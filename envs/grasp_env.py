@@ -11,8 +11,8 @@ Observation (a dict):
 
 * ``rgb``: (H, W, 3) uint8 wrist-camera image (corrupted as asked);
 * ``depth``: (H, W) float32 planar depth, metres, 0 = missing: the exact rendered depth, or with
-  ``ObservationModel(depth_sensor="d435-stereo")`` / ``"passive-stereo"`` the depth sensed by the simulated stereo camera
-  (:mod:`simtest.sensors.stereo`: IR pair, projector, SGBM, registration; 0 = invalid), then the
+  ``ObservationModel(depth_sensor="d435-stereo")`` / ``"passive-stereo"`` the depth sensed by the simulated
+  stereo camera (:mod:`simtest.sensors.stereo`: IR pair, projector, SGBM, registration; 0 = invalid), then the
   ``depth_noise`` / corruption as asked (:class:`~simtest.envs.observation.ObservationModel`). The exact depth
   behind it is :attr:`GraspTask.depth_exact <simtest.envs.task.GraspTask.depth_exact>`
   (``last_frame.depth``), never in ``info`` (which stays small per step);
@@ -48,8 +48,8 @@ rise above its resting height, m), ``rest_height`` (m), ``occlusion`` (the occlu
 ``q_observe`` (the observation configuration) and ``sim_time`` (s).
 
 Images are rendered only when an observation is produced (each :meth:`step` and :meth:`reset`, or on
-the task's :meth:`~simtest.envs.task.GraspTask.observe` when ``observe_every_step=False``), never per physics step. ``render_mode="rgb_array"``
-renders a third-person view.
+the task's :meth:`~simtest.envs.task.GraspTask.observe` when ``observe_every_step=False``), never per physics
+step. ``render_mode="rgb_array"`` renders a third-person view.
 
 For RL clients:
 
@@ -107,7 +107,8 @@ def _task_of(task: GraspTask | None, observe_every_step: bool, model_pool: bool 
     if unknown:
         raise ConfigError(f"unknown PandaGraspEnv keyword(s) {unknown}; the task's: width, height, observation, "
                           f"ik, model_pool, object_units, object_scale, render_width, render_height, task; "
-                          f"episode defaults: {', '.join(o for o in RESET_OPTIONS if o not in moved)}")
+                          f"episode defaults: "
+                          f"{', '.join(o for o in RESET_OPTIONS if o not in OBSERVATION_KEYWORDS)}")
     if task is not None:
         extra = sorted([*options, *episode, *moved, *(["model_pool"] if model_pool is not None else [])])
         if extra:

@@ -21,8 +21,8 @@ from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
 
-__all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space", "capture_images",
-           "T_world_cam_matrix", "observation_dict"]
+__all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space",
+           "capture_images", "T_world_cam_matrix", "observation_dict"]
 
 #: Depth sensor names the env takes: the exact depth, or a stereo preset.
 DEPTH_SENSORS: tuple[str, ...] = ("none", *STEREO_PRESETS)

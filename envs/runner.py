@@ -35,7 +35,7 @@ from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.base import estimator_label
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
 from simtest.estimators.registry import load_estimator
-from simtest.io.files import jsonable, prepare_out_dir
+from simtest.io.files import prepare_out_dir
 from simtest.io import video as video_files
 from simtest.render.gl import apply_thread_budget, workers_per_machine
 from simtest.rng import child_sequence
