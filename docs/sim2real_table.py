@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from envs.runner import wilson_interval  # noqa: E402
+from simtest.metrics.intervals import wilson_interval  # noqa: E402
 from simtest.metrics.bop19 import MSPD_THETAS, MSSD_THETAS  # noqa: E402
 
 LMO_NAMES = {1: "ape", 5: "can", 6: "cat", 8: "driller", 9: "duck", 10: "eggbox", 11: "glue", 12: "holepuncher"}

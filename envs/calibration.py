@@ -30,6 +30,7 @@ from simtest.metrics.bop19 import MSPD_THETAS, MSSD_THETAS
 from simtest.metrics.calibration import best_threshold, bootstrap_auc_interval, roc_auc, success_below
 from simtest.metrics.intervals import wilson_interval
 from simtest.metrics.tolerance import TOLERANCE_LEVEL
+from simtest.rng import child_rng
 
 __all__ = ["CalibrationConfig", "CalibrationResult", "METRICS", "run_calibration", "calibrate_rows",
            "metric_values", "write_calibration", "CALIBRATION_COLUMNS", "THRESHOLD_COLUMNS", "EPISODE_COLUMNS"]
@@ -130,8 +131,6 @@ class CalibrationResult:
 
 
 def _units(cfg: CalibrationConfig, objs: list) -> list[OracleUnit]:
-    from simtest.rng import child_rng
-
     units = []
     for o in objs:
         for j in range(cfg.episodes_per_object):

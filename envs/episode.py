@@ -1,9 +1,9 @@
 """The scripted closed loop: observe -> estimate -> plan -> grasp -> lift -> hold, scored end to end.
 
-:func:`run_episode` resets a :class:`~simtest.envs.grasp_env.PandaGraspEnv`, moves the arm to the observation
+:func:`run_episode` resets a :class:`~simtest.envs.task.GraspTask`, moves the arm to the observation
 configuration (the wrist camera looking at the target from the robot's side), captures one RGB-D observation
 (corrupted as the episode asks), runs the estimator, plans a grasp from the *estimated* pose
-(:class:`~simtest.envs.planner.GraspPlanner`) and executes it on the env's physics: joint-space motion to
+(:class:`~simtest.envs.planner.GraspPlanner`) and executes it on the task's physics: joint-space motion to
 above the pre-grasp pose (clear of the object's estimated top), straight down to the pre-grasp pose, a slow
 straight approach, closing, a straight lift by 0.15 m and a 1 s hold.
 
@@ -39,18 +39,21 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 import simtest  # noqa: F401
 import mujoco
 
-from simtest.envs.grasp_env import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
+from simtest.envs.options import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
+from simtest.envs.task import GraspTask, as_task
 from simtest.estimators.base import Observation, PoseEstimate, gt_access
 from simtest.estimators.registry import load_estimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate, log_fault
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
+from simtest.metrics import pose as pose_metrics
 from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, min_jerk, move_to,
                            set_gripper, tcp_pose)
 
@@ -152,8 +155,8 @@ class _Recorder:
     metres) is set, the wrist image shows the target's true frame (thick axes, x red, y green, z blue) and
     the estimated one (thin axes), projected into the current wrist camera."""
 
-    def __init__(self, env, every: int = 2) -> None:
-        self.env = env
+    def __init__(self, task: GraspTask, every: int = 2) -> None:
+        self.task = as_task(task)
         self.every = max(1, int(every))
         self.frames: list[np.ndarray] = []
         self._k = 0
@@ -161,16 +164,14 @@ class _Recorder:
 
     def _draw_frames(self, wrist: np.ndarray) -> None:
         """The true and estimated target axes on ``wrist`` (the wrist image, possibly resized)."""
-        import cv2
-
-        env = self.env
-        cam = env.camera_model()
+        task = self.task
+        cam = task.camera_model()
         sx, sy = wrist.shape[1] / cam.width, wrist.shape[0] / cam.height
         K = np.diag([sx, sy, 1.0]) @ cam.K  # pixel centres stay at integers: c' = s (c + 0.5) - 0.5
         K[0, 2], K[1, 2] = sx * (cam.K[0, 2] + 0.5) - 0.5, sy * (cam.K[1, 2] + 0.5) - 0.5
         T_cam_world = cam.T_cam_world.matrix()
-        axes = np.vstack([np.zeros(3), np.eye(3) * 0.5 * float(np.max(env.target_obj.size))])
-        for T, width in ((env.object_poses_world()[0], 3), (self.T_world_obj_est, 1)):
+        axes = np.vstack([np.zeros(3), np.eye(3) * 0.5 * float(np.max(task.target_obj.size))])
+        for T, width in ((task.object_poses_world()[0], 3), (self.T_world_obj_est, 1)):
             p = axes @ (T_cam_world @ T)[:3, :3].T + (T_cam_world @ T)[:3, 3]
             if (p[:, 2] <= 1e-3).any():
                 continue
@@ -182,12 +183,10 @@ class _Recorder:
         self._k += 1
         if not force and (self._k - 1) % self.every:
             return
-        env = self.env
-        tp = env.render_third_person()
-        wrist = env.render_wrist_rgb()
+        task = self.task
+        tp = task.render_third_person()
+        wrist = task.render_wrist_rgb()
         if wrist.shape[0] != tp.shape[0]:
-            import cv2
-
             scale = tp.shape[0] / wrist.shape[0]
             wrist = cv2.resize(wrist, (int(round(wrist.shape[1] * scale)), tp.shape[0]))
         if self.T_world_obj_est is not None:
@@ -199,17 +198,17 @@ class _Recorder:
 class _Monitor:
     """Per control period: collision checks for the current phase and the optional recorder."""
 
-    def __init__(self, env, recorder: _Recorder | None) -> None:
-        self.env = env
+    def __init__(self, task: GraspTask, recorder: _Recorder | None) -> None:
+        self.task = task = as_task(task)
         self.recorder = recorder
         self.phase = "free"
         self.note = ""
         self._force = np.zeros(6)
-        ids = env.ids
+        ids = task.ids
         self._robot = ids.robot_geoms
         self._fingers = ids.finger_geoms
-        self._table = np.array([g for g in range(env.model.ngeom) if (mujoco.mj_id2name(
-            env.model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith("table")])
+        self._table = np.array([g for g in range(task.model.ngeom) if (mujoco.mj_id2name(
+            task.model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith("table")])
 
     def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         if self.recorder is not None:
@@ -225,52 +224,53 @@ class _Monitor:
         robot = np.isin(geoms, self._robot)
         cand = robot[:, 0] ^ robot[:, 1]
         if self.phase == "approach":
-            cand &= ~np.isin(geoms, self.env.target_geoms).any(axis=1)
+            cand &= ~np.isin(geoms, self.task.target_geoms).any(axis=1)
         for i in np.flatnonzero(cand):
             mujoco.mj_contactForce(model, data, int(i), self._force)
             if (self.phase == "approach" and np.isin(geoms[i], self._fingers).any()
                     and np.isin(geoms[i], self._table).any() and abs(self._force[0]) > GUARD_FORCE):
                 raise _TableTouch()
             if abs(self._force[0]) > COLLISION_FORCE or self.phase != "approach" and np.isin(
-                    geoms[i], self.env.target_geoms).any():
+                    geoms[i], self.task.target_geoms).any():
                 a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom {int(g)}"
                         for g in geoms[i])
                 raise _Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
 
 
-def _move_joints(env, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
+def _move_joints(task: GraspTask, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
                  settle: float = 0.5) -> None:
     """Minimum-jerk joint-space motion of the arm to ``q_goal`` (rad), then hold until at rest."""
-    m, d, ids = env.model, env.data, env.ids
+    task = as_task(task)
+    m, d, ids = task.model, task.data, task.ids
     q0 = d.ctrl[ids.arm_actuators].copy()
     duration = max(0.5, float(np.abs(q_goal - q0).max()) / joint_speed * 1.875)  # peak speed of min-jerk
     n = max(1, int(round(duration / CONTROL_DT)))
-    lead = env.servo_lead
+    lead = task.servo_lead
     q_prev = q0
     for k in range(1, n + 1):
         q = q0 + min_jerk(k / n) * (q_goal - q0)
         d.ctrl[ids.arm_actuators] = q + lead * (q - q_prev) / CONTROL_DT
         q_prev = q
-        env.advance(CONTROL_DT)
+        task.advance(CONTROL_DT)
         monitor(m, d)
     d.ctrl[ids.arm_actuators] = q_goal
     for _ in range(int(round(settle / CONTROL_DT))):
         if np.abs(d.qvel[ids.arm_dof]).max() < 0.01 and np.abs(d.qpos[ids.arm_qpos] - q_goal).max() < 2e-3:
             break
-        env.advance(CONTROL_DT)
+        task.advance(CONTROL_DT)
         monitor(m, d)
 
 
-def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, approach_speed: float = 0.08,
+def execute_grasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor | None = None, *, approach_speed: float = 0.08,
                   close_time: float = 0.6, hold: float = HOLD_TIME) -> str:
-    """Execute a planned grasp on ``env``'s physics: pre-grasp, approach, close, lift, hold.
+    """Execute a planned grasp on ``task``'s physics: pre-grasp, approach, close, lift, hold.
 
     The approach, closing and lift are the phases of the scripted grasp (:func:`simtest.robot.approach`,
     :func:`simtest.robot.close_and_wait`, :func:`simtest.robot.lift_to`); here a collision monitor watches
     them, the approach is guarded against the table and the hold is checked every control period.
 
     Args:
-        env: The (unwrapped) env, its arm at rest.
+        task: The :class:`~simtest.envs.task.GraspTask` (or an env over one), its arm at rest.
         plan: From :meth:`GraspPlanner.plan`.
         monitor: Collision monitor / recorder (a fresh one if None).
         approach_speed: Mean TCP speed of the straight approach and lift, m/s.
@@ -280,8 +280,9 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
     Returns:
         ``"none"`` on success, else ``"collision"``, ``"ik_failure"``, ``"missed"`` or ``"slipped"``.
     """
-    m, d, ids = env.model, env.data, env.ids
-    monitor = monitor or _Monitor(env, None)
+    task = as_task(task)
+    m, d, ids = task.model, task.data, task.ids
+    monitor = monitor or _Monitor(task, None)
     try:
         monitor.phase = "free"
         set_gripper(d, ids, plan.open_width)
@@ -302,20 +303,20 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
         except _TableTouch:  # guarded approach: stop where the fingertips met the table
             q = ids.arm_q(d)
             d.ctrl[ids.arm_actuators] = q
-            env.advance(0.1)
+            task.advance(0.1)
         monitor.phase = "grasp"
-        close_and_wait(m, d, ids, close_time, dt=CONTROL_DT, advance=env.advance, callback=monitor)
-        if not env.is_grasped() or gripper_width(d, ids) < 0.002:
+        close_and_wait(m, d, ids, close_time, dt=CONTROL_DT, advance=task.advance, callback=monitor)
+        if not task.is_grasped() or gripper_width(d, ids) < 0.002:
             return "missed"
         lift = float(np.linalg.norm(plan.lift.t - plan.grasp.t))
         lift_to(m, d, ids, plan.lift, lift, approach_speed, q, callback=monitor)
         mujoco.mj_kinematics(m, d)
         for _ in range(int(round(hold / CONTROL_DT))):
-            if not (env.touches_gripper() and env.lift_height() >= SUCCESS_HEIGHT):
+            if not (task.touches_gripper() and task.lift_height() >= SUCCESS_HEIGHT):
                 return "slipped"
-            env.advance(CONTROL_DT)
+            task.advance(CONTROL_DT)
             monitor(m, d)
-        if not (env.is_grasped() and env.lift_height() >= SUCCESS_HEIGHT):
+        if not (task.is_grasped() and task.lift_height() >= SUCCESS_HEIGHT):
             return "slipped"
         return "none"
     except _Collision as exc:
@@ -325,21 +326,21 @@ def execute_grasp(env, plan: GraspPlan, monitor: _Monitor | None = None, *, appr
         monitor.note = str(exc)
         return "ik_failure"
     finally:
-        env.sync_command()
+        task.sync_command()
 
 
 def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray) -> dict[str, float]:
     """ADD(-S) (m), re and re_sym (deg), te (m) and MSSD (m) of one estimate against the ground truth (camera
     frame)."""
-    from simtest.metrics.pose import add_s_or_add, mssd, re, re_sym, te
-
     key = obj.mesh_hash
     if key not in _SYMMETRY_CACHE:
         _SYMMETRY_CACHE[key] = obj.symmetry_transforms()
     pts = np.asarray(obj.vertices)
     syms = _SYMMETRY_CACHE[key]
-    return {"add_s": add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": re(R_e, R_g),
-            "re_sym_deg": re_sym(R_e, R_g, syms), "te": te(t_e, t_g), "mssd": mssd(R_e, t_e, R_g, t_g, pts, syms)}
+    pm = pose_metrics
+    return {"add_s": pm.add_s_or_add(obj, R_e, t_e, R_g, t_g), "re_deg": pm.re(R_e, R_g),
+            "re_sym_deg": pm.re_sym(R_e, R_g, syms), "te": pm.te(t_e, t_g),
+            "mssd": pm.mssd(R_e, t_e, R_g, t_g, pts, syms)}
 
 
 def _pick_estimate(elements: list, obj_id: int, known: set[int]
@@ -375,13 +376,14 @@ def _orthonormal(R: np.ndarray) -> np.ndarray:
     return U @ Vt
 
 
-def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int | None = None,
+def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None, seed: int | None = None,
                 options: dict | None = None, *, record: bool = False, record_every: int = 2,
                 timeout: float | None = DEFAULT_TIMEOUT_S) -> EpisodeResult:
     """Run one closed-loop episode (see the module docstring).
 
     Args:
-        env: A :class:`PandaGraspEnv` (wrappers are looked through).
+        task: The :class:`~simtest.envs.task.GraspTask`, or a :class:`~simtest.envs.grasp_env.PandaGraspEnv`
+            over one (wrappers are looked through; the episode drives the task, past ``step``).
         estimator: An estimator instance, a callable, a registered name or ``module:attr``. Estimators with a
             true ``needs_gt`` attribute (the ``oracle``) get the ground-truth pose in
             ``Observation.gt_poses``; those with ``needs_gt_masks`` (or ``needs_gt``) the target's
@@ -402,7 +404,7 @@ def run_episode(env, estimator, planner: GraspPlanner | None = None, seed: int |
         values) are recorded, never raised. ``KeyboardInterrupt`` propagates.
     """
     t_start = time.perf_counter()
-    u = env.unwrapped
+    u = as_task(task)
     est = load_estimator(estimator)
     planner = planner or GraspPlanner()
     u.reset(seed=seed, options=options)

@@ -52,6 +52,7 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.generators.builder import SceneBuilder, SimScene
+from simtest.robot import reset_arm
 from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
 
 __all__ = ["GraspModelCache", "ModelPool", "structure_key", "apply_spec", "snapshot_model", "restore_model",
@@ -145,8 +146,6 @@ def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str]) -> No
     The model is written before the reset: with sleeping enabled (pool models), the poses of static bodies'
     lights are computed by :func:`mujoco.mj_resetData`, not by ``mj_forward``.
     """
-    from simtest.robot import reset_arm
-
     m, d = scene.model, scene.data
     for i, p in enumerate(spec.objects):
         mat = _id(m, mujoco.mjtObj.mjOBJ_MATERIAL, materials[i])

@@ -10,15 +10,19 @@ nothing from any other stream of the episode.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 from gymnasium import spaces
 
 from simtest import robot
+from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
 
-__all__ = ["DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space", "capture_images",
-           "T_world_cam_matrix", "observation_dict"]
+__all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space",
+           "capture_images", "T_world_cam_matrix", "observation_dict"]
 
 #: Depth sensor names the env takes: the exact depth, or a stereo preset.
 DEPTH_SENSORS: tuple[str, ...] = ("none", *STEREO_PRESETS)
@@ -39,6 +43,43 @@ def resolve_depth_sensor(name: str | None) -> StereoSensor | None:
         raise ConfigError(f"depth_sensor must be one of {', '.join(DEPTH_SENSORS)} (none: the exact depth; "
                           f"else a simulated stereo preset of simtest.sensors.stereo), got {name!r}")
     return STEREO_PRESETS[name]
+
+
+@dataclass(frozen=True)
+class ObservationModel:
+    """How the wrist camera's captures become observations: the depth sensor, and the default image
+    corruption and depth noise of every episode (``reset(options=...)`` may override those two per episode).
+
+    Attributes:
+        depth_sensor: ``"none"`` (the observation's depth is the exact rendered depth) or a simulated stereo
+            sensor of :data:`DEPTH_SENSORS` (``"d435-stereo"``, ``"passive-stereo"``): the observation's depth is
+            then the sensed depth, metres (0 = invalid); the exact depth stays beside it.
+        corruption: Default corruption: a dict of :class:`~simtest.corrupt.CorruptionSpec` fields (e.g.
+            ``{"weather": "fog", "severity": 4}``), or None.
+        depth_noise: Default depth-noise preset of :data:`simtest.corrupt.DEPTH_PRESETS`, or None.
+
+    Raises:
+        ConfigError: An unknown sensor (listing :data:`DEPTH_SENSORS`); bad corruption values are named when
+            the task takes the model.
+    """
+
+    depth_sensor: str = "none"
+    corruption: Any = None
+    depth_noise: str | None = None
+
+    def __post_init__(self) -> None:
+        sensor = resolve_depth_sensor(self.depth_sensor)
+        object.__setattr__(self, "depth_sensor", "none" if sensor is None else sensor.name)
+
+    def sensor(self) -> StereoSensor | None:
+        """The stereo sensor, or None for the exact depth."""
+        return resolve_depth_sensor(self.depth_sensor)
+
+    def episode_defaults(self, base: EpisodeConfig) -> EpisodeConfig:
+        """``base`` (the episode defaults) with this model's corruption and depth noise, validated."""
+        if self.corruption is None and self.depth_noise is None:
+            return base
+        return EpisodeConfig.build(base, {"corruption": self.corruption, "depth_noise": self.depth_noise})
 
 
 def sensor_stream(episode_stream: np.random.Generator) -> np.random.Generator:

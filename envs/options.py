@@ -11,6 +11,7 @@ import numpy as np
 from simtest.corrupt import DEPTH_PRESETS, CorruptionSpec
 from simtest.corrupt.occlusion import parse_occlusion_level
 from simtest.errors import AssetError, ConfigError
+from simtest.objects import load_object_set
 
 __all__ = ["EpisodeConfig", "RESET_OPTIONS", "load_objects", "pick_target", "check_action", "CONTROL_DT",
            "MAX_STEP_TRANSLATION", "MAX_STEP_ROTATION", "SUCCESS_HEIGHT", "HOLD_TIME"]
@@ -39,8 +40,6 @@ _OBJECT_SETS: dict[tuple, Any] = {}
 def load_objects(name: str, units: str = "auto", scale: float = 1.0):
     """The object set ``name`` (``"builtin"``, ``"builtin-small"`` or a path; mesh files in ``units`` times
     ``scale``, see :func:`simtest.objects.load_object_set`), loaded once per process."""
-    from simtest.objects import load_object_set
-
     key = (name, units, float(scale))
     if key not in _OBJECT_SETS:
         _OBJECT_SETS[key] = load_object_set(name, units=units, scale=scale)

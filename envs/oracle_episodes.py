@@ -1,7 +1,7 @@
 """Closed-loop episodes of the ``oracle`` with an error chosen per episode: the unit of work of tolerance maps
 and metric calibration (:mod:`simtest.envs.tolerance`, :mod:`simtest.envs.calibration`).
 
-Each unit is one episode of one target object with its own oracle options; a worker keeps one env (one
+Each unit is one episode of one target object with its own oracle options; a worker keeps one grasp task (one
 compiled model of the object set, one small renderer), one planner, and makes a fresh oracle per unit, so the
 result of a unit depends on the unit alone: the same unit gives the same row on any worker, with any number
 of workers and on either back end (``local`` processes or ``ray`` tasks, :mod:`simtest.backend`).
@@ -21,9 +21,20 @@ from typing import Any
 
 import numpy as np
 
+from tqdm import tqdm
+
 from simtest.backend import Backend, RunStats, preflight, run_units
+from simtest.envs.episode import run_episode
+from simtest.envs.observation import ObservationModel
+from simtest.envs.options import load_objects
+from simtest.envs.planner import GraspPlanner
+from simtest.envs.task import GraspTask
 from simtest.errors import ConfigError
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S
+from simtest.estimators.oracle import OracleEstimator
+from simtest.metrics.pose import mspd
+from simtest.backend.threads import worker_threads
+from simtest.rng import child_sequence
 
 __all__ = ["OracleUnit", "EpisodeSetup", "run_oracle_units", "episode_seed_of", "check_objects"]
 
@@ -66,8 +77,6 @@ class EpisodeSetup:
 
 def episode_seed_of(seed: int, *key: int) -> int:
     """The env seed (uint32) of the episode at ``key`` below master ``seed`` (``SeedSequence`` child)."""
-    from simtest.rng import child_sequence
-
     return int(child_sequence(seed, *key).generate_state(1)[0])
 
 
@@ -77,8 +86,6 @@ def check_objects(setup: EpisodeSetup, targets: Sequence) -> list:
     Raises:
         ConfigError: A target that is not a graspable object of the set (the allowed ones are listed).
     """
-    from simtest.envs.grasp_env import load_objects
-
     objs = [o for o in load_objects(setup.objects, setup.units, setup.scale) if o.graspable]
     if not targets:
         return objs
@@ -113,17 +120,12 @@ _WORKER: dict = {}
 
 
 def _make_context(setup: EpisodeSetup) -> dict:
-    from simtest.envs.grasp_env import PandaGraspEnv
-    from simtest.envs.planner import GraspPlanner
-
-    env = PandaGraspEnv(width=setup.width, height=setup.height, objects=setup.objects, object_units=setup.units,
-                        object_scale=setup.scale)
-    return {"setup": setup, "env": env, "planner": GraspPlanner()}
+    task = GraspTask(width=setup.width, height=setup.height, episode={"objects": setup.objects},
+                     observation=ObservationModel(), object_units=setup.units, object_scale=setup.scale)
+    return {"setup": setup, "task": task, "planner": GraspPlanner()}
 
 
 def _worker_init(setup: EpisodeSetup) -> None:
-    from simtest.backend.threads import worker_threads
-
     worker_threads(setup.workers, setup.ray_address, apply=True)
     _WORKER.clear()
     _WORKER.update(_make_context(setup))
@@ -131,8 +133,6 @@ def _worker_init(setup: EpisodeSetup) -> None:
 
 def _mspd_of(obs, estimates: list, obj, width: int) -> float:
     """MSPD (pixels of a 640 px wide image) of the target's estimate, NaN without one."""
-    from simtest.metrics.pose import mspd
-
     if not estimates or obs.gt_poses is None:
         return float("nan")
     e = estimates[0]
@@ -143,20 +143,17 @@ def _mspd_of(obs, estimates: list, obj, width: int) -> float:
 
 
 def _run_unit(unit: OracleUnit, ctx: dict | None = None) -> dict:
-    from simtest.envs.episode import run_episode
-    from simtest.estimators.oracle import OracleEstimator
-
     ctx = ctx if ctx is not None else _WORKER
     setup: EpisodeSetup = ctx["setup"]
     est = _Recording(OracleEstimator(**dict(unit.options)))
     options = {"objects": setup.objects, "target": unit.obj_id, "n_distractors": 0, "occlusion": unit.occlusion,
                "corruption": None, "depth_noise": None}
-    res = run_episode(ctx["env"], est, ctx["planner"], seed=unit.seed, options=options, timeout=setup.timeout)
+    res = run_episode(ctx["task"], est, ctx["planner"], seed=unit.seed, options=options, timeout=setup.timeout)
     row = {**dict(unit.tags), **res.to_row()}
     row.pop("trace", None)
     if setup.mspd:
         obs, out = est.last if est.last is not None else (None, [])
-        row["mspd"] = _mspd_of(obs, out, ctx["env"].unwrapped.target_obj, setup.width) if obs is not None \
+        row["mspd"] = _mspd_of(obs, out, ctx["task"].target_obj, setup.width) if obs is not None \
             else float("nan")
     return row
 
@@ -176,8 +173,6 @@ def run_oracle_units(setup: EpisodeSetup, units: Sequence[OracleUnit], *, progre
     preflight(backend)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(units), unit="episode", desc=desc, dynamic_ncols=True, file=sys.stderr)
     ctx = _make_context(setup) if backend.in_process(len(units)) else None
     fn = _run_unit if ctx is None else functools.partial(_run_unit, ctx=ctx)
@@ -193,4 +188,4 @@ def run_oracle_units(setup: EpisodeSetup, units: Sequence[OracleUnit], *, progre
         if bar is not None:
             bar.close()
         if ctx is not None:
-            ctx["env"].close()
+            ctx["task"].close()

@@ -41,6 +41,10 @@ import numpy as np
 import simtest  # noqa: F401
 import mujoco
 
+from scipy.spatial import cKDTree
+
+from simtest.camera import backproject
+from simtest.envs.task import GraspTask, as_task
 from simtest.robot import GRIPPER_OPEN, solve_ik, symmetric_grasp
 from simtest.errors import ConfigError
 from simtest.geometry import Pose
@@ -153,7 +157,7 @@ def _voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
-def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin: float = 0.01,
+def observed_obstacles(task: GraspTask, obs: dict, obj, T_world_obj: Pose, *, target_margin: float = 0.01,
                        table_margin: float = 0.005, self_margin: float = 0.01,
                        voxel: float = 0.004) -> np.ndarray:
     """The obstacles the camera saw: world points (M, 3), metres, from an observation's depth image.
@@ -163,7 +167,7 @@ def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin:
 
     * points within ``target_margin`` of the target's surface (:meth:`ObjectModel.surface_cloud`) at its
       *estimated* pose ``T_world_obj`` (the target is what the gripper must touch);
-    * points less than ``table_margin`` above the known table top ``env.grasp_scene.table_height``, or below it
+    * points less than ``table_margin`` above the known table top ``task.grasp_scene.table_height``, or below it
       (the table is known workspace, checked separately);
     * points inside the robot's own collision geoms (grown by ``self_margin``) at the arm's current
       configuration, which must be the one of the capture (the robot knows its own joints);
@@ -171,23 +175,20 @@ def observed_obstacles(env, obs: dict, obj, T_world_obj: Pose, *, target_margin:
     and the rest is thinned to one point per ``voxel`` cube.
 
     Args:
-        env: The (unwrapped) :class:`~simtest.envs.grasp_env.PandaGraspEnv`, in the state of the capture.
+        task: The :class:`~simtest.envs.task.GraspTask` in the state of the capture (or an env over one).
         obs: The observation (``depth``, ``K``, ``T_base_cam``).
         obj: The target's :class:`simtest.objects.ObjectModel`.
         T_world_obj: The target's estimated pose in the world (m).
     """
-    from scipy.spatial import cKDTree
-
-    from simtest.camera import backproject
-
-    T_world_cam = env.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
+    task = as_task(task)
+    T_world_cam = task.T_world_base @ Pose.from_matrix(np.asarray(obs["T_base_cam"], dtype=np.float64))
     pts = T_world_cam.apply(backproject(obs["depth"], np.asarray(obs["K"], dtype=np.float64)))  # depth > 0 only
-    pts = pts[pts[:, 2] > env.grasp_scene.table_height + table_margin]
+    pts = pts[pts[:, 2] > task.grasp_scene.table_height + table_margin]
     surface = T_world_obj.apply(obj.surface_cloud(4000)[0])
     dist, _ = cKDTree(surface).query(pts, distance_upper_bound=target_margin)
     pts = pts[~np.isfinite(dist)]
-    mujoco.mj_kinematics(env.model, env.data)
-    pts = pts[~points_in_geoms(env.model, env.data, env.ids.robot_geoms, pts, self_margin)]
+    mujoco.mj_kinematics(task.model, task.data)
+    pts = pts[~points_in_geoms(task.model, task.data, task.ids.robot_geoms, pts, self_margin)]
     return _voxel_downsample(pts, voxel)
 
 
@@ -312,12 +313,13 @@ class GraspPlanner:
         ok &= contact_z + backoff <= self.max_contact_z
         return ok, np.where(ok, backoff, 0.0)
 
-    def plan(self, env, obj, T_world_obj: Pose, obstacle_points: np.ndarray | None = None) -> PlanResult:
-        """Choose a grasp for ``obj`` at the estimated ``T_world_obj`` in ``env``'s current state.
+    def plan(self, task: GraspTask, obj, T_world_obj: Pose, obstacle_points: np.ndarray | None = None
+             ) -> PlanResult:
+        """Choose a grasp for ``obj`` at the estimated ``T_world_obj`` in ``task``'s current state.
 
         Args:
-            env: A reset :class:`simtest.envs.grasp_env.PandaGraspEnv` (its model, data and Panda ids are read,
-                never stepped).
+            task: A reset :class:`~simtest.envs.task.GraspTask` (its model, data and Panda ids are read, never
+                stepped), or a :class:`~simtest.envs.grasp_env.PandaGraspEnv` over one (wrapped or not).
             obj: The target's :class:`simtest.objects.ObjectModel`.
             T_world_obj: The *estimated* object pose in the world (m).
             obstacle_points: With ``obstacles="observed"`` (required then): the observed obstacles, (M, 3)
@@ -326,7 +328,8 @@ class GraspPlanner:
         Raises:
             ConfigError: ``obstacles="observed"`` without ``obstacle_points``.
         """
-        model, data, ids = env.model, env.data, env.ids
+        task = as_task(task)
+        model, data, ids = task.model, task.data, task.ids
         observed = None
         if self.obstacles == "observed":
             if obstacle_points is None:
@@ -336,7 +339,7 @@ class GraspPlanner:
                                   _hand_geoms(model, ids), _table_geoms(model))
         poses, widths, scores, contact_z = self.candidates_world(obj, T_world_obj)
         n = len(poses)
-        ok, backoff = self.geometric_filter(poses, env.grasp_scene.table_height, contact_z)
+        ok, backoff = self.geometric_filter(poses, task.grasp_scene.table_height, contact_z)
         poses = poses.copy()
         poses[:, :3, 3] -= backoff[:, None] * poses[:, :3, 2]
         idx = np.flatnonzero(ok)
@@ -356,7 +359,7 @@ class GraspPlanner:
                 g = Pose.from_matrix(poses[i])
                 if flipped:
                     g = symmetric_grasp(g)
-                res = self._check(model, data, ids, env, g, q_now, top_z, observed)
+                res = self._check(model, data, ids, task, g, q_now, top_z, observed)
                 if res is None:
                     continue
                 any_ik = True
@@ -374,7 +377,7 @@ class GraspPlanner:
                 return PlanResult(plan, "ok", n, len(idx), n_tried)
         return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried)
 
-    def _check(self, model, data, ids, env, g: Pose, q_now: np.ndarray, top_z: float,
+    def _check(self, model, data, ids, task, g: Pose, q_now: np.ndarray, top_z: float,
                observed: _Obstacles | None = None):
         """IK (and collisions) of one grasp: ``None`` if IK fails, ``"collision"``, or the solutions."""
         pre = Pose(g.R, g.t - self.pregrasp * g.R[:, 2])
@@ -394,18 +397,18 @@ class GraspPlanner:
         r_lift = solve_ik(model, data, ids, lift, r_grasp.q)
         if not r_lift.success:
             return None
-        if self.check_collisions and (self._collides(env, r_pre.q, observed)
-                                     or self._collides(env, r_grasp.q, observed)):
+        if self.check_collisions and (self._collides(task, r_pre.q, observed)
+                                     or self._collides(task, r_grasp.q, observed)):
             return "collision"
         return r_above.q, r_pre.q, r_grasp.q, r_lift.q, above, pre, lift
 
-    def _collides(self, env, q: np.ndarray, observed: _Obstacles | None = None) -> bool:
+    def _collides(self, task, q: np.ndarray, observed: _Obstacles | None = None) -> bool:
         """Whether the robot at ``q`` with the gripper open penetrates anything but itself and the target
         (simulator geometry), or with ``observed``: the table (simulator geometry) or an observed obstacle
         point (inside the hand's or fingers' boxes grown by ``obstacle_margin``)."""
-        model, ids = env.model, env.ids
-        s = env.planning_data
-        s.qpos[:] = env.data.qpos
+        model, ids = task.model, task.ids
+        s = task.planning_data
+        s.qpos[:] = task.data.qpos
         s.qpos[ids.arm_qpos] = q
         s.qpos[ids.finger_qpos] = GRIPPER_OPEN / 2
         mujoco.mj_fwdPosition(model, s)
@@ -418,7 +421,7 @@ class GraspPlanner:
         geoms = np.asarray(s.contact.geom[:n])
         dist = np.asarray(s.contact.dist[:n])
         robot = np.isin(geoms, ids.robot_geoms)
-        target = np.isin(geoms, env.target_geoms)
+        target = np.isin(geoms, task.target_geoms)
         hit = (robot[:, 0] ^ robot[:, 1]) & ~target.any(axis=1) & (dist < -0.001)
         if observed is not None:
             hit &= np.isin(geoms, observed.table_geoms).any(axis=1)

@@ -1,4 +1,4 @@
-"""Many closed-loop episodes: seeding, worker processes, ``episodes.csv``, summaries, videos, noise sweeps.
+"""Many closed-loop episodes: seeding, worker processes (each with its own grasp task), the run's outputs.
 
 Episode ``i`` of a run with master seed ``s`` resets its env with the seed drawn from ``SeedSequence`` child
 ``i`` of ``s`` (:func:`episode_seed`), so every episode's scene, corruption and oracle noise are the same
@@ -13,32 +13,52 @@ the episodes that finished, lists the lost ones in ``summary.json`` (``run.lost_
 
 from __future__ import annotations
 
-import csv
 import functools
-import math
+import importlib
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
+from tqdm import tqdm
 
 from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
+from simtest.envs import summary as run_summary
+from simtest.envs.episode import run_episode
+from simtest.envs.observation import ObservationModel, resolve_depth_sensor
+from simtest.envs.options import CONTROL_DT, EpisodeConfig, load_objects
+from simtest.envs.planner import OBSTACLE_SOURCES, GraspPlanner
+from simtest.envs.task import GraspTask
 from simtest.errors import ConfigError, EstimatorError
-from simtest.metrics.intervals import wilson_interval
+from simtest.estimators.base import estimator_label
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
+from simtest.estimators.registry import load_estimator
+from simtest.io.files import prepare_out_dir
+from simtest.io import video as video_files
+from simtest.backend.threads import worker_threads
 from simtest.rng import child_sequence
-from simtest.io.files import jsonable
 
-__all__ = ["GraspRunConfig", "GraspRunReport", "episode_seed", "wilson_interval", "run_grasp_episodes",
-           "summarize", "noise_sweep", "NoiseSweepResult", "write_video"]
+__all__ = ["GraspRunConfig", "GraspRunReport", "episode_seed", "run_grasp_episodes", "ESTIMATOR_FAULTS",
+           "check_planner_obstacles", "RECORD_EVERY"]
 
-#: Columns of ``episodes.csv`` (units: m, deg, s).
-CSV_COLUMNS = ["episode", "seed", "target_obj_id", "target_name", "success", "reason", "add_s", "re_deg",
-               "re_sym_deg", "te", "mssd", "estimate_s", "wall_s", "sim_s", "lift_height", "occlusion",
-               "occluded_fraction", "visible_pixels", "grasp_index", "approach_tilt_deg", "error", "traceback",
-               "warnings", "planner_obstacles"]
+#: Names that moved out of this module; ``from simtest.envs.runner import NAME`` still works, with a
+#: DeprecationWarning.
+MOVED = {"wilson_interval": "simtest.metrics.intervals", "write_video": "simtest.io.video",
+         "summarize": "simtest.envs.summary", "summary_markdown": "simtest.envs.summary",
+         "CSV_COLUMNS": "simtest.envs.summary", "noise_sweep": "simtest.envs.noise_sweep",
+         "NoiseSweepResult": "simtest.envs.noise_sweep"}
+
+
+def __getattr__(name: str) -> Any:
+    """The moved names (:data:`MOVED`), from their new module, with a DeprecationWarning."""
+    if name in MOVED:
+        warnings.warn(f"simtest.envs.runner.{name} moved to {MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(importlib.import_module(MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 #: Episode outcomes that are faults of the estimator (``fail_fast`` stops at the first).
 ESTIMATOR_FAULTS = ("estimator_error", "estimator_timeout")
 #: Video frames are recorded every this many control periods.
@@ -134,7 +154,8 @@ class GraspRunReport:
     run: RunStats = field(default_factory=RunStats)  # what the back end did (episodes retried, lost)
 
     def table(self) -> str:
-        return summary_markdown(self.summary)
+        """The summary as Markdown tables (:func:`simtest.envs.summary.summary_markdown`)."""
+        return run_summary.summary_markdown(self.summary)
 
     def all_estimator_faults(self) -> bool:
         """Whether every episode ended in a fault of the estimator (a run that measured nothing)."""
@@ -157,8 +178,6 @@ def _resolve_targets(cfg: GraspRunConfig) -> list:
     if not cfg.targets:
         return []
     if tuple(cfg.targets) == ("all",):
-        from simtest.envs.grasp_env import load_objects
-
         return [o.obj_id for o in load_objects(cfg.objects, cfg.units, cfg.scale) if o.graspable]
     return list(cfg.targets)
 
@@ -169,79 +188,40 @@ _WORKER: dict = {}
 
 def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
     cfg = GraspRunConfig(**{**cfg_dict, "targets": tuple(cfg_dict["targets"])})
-    from simtest.backend.threads import worker_threads
-
     worker_threads(cfg.workers, cfg.ray_address, apply=True)  # its share of the cores
     _WORKER.clear()
     _WORKER.update(_make_context(cfg, out_dir))
 
 
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
-    from simtest.envs.grasp_env import PandaGraspEnv
-    from simtest.envs.planner import GraspPlanner
-    from simtest.estimators.base import estimator_label
-    from simtest.estimators.registry import load_estimator
-
-    env = PandaGraspEnv(width=cfg.width, height=cfg.height, objects=cfg.objects, object_units=cfg.units,
-                        object_scale=cfg.scale, depth_sensor=cfg.depth_sensor,
-                        render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
+    task = GraspTask(width=cfg.width, height=cfg.height, episode={"objects": cfg.objects},
+                     observation=ObservationModel(depth_sensor=cfg.depth_sensor), object_units=cfg.units,
+                     object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
-    return {"cfg": cfg, "env": env, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
+    return {"cfg": cfg, "task": task, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
             "planner": GraspPlanner(obstacles=cfg.planner_obstacles), "label": estimator_label(cfg.estimator, est)}
 
 
 def _run_one(index: int, ctx: dict | None = None) -> dict:
-    from simtest.envs.episode import run_episode
-
     ctx = ctx if ctx is not None else _WORKER
     cfg: GraspRunConfig = ctx["cfg"]
     seed = episode_seed(cfg.seed, index)
     record = bool(cfg.video and ctx["out"] is not None and index < cfg.video_episodes)
-    res = run_episode(ctx["env"], ctx["estimator"], ctx["planner"], seed=seed,
+    res = run_episode(ctx["task"], ctx["estimator"], ctx["planner"], seed=seed,
                       options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
                       timeout=cfg.timeout)
     row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
     if record and res.frames:
-        from simtest.envs.grasp_env import CONTROL_DT
-
         path = Path(ctx["out"]) / "videos" / f"episode_{index:04d}_{res.target_name}_{res.reason}.gif"
-        write_video(res.frames, path, fps=1.0 / (CONTROL_DT * RECORD_EVERY))  # real time
+        video_files.write_video(res.frames, path, fps=1.0 / (CONTROL_DT * RECORD_EVERY))  # real time
     return row
-
-
-def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 10.0) -> Path:
-    """Write frames (H, W, 3) uint8 as an MP4 if an ffmpeg backend is installed, else as a GIF.
-
-    Args:
-        frames: The frames.
-        path: Output path (its suffix is replaced by ``.mp4`` or ``.gif``).
-        fps: Frames per second of playback; a GIF stores ``1000 / fps`` ms per frame (imageio's GIF writer
-            takes ``duration`` in milliseconds), rounded by the format to 10 ms.
-
-    Returns:
-        The path written (suffix ``.mp4`` or ``.gif``).
-    """
-    import imageio.v2 as imageio
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import imageio_ffmpeg  # noqa: F401
-
-        path = path.with_suffix(".mp4")
-        imageio.mimwrite(path, list(frames), fps=fps, macro_block_size=1)
-    except ImportError:
-        path = path.with_suffix(".gif")
-        imageio.mimwrite(path, [f[::2, ::2] if f.shape[1] > 640 else f for f in frames],
-                         duration=1000.0 / fps, loop=0)
-    return path
 
 
 def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *, progress: bool = True,
                        command_line: Sequence[str] | None = None, overwrite: bool = False) -> GraspRunReport:
     """Run ``cfg.episodes`` closed-loop episodes and (with ``out_dir``) write the outputs.
 
-    Outputs: ``episodes.csv`` (one row per episode, :data:`CSV_COLUMNS`), ``summary.json`` and
+    Outputs (:mod:`simtest.envs.summary`): ``episodes.csv`` (one row per episode, ``CSV_COLUMNS``), ``summary.json`` and
     ``summary.md`` (success rate with a 95 % Wilson interval, per object, per failure reason, pose errors),
     and with ``cfg.video`` ``videos/episode_NNNN_<object>_<reason>.gif`` (or ``.mp4``).
 
@@ -258,8 +238,6 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     """
     preflight(Backend.of(cfg))  # before the output is touched
     if out_dir is not None:
-        from simtest.io.files import prepare_out_dir
-
         prepare_out_dir(out_dir, overwrite=overwrite)
     if cfg.episodes < 1:
         raise ConfigError(f"episodes must be >= 1, got {cfg.episodes!r}")
@@ -267,11 +245,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
-    from simtest.envs.observation import resolve_depth_sensor
-
     resolve_depth_sensor(cfg.depth_sensor)  # a bad name fails here, listing the sensors
-    from simtest.envs.grasp_env import EpisodeConfig
-
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
@@ -280,8 +254,6 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     rows: list[dict] = []
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=cfg.episodes, unit="episode", desc="grasp", dynamic_ncols=True, file=sys.stderr)
     stats = RunStats()
     lost: BackendError | None = None
@@ -295,7 +267,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         if bar is not None:
             bar.close()
     rows.sort(key=lambda r: r["episode"])
-    summary = summarize(rows)
+    summary = run_summary.summarize(rows)
     summary["config"] = cfg.to_dict()
     summary["estimator_label"] = rows[0]["estimator_label"]  # from the estimator the episodes ran
     summary["planner_obstacles"] = cfg.planner_obstacles
@@ -305,7 +277,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
                       "retried": stats.retried, "lost_episodes": sorted(f.unit for f in stats.failures)}
     report = GraspRunReport(rows, summary, out, stats)
     if out is not None:
-        _write_outputs(report, out)
+        run_summary.write_run_outputs(report.rows, report.summary, out)
     if lost is not None:
         ids = summary["run"]["lost_episodes"]
         raise BackendError(f"{len(ids)} of {cfg.episodes} episodes were lost with their workers more than "
@@ -340,7 +312,7 @@ def _run_episodes(cfg: GraspRunConfig, out: Path | None, rows: list[dict], bar, 
             _check_fail_fast(cfg, row)
     finally:
         if ctx is not None:
-            ctx["env"].close()
+            ctx["task"].close()
 
 
 def check_planner_obstacles(value: Any) -> str:
@@ -349,8 +321,6 @@ def check_planner_obstacles(value: Any) -> str:
     Raises:
         ConfigError: Naming the field, the bad value and the allowed ones.
     """
-    from simtest.envs.planner import OBSTACLE_SOURCES
-
     if value not in OBSTACLE_SOURCES:
         raise ConfigError(f"GraspRunConfig.planner_obstacles must be one of {', '.join(OBSTACLE_SOURCES)} "
                           f"(sim: the simulator's geometry; observed: the observation's depth image); got {value!r}")
@@ -373,158 +343,3 @@ def _tick(bar, rows: list[dict]) -> None:
     bar.update(1)
 
 
-def _nanmedian(values: list[float]) -> float | None:
-    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=np.float64)
-    return float(np.median(v)) if len(v) else None
-
-
-def summarize(rows: list[dict]) -> dict:
-    """Success rate with a 95 % Wilson interval, per object and per failure reason, and pose-error medians.
-
-    Returns:
-        ``{"episodes", "successes", "success_rate", "ci95": [lo, hi], "by_object": {name: {"obj_id", "n",
-        "successes", "success_rate", "ci95"}}, "by_reason": {reason: count}, "median_add_s", "median_re_deg",
-        "median_te", "median_mssd", "median_wall_s", "median_estimate_s"}`` (errors in m / deg, times in s;
-        the rotation error is ``re_sym``, the smallest over the object's symmetries, as in ``simtest eval``).
-    """
-    from simtest.envs.episode import FAILURE_REASONS
-
-    n = len(rows)
-    k = sum(bool(r["success"]) for r in rows)
-    lo, hi = wilson_interval(k, n)
-    by_obj: dict[str, dict] = {}
-    for r in rows:
-        e = by_obj.setdefault(r["target_name"], {"obj_id": int(r["target_obj_id"]), "n": 0, "successes": 0})
-        e["n"] += 1
-        e["successes"] += int(bool(r["success"]))
-    for e in by_obj.values():
-        e["success_rate"] = e["successes"] / e["n"]
-        e["ci95"] = list(wilson_interval(e["successes"], e["n"]))
-    by_obj = dict(sorted(by_obj.items(), key=lambda kv: kv[1]["obj_id"]))
-    reasons = {reason: sum(r["reason"] == reason for r in rows) for reason in FAILURE_REASONS}
-    return {
-        "episodes": n, "successes": k, "success_rate": k / n if n else 0.0, "ci95": [lo, hi],
-        "by_object": by_obj, "by_reason": reasons,
-        "median_add_s": _nanmedian([r["add_s"] for r in rows]),
-        "median_re_deg": _nanmedian([r.get("re_sym_deg", r["re_deg"]) for r in rows]),
-        "median_te": _nanmedian([r["te"] for r in rows]),
-        "median_mssd": _nanmedian([r["mssd"] for r in rows]),
-        "median_wall_s": _nanmedian([r["wall_s"] for r in rows]),
-        "median_estimate_s": _nanmedian([r["estimate_s"] for r in rows]),
-    }
-
-
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f}%"
-
-
-def summary_markdown(s: dict) -> str:
-    """The summary as Markdown tables."""
-    lo, hi = s["ci95"]
-    cfg = s.get("config") or {}
-    lines = ["# Closed-loop grasping", ""]
-    if cfg:
-        opts = ", ".join(f"{k}={v}" for k, v in (cfg.get("estimator_options") or {}).items())
-        lines += [f"Estimator `{s.get('estimator_label') or cfg.get('estimator')}`" + (f" ({opts})" if opts else "") +
-                  f", objects `{cfg.get('objects')}`, occlusion {cfg.get('occlusion')}, "
-                  f"weather {cfg.get('weather') or 'none'}"
-                  + (f" (severity {cfg.get('severity')})" if cfg.get("weather") else "")
-                  + f", depth noise {cfg.get('depth_noise') or 'none'}"
-                  f", depth sensor {cfg.get('depth_sensor', 'none')}"
-                  f", distractors {cfg.get('n_distractors')}, "
-                  f"seed {cfg.get('seed')}, planner obstacles {cfg.get('planner_obstacles', 'sim')}.", ""]
-    if s.get("command_line"):
-        lines += ["```", " ".join(s["command_line"]), "```", ""]
-    lines += [f"**Success: {s['successes']}/{s['episodes']} = {_pct(s['success_rate'])}** "
-              f"(95% Wilson CI {_pct(lo)} - {_pct(hi)})", ""]
-
-    def fmt(v: float | None, scale: float = 1.0, digits: int = 1) -> str:
-        return "-" if v is None else f"{v * scale:.{digits}f}"
-
-    lines += ["| median ADD(-S) mm | median re_sym deg | median te mm | median MSSD mm | median episode s |",
-              "|---:|---:|---:|---:|---:|",
-              f"| {fmt(s['median_add_s'], 1000)} | {fmt(s['median_re_deg'])} | {fmt(s['median_te'], 1000)} | "
-              f"{fmt(s['median_mssd'], 1000)} | {fmt(s['median_wall_s'], 1, 2)} |", ""]
-    lines += ["## Per object", "", "| obj_id | object | episodes | success | 95% CI |", "|---:|---|---:|---:|---|"]
-    for name, e in s["by_object"].items():
-        lines.append(f"| {e['obj_id']} | {name} | {e['n']} | {_pct(e['success_rate'])} | "
-                     f"{_pct(e['ci95'][0])} - {_pct(e['ci95'][1])} |")
-    lines += ["", "## Outcomes", "", "| reason | episodes |", "|---|---:|"]
-    for reason, count in s["by_reason"].items():
-        lines.append(f"| {reason} | {count} |")
-    return "\n".join(lines) + "\n"
-
-
-def _write_outputs(report: GraspRunReport, out: Path) -> None:
-    from simtest.io.files import atomic_write_json
-
-    tmp = out / ".episodes.csv.partial"
-    with tmp.open("w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        for r in report.rows:
-            w.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()})
-    tmp.replace(out / "episodes.csv")
-    atomic_write_json(out / "summary.json", jsonable(report.summary))
-    (out / "summary.md").write_text(summary_markdown(report.summary), encoding="utf-8")
-
-
-# --- noise sweep ---------------------------------------------------------------------------------------------
-@dataclass
-class NoiseSweepResult:
-    """Success against oracle pose error: one row per (translation mm, rotation deg) point."""
-
-    rows: list[dict]
-    episodes_per_point: int
-
-    def table(self) -> str:
-        """Markdown: translation error (mm), rotation error (deg), success with 95 % Wilson CI, and the
-        most common failure reasons."""
-        lines = ["| translation error mm | rotation error deg | success | 95% CI | failures |",
-                 "|---:|---:|---:|---|---|"]
-        for r in self.rows:
-            fails = ", ".join(f"{k} {v}" for k, v in sorted(r["by_reason"].items(), key=lambda kv: -kv[1])
-                              if k != "none" and v)
-            lines.append(f"| {r['trans_mm']:g} | {r['rot_deg']:g} | {r['successes']}/{r['episodes']} = "
-                         f"{_pct(r['success_rate'])} | {_pct(r['ci95'][0])} - {_pct(r['ci95'][1])} | "
-                         f"{fails or '-'} |")
-        return "\n".join(lines) + "\n"
-
-
-def noise_sweep(trans_mm: Sequence[float] = (0, 5, 10, 20, 30), rot_deg: Sequence[float] = (0, 5, 10, 20, 30), *,
-                episodes: int = 27, seed: int = 0, objects: str = "builtin", targets: tuple = ("all",),
-                n_distractors: int = 0, width: int = 160, height: int = 120, workers: int = 1,
-                progress: bool = True, out_dir: str | Path | None = None) -> NoiseSweepResult:
-    """Grasp success of the ``oracle`` with pose errors of exact size: two curves, translation error (rotation
-    0) and rotation error (translation 0).
-
-    The oracle runs in ``"fixed"`` mode: every estimate is off by exactly ``trans_mm`` millimetres in a random
-    direction and ``rot_deg`` degrees about a random axis (seeded per episode). Every point uses the same
-    episodes (same seeds, scenes and targets), so the curves are paired comparisons.
-
-    Args:
-        trans_mm: Translation errors, millimetres (run with zero rotation error).
-        rot_deg: Rotation errors, degrees (run with zero translation error).
-        episodes: Episodes per point.
-        seed, objects, targets, n_distractors, width, height, workers: As in :class:`GraspRunConfig`.
-        out_dir: If given, each point's outputs go to ``out_dir/t<mm>_r<deg>/`` and the table to
-            ``out_dir/noise_sweep.md``.
-    """
-    points = [(float(t), 0.0) for t in trans_mm] + [(0.0, float(r)) for r in rot_deg if float(r) != 0.0
-                                                    or not any(float(t) == 0.0 for t in trans_mm)]
-    rows = []
-    for t, r in points:
-        cfg = GraspRunConfig(estimator="oracle", estimator_options={"trans_noise_mm": t, "rot_noise_deg": r,
-                                                                   "rot_noise_mode": "fixed"},
-                             episodes=episodes, seed=seed, objects=objects, targets=tuple(targets),
-                             n_distractors=n_distractors, width=width, height=height, workers=workers)
-        sub = None if out_dir is None else Path(out_dir) / f"t{t:g}_r{r:g}"
-        rep = run_grasp_episodes(cfg, sub, progress=progress)
-        s = rep.summary
-        rows.append({"trans_mm": t, "rot_deg": r, "episodes": s["episodes"], "successes": s["successes"],
-                     "success_rate": s["success_rate"], "ci95": s["ci95"], "by_reason": s["by_reason"]})
-    result = NoiseSweepResult(rows, episodes)
-    if out_dir is not None:
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
-        (Path(out_dir) / "noise_sweep.md").write_text(result.table(), encoding="utf-8")
-    return result

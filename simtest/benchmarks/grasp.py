@@ -128,7 +128,7 @@ def bench_resets(n_resets: int = 500, n_fixed: int = 50, width: int = 320, heigh
         out.random_s.append(time.perf_counter() - t0)
         if i + 1 in RSS_CHECKPOINTS:
             out.rss_mb[i + 1] = resident_mb() or float("nan")
-    models = env._models
+    models = env.task.models
     out.compiles, out.reuses = (models.compiles, models.reuses) if models is not None else (0, 0)
     fixed = {"target": "can_0", "n_distractors": 0}
     env.reset(seed=seed, options=fixed)  # may compile: not timed

@@ -80,15 +80,15 @@ def test_corruption_changes_observations_not_ground_truth(env):
 def test_end_effector_step_moves_the_tcp(env):
     u = env.unwrapped
     env.reset(seed=2, options={"target": "box_1"})
-    p0, _ = u._diffik.fk(u._q_cmd)
+    p0, _ = u.task._diffik.fk(u.task._q_cmd)
     step = np.array([MAX_STEP_TRANSLATION, 0.0, -MAX_STEP_TRANSLATION / 2, 0, 0, 0, 1], dtype=np.float32)
     for _ in range(5):
         env.step(step)
-    p1, _ = u._diffik.fk(u._q_cmd)
+    p1, _ = u.task._diffik.fk(u.task._q_cmd)
     np.testing.assert_allclose(p1 - p0, 5 * step[:3], atol=1.5e-3)
     # Oversized actions are clipped to the per-step limits.
     env.step(np.array([1.0, 0, 0, 0, 0, 0, 1], dtype=np.float32))
-    p2, _ = u._diffik.fk(u._q_cmd)
+    p2, _ = u.task._diffik.fk(u.task._q_cmd)
     assert p2[0] - p1[0] == pytest.approx(MAX_STEP_TRANSLATION, abs=1e-3)
 
 
@@ -108,10 +108,10 @@ def test_bad_options_name_the_allowed_values(env):
 def test_panda_ik_step_option_moves_the_same_way():
     env = PandaGraspEnv(width=96, height=72, n_distractors=0, ik="panda", target="box_1")
     env.reset(seed=2)
-    p0, _ = env._diffik.fk(env._q_cmd)
+    p0, _ = env.task._diffik.fk(env.task._q_cmd)
     for _ in range(3):
         env.step(np.array([0.0, MAX_STEP_TRANSLATION, 0.0, 0, 0, 0, 1], dtype=np.float32))
-    p1, _ = env._diffik.fk(env._q_cmd)
+    p1, _ = env.task._diffik.fk(env.task._q_cmd)
     np.testing.assert_allclose(p1 - p0, [0.0, 3 * MAX_STEP_TRANSLATION, 0.0], atol=1e-3)
     env.close()
 
@@ -121,7 +121,7 @@ def test_the_main_pieces_import_from_the_package():
     from simtest.envs import PandaGraspEnv, run_episode, write_video
     from simtest.envs.episode import run_episode as run_episode_
     from simtest.envs.grasp_env import PandaGraspEnv as Env
-    from simtest.envs.runner import write_video as write_video_
+    from simtest.io.video import write_video as write_video_
 
     assert PandaGraspEnv is Env and run_episode is run_episode_ and write_video is write_video_
     assert {"PandaGraspEnv", "run_episode", "write_video"} <= set(simtest.envs.__all__)

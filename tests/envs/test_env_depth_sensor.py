@@ -13,6 +13,7 @@ import pytest
 
 from simtest.envs.episode import run_episode
 from simtest.envs.grasp_env import DEPTH_SENSORS, PandaGraspEnv
+from simtest.envs.observation import ObservationModel
 from simtest.errors import ConfigError
 from simtest.estimators.oracle import OracleEstimator
 
@@ -22,7 +23,7 @@ ZERO = np.array([0.0, 0.0, -0.01, 0.0, 0.0, 0.0, 1.0])
 
 def _env(sensor: str) -> PandaGraspEnv:
     return PandaGraspEnv(width=W, height=H, target="box_1", n_distractors=1, start="observe",
-                         depth_sensor=sensor)
+                         observation=ObservationModel(depth_sensor=sensor))
 
 
 def _rollout(env: PandaGraspEnv, seed: int, steps: int = 3):
@@ -88,7 +89,7 @@ def _comparable(result) -> dict:
 def test_oracle_episode_is_unchanged_by_the_sensor():
     results = []
     for sensor in ("none", "d435-stereo"):
-        env = PandaGraspEnv(width=96, height=72, n_distractors=0, depth_sensor=sensor)
+        env = PandaGraspEnv(width=96, height=72, n_distractors=0, observation=ObservationModel(depth_sensor=sensor))
         try:
             results.append(_comparable(run_episode(env, OracleEstimator(), seed=3, options={"target": "box_1"})))
         finally:
@@ -100,7 +101,7 @@ def test_oracle_episode_is_unchanged_by_the_sensor():
 def test_unknown_sensor_names_the_presets(tmp_path):
     assert DEPTH_SENSORS == ("none", "d435-stereo", "passive-stereo")
     with pytest.raises(ConfigError, match="d435-stereo") as err:
-        PandaGraspEnv(width=96, height=72, depth_sensor="kinect")
+        ObservationModel(depth_sensor="kinect")
     assert "passive-stereo" in str(err.value) and "none" in str(err.value)
     from simtest.envs.runner import GraspRunConfig, run_grasp_episodes
 

@@ -77,18 +77,18 @@ def test_resets_reuse_the_model_and_stay_deterministic():
     env.reset(seed=1, options={"occlusion": "L1"})
     env.step(np.zeros(7, np.float32))
     env.render()
-    model, renderer, tp = u.model, u._renderer, u._tp_renderer
+    model, renderer, tp = u.model, u.task._renderer, u.task._tp_renderer
     reused, info_reused = env.reset(seed=2, options={"occlusion": "L1"})
-    assert u.model is model and u._renderer is renderer and renderer._con is not None
+    assert u.model is model and u.task._renderer is renderer and renderer._con is not None
     env.render()
-    assert u._tp_renderer is tp
+    assert u.task._tp_renderer is tp
     targets = {info_reused["target_name"]}
     for seed in range(3, 9):  # random targets and distractors, no occluder: still the same model
         _, info = env.reset(seed=seed)
         targets.add(info["target_name"])
     assert len(targets) > 1 and u.model is model and renderer._con is not None
     again, info_again = env.reset(seed=9)
-    assert u._models.compiles == 1 and u._models.reuses == 8 and u._models.pool_misses == 0
+    assert u.task.models.compiles == 1 and u.task.models.reuses == 8 and u.task.models.pool_misses == 0
 
     fresh = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
                   target=None, n_distractors=2)
@@ -118,13 +118,13 @@ def test_physics_only_envs_keep_one_model_per_structure():
     env = _make(objects="builtin-small", target="box_0", observe_every_step=False)
     env.reset(seed=0)
     env.reset(seed=1, options={"target": "can_0"})
-    models = env.unwrapped._models
+    models = env.unwrapped.task.models
     assert not models.use_pool and models.compiles == 2 and models.reuses == 0
     env.close()
     env = _make(objects="builtin-small", target="box_0", observe_every_step=False, model_pool=True)
     env.reset(seed=0)
     env.reset(seed=1, options={"target": "can_0"})
-    assert env.unwrapped._models.compiles == 1 and env.unwrapped._models.reuses == 1
+    assert env.unwrapped.task.models.compiles == 1 and env.unwrapped.task.models.reuses == 1
     env.close()
     with pytest.raises(ConfigError, match="model_pool must be True, False or None"):
         _make(model_pool="yes")

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from simtest.envs.episode import FAILURE_REASONS, run_episode
-from simtest.envs.runner import episode_seed, summarize, wilson_interval
+from simtest.envs.runner import episode_seed
+from simtest.envs.summary import summarize
+from simtest.metrics.intervals import wilson_interval
 from simtest.estimators.base import PoseEstimate
 from simtest.estimators.oracle import OracleEstimator
 
@@ -61,7 +63,7 @@ class _Shifted:
 
     def estimate(self, observation):
         R_g, t_g = observation.gt_poses[0]
-        R_world_cam = self.env._T_world_cam()[:3, :3]
+        R_world_cam = self.env.task._T_world_cam()[:3, :3]
         return [PoseEstimate(obj_id=observation.target_obj_ids[0], R=R_g, t=t_g + R_world_cam.T @ self.shift)]
 
 

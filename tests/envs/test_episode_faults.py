@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from simtest.envs.episode import FAILURE_REASONS, run_episode
-from simtest.envs.runner import CSV_COLUMNS, summarize
+from simtest.envs.summary import CSV_COLUMNS, summarize
 from simtest.estimators.base import PoseEstimate
 from simtest.estimators.oracle import OracleEstimator
 
@@ -153,7 +153,7 @@ def test_raising_estimator_leaves_its_traceback(env):
 def test_gif_frames_play_at_the_given_rate(tmp_path):
     from PIL import Image
 
-    from simtest.envs.runner import write_video
+    from simtest.io.video import write_video
 
     frames = [np.full((16, 24, 3), 40 * i, np.uint8) for i in range(4)]
     path = write_video(frames, tmp_path / "clip.gif", fps=10.0)
