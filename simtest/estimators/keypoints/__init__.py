@@ -13,7 +13,8 @@ stride 4 (:mod:`.model`). Both train with ``simtest train keypoints`` (:mod:`.tr
 Importing this package does not import torch; building a torch network or training does.
 """
 
-from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint, object_record, save_checkpoint
+from simtest.estimators.checkpoint import check_objects, object_record, save_checkpoint
+from simtest.estimators.keypoints.checkpoint import load_checkpoint
 from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box
 from simtest.estimators.keypoints.infer import KeypointEstimator as FullImageKeypointEstimator
