@@ -8,7 +8,8 @@ confidence, trained with the KL-derived loss ``c |g - e|_1 - log c`` (:mod:`.los
 predictions are fused per keypoint, mapped back to the full image and PnP gives the pose.
 
 ``keypoints-full`` (:class:`FullImageKeypointEstimator`, :mod:`.infer`): the first network, on whole images at
-stride 4 (:mod:`.model`). Both train with ``simtest train keypoints`` (:mod:`simtest.training.keypoints`, ``--arch crop|full``).
+stride 4 (:mod:`.model`). Both train with ``simtest train keypoints`` (:mod:`simtest.training.keypoints`,
+``--arch crop|full``).
 
 Importing this package does not import torch; building a torch network or training does.
 """
