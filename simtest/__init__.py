@@ -37,8 +37,9 @@ def __getattr__(name: str):
         return getattr(api, name)
     raise AttributeError(f"module 'simtest' has no attribute {name!r}")
 
-#: Modules of the flat layout (before the packages render/, evaluation/, sweeps/ and data/) and where they live
-#: now. Importing an old name gives the new module (the same object) with a DeprecationWarning.
+#: Modules of the flat layout (before the packages render/, evaluation/, sweeps/ and data/) and of the trainers
+#: (before the package training/), and where they live now. Importing an old name gives the new module (the same
+#: object) with a DeprecationWarning.
 MOVED_MODULES = {
     "simtest.gl": "simtest.render.gl", "simtest.render_pbr": "simtest.render.pbr",
     "simtest.raster": "simtest.render.zbuffer", "simtest.colour": "simtest.render.colour",
@@ -47,6 +48,9 @@ MOVED_MODULES = {
     "simtest.tables": "simtest.evaluation.tables", "simtest.sweep": "simtest.sweeps.grid",
     "simtest.cells": "simtest.sweeps.cells", "simtest.report": "simtest.sweeps.report",
     "simtest.mixing": "simtest.data.mixing", "simtest.pointcloud_stream": "simtest.data.pointclouds",
+    "simtest.estimators.training": "simtest.training",
+    "simtest.estimators.keypoints.train": "simtest.training.keypoints",
+    "simtest.estimators.segicp.train": "simtest.training.segmentation",
 }
 
 

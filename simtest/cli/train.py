@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         common["widths"] = parse_ints(args.widths, 4, "--widths")
     if args.model == "segmentation":
         return _run_segmentation(args, common)
-    from simtest.estimators.keypoints.train import TrainConfig, train_keypoints
+    from simtest.training.keypoints import TrainConfig, train_keypoints
 
     cfg = TrainConfig(keypoints=args.keypoints, decoder=parse_ints(args.decoder, 2, "--decoder"), arch=args.arch,
                       margin=args.margin, dense=args.dense, init=args.init, backbone=args.backbone,
@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
     """``simtest train segmentation``: the segmentation network of ``segicp``."""
-    from simtest.estimators.segicp.train import SegTrainConfig, train_segmentation
+    from simtest.training.segmentation import SegTrainConfig, train_segmentation
 
     cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, backbone=args.backbone,
                          **common)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import importlib
 import operator
+import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -50,8 +51,6 @@ MOVED = {**{n: "simtest.estimators.registry" for n in (
 def __getattr__(name: str) -> Any:
     """The moved names (:data:`MOVED`), from their new module, with a DeprecationWarning."""
     if name in MOVED:
-        import warnings
-
         warnings.warn(f"simtest.estimators.base.{name} moved to {MOVED[name]}.{name}", DeprecationWarning,
                       stacklevel=2)
         return getattr(importlib.import_module(MOVED[name]), name)

@@ -33,6 +33,7 @@ with symmetry-aware errors (ADD-S, MSSD, MSPD).
 
 from __future__ import annotations
 
+import importlib
 import logging
 from typing import Any
 
@@ -46,8 +47,12 @@ from simtest.estimators.options import check_int_options
 
 #: Sources of the object masks (the ``masks`` option).
 MASK_SOURCES = ("gt", "segicp")
+#: The segmentation network of each mask source other than ``gt``, as ``module:attr`` (imported on first use).
+#: The network owns its composition with this estimator's fit (``fit_regions(icp, observation)``, see
+#: :mod:`simtest.estimators.segicp`); this module knows it by name only.
+SEGMENTERS = {"segicp": "simtest.estimators.segicp.infer:Segmenter"}
 
-__all__ = ["ICPEstimator", "MASK_SOURCES", "fibonacci_rotations", "ModelCloud", "model_cloud",
+__all__ = ["ICPEstimator", "MASK_SOURCES", "SEGMENTERS", "fibonacci_rotations", "ModelCloud", "model_cloud",
            "point_to_plane_icp"]
 
 log = logging.getLogger(__name__)
@@ -292,11 +297,11 @@ class ICPEstimator:
         self.last_failures: list[dict[str, Any]] = []
         self.masks = masks
         self.needs_gt_masks = masks == "gt"
-        self.segmenter = None
-        if masks == "segicp":
-            from simtest.estimators.segicp.infer import Segmenter
-
-            self.segmenter = Segmenter(checkpoint)
+        #: The segmentation network that finds the objects (None: the observation's ground-truth masks).
+        self.segmenter: Any = None
+        if masks != "gt":
+            module, _, attr = SEGMENTERS[masks].partition(":")
+            self.segmenter = getattr(importlib.import_module(module), attr)(checkpoint)
 
     # --- scoring -------------------------------------------------------------------------------------------
     @staticmethod
@@ -360,10 +365,8 @@ class ICPEstimator:
         """
         self.last_failures = []
         obs = observation
-        if self.masks == "segicp":
-            from simtest.estimators.segicp.infer import estimate_segmented
-
-            return estimate_segmented(self, obs)
+        if self.segmenter is not None:
+            return self.segmenter.fit_regions(self, obs)
         if obs.target_obj_ids is None or obs.masks is None:
             raise ConfigError("icp: needs the targets' ground-truth visible masks (evaluate with "
                               "targets='gt-masks'), or use masks='segicp' (or the segicp estimator) to find the "

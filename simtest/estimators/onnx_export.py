@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from simtest.errors import ConfigError
+from simtest.estimators.checkpoint import load_checkpoint
 from simtest.estimators.onnx_net import ONNX_FORMAT, file_sha256, onnx_path_for
 
 __all__ = ["export_checkpoint", "OPSET", "INSTALL_HINT"]
@@ -90,8 +91,6 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path | None = None, ove
         from torch.export import Dim
     except ImportError as exc:
         raise ConfigError(f"exporting to ONNX needs torch, onnx and onnxscript ({exc}): {INSTALL_HINT}") from None
-    from simtest.estimators.keypoints.checkpoint import load_checkpoint
-
     checkpoint = Path(checkpoint)
     out = onnx_path_for(checkpoint) if out is None else Path(out)
     if out.suffix != ".onnx":

@@ -29,7 +29,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 
-__all__ = ["OnnxNet", "resolve_runtime", "RUNTIMES", "ONNX_FORMAT", "onnx_path_for", "file_sha256", "softmax", "softplus", "INSTALL_HINT"]
+__all__ = ["OnnxNet", "resolve_runtime", "check_device", "RUNTIMES", "ONNX_FORMAT", "onnx_path_for", "file_sha256", "softmax", "softplus", "INSTALL_HINT"]
 
 #: Layout of the metadata this module reads (see the module doc).
 ONNX_FORMAT = "simtest-onnx/1"
@@ -126,6 +126,13 @@ class OnnxNet:
 
 #: Ways to run a network: ``auto`` (the ONNX file when there is a current one, else torch), ``onnx``, ``torch``.
 RUNTIMES = ("auto", "onnx", "torch")
+
+
+def check_device(device: str, who: str) -> None:
+    """Raise :class:`ConfigError` (naming ``who``) unless ``device`` is ``cpu``, ``cuda`` or ``cuda:N`` (where a
+    torch network runs; ONNX Runtime runs on the CPU)."""
+    if device not in ("cpu", "cuda") and not str(device).startswith("cuda:"):
+        raise ConfigError(f"{who}: device must be cpu or cuda[:N], got {device!r}")
 
 
 def resolve_runtime(path: Path, runtime: str, who: str) -> tuple[str, Path]:

@@ -53,6 +53,7 @@ import numpy as np
 from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.keypoints.infer import solve_pnp
 from simtest.estimators.options import check_int_options
 
 __all__ = ["OracleEstimator", "random_unit_vector", "axis_angle_matrix", "axis_error", "ERROR_AXES"]
@@ -228,8 +229,6 @@ class OracleEstimator:
     def _keypoint_pose(self, obs: Observation, obj_id: int, R_g, t_g, rng: np.random.Generator):
         """``(R, t, info)`` solved by PnP from the ground-truth keypoints projected with ``obs.K`` plus noise
         (``R`` None when PnP fails: no estimate, as a real keypoint pipeline would give none)."""
-        from simtest.estimators.keypoints.infer import solve_pnp
-
         obj = obs.objects.get(obj_id)
         kp3 = np.asarray(obj.keypoints_bbox if self.keypoints == "bbox" else obj.keypoints_fps, dtype=np.float64)
         cam = kp3 @ np.asarray(R_g, dtype=np.float64).T + np.asarray(t_g, dtype=np.float64)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from simtest.errors import ConfigError
+from simtest.estimators.checkpoint import check_objects
 
 __all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "matches"]
 
@@ -76,8 +77,6 @@ def matches(record: dict[str, Any], objects: Any, subset: bool = False) -> str |
 
     ``subset``: the network needs only its own objects among ``objects`` (a detector looks for its classes and
     ignores others)."""
-    from simtest.estimators.keypoints.checkpoint import check_objects
-
     ids = [int(i) for i in record["obj_ids"]]
     if subset and set(ids) <= {int(i) for i in getattr(objects, "ids", [])}:
         objects = objects.subset(ids)

@@ -23,7 +23,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from simtest.camera import pinhole_pixels, pinhole_points
 from simtest.errors import ConfigError
+from simtest.render.silhouette import object_silhouette
 
 __all__ = ["SilhouetteFit", "fit_translation", "soft_iou", "cell_coverage_mask"]
 
@@ -94,9 +96,6 @@ def fit_translation(obj, R: np.ndarray, t: np.ndarray, K: np.ndarray, prob: np.n
     Raises:
         ConfigError: Mismatched shapes or bad bounds.
     """
-    from simtest.camera import pinhole_pixels, pinhole_points
-    from simtest.render.silhouette import object_silhouette
-
     prob = np.asarray(prob, np.float64)
     valid = np.asarray(valid, bool)
     if prob.ndim != 2 or prob.shape != valid.shape:

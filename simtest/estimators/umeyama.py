@@ -36,6 +36,7 @@ from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.options import check_int_options
 from simtest.camera import backproject
 from simtest.estimators.icp import ICPEstimator, model_cloud
+from simtest.objects import load_object_set
 
 __all__ = ["umeyama", "ransac_umeyama", "UmeyamaEstimator"]
 
@@ -199,8 +200,6 @@ class UmeyamaEstimator:
             pool = objects
         else:
             if self._refs is None:
-                from simtest.objects import load_object_set
-
                 self._refs = load_object_set(self.reference_set)
             pool = self._refs
         same = [o for o in pool if o.category == target.category]

@@ -75,6 +75,7 @@ from simtest.io.dataset import DataNotes, image_size, select_images
 from simtest.io.files import atomic_write_text, csv_text, jsonable, prepare_out_dir
 from simtest.metrics.bop19 import ResultRow
 from simtest.metrics.registry import NDEG_MCM, definitions
+from simtest.metrics.tolerance import read_tolerance_map
 from simtest.objects.loaders import load_dataset_objects
 from simtest.evaluation.scoring import aggregate_by_category, has_categories, score_estimates
 from simtest.evaluation.tables import failure_counts, format_table, overall_table
@@ -288,8 +289,6 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
 
 def _tolerance_map(path: str | Path | None):
     """The grasp tolerance map of ``path`` (a ``tolerance.csv``), or None."""
-    from simtest.metrics.tolerance import read_tolerance_map
-
     return None if path is None else read_tolerance_map(path)
 
 

@@ -26,9 +26,8 @@ LAYERS = {
     "simtest.generators": 3, "simtest.data": 3, "simtest.estimators": 3,
     # evaluation and the closed loop
     "simtest.evaluation": 4, "simtest.envs": 4,
-    # orchestration: sweeps, benchmarks, the trainers (they drive feeds and evaluation), the command line
-    "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.viz": 5, "simtest.estimators.keypoints.train": 5,
-    "simtest.estimators.segicp.train": 5, "simtest.cli": 6,
+    # orchestration: sweeps, benchmarks, training (it drives feeds and evaluation), the command line
+    "simtest.sweeps": 5, "simtest.benchmarks": 5, "simtest.viz": 5, "simtest.training": 5, "simtest.cli": 6,
     # the Python front door: one function per job over the layers below
     "simtest.api": 6,
 }

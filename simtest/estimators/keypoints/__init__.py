@@ -8,12 +8,14 @@ confidence, trained with the KL-derived loss ``c |g - e|_1 - log c`` (:mod:`.los
 predictions are fused per keypoint, mapped back to the full image and PnP gives the pose.
 
 ``keypoints-full`` (:class:`FullImageKeypointEstimator`, :mod:`.infer`): the first network, on whole images at
-stride 4 (:mod:`.model`). Both train with ``simtest train keypoints`` (:mod:`.train`, ``--arch crop|full``).
+stride 4 (:mod:`.model`). Both train with ``simtest train keypoints`` (:mod:`simtest.training.keypoints`,
+``--arch crop|full``).
 
 Importing this package does not import torch; building a torch network or training does.
 """
 
-from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint, object_record, save_checkpoint
+from simtest.estimators.checkpoint import check_objects, object_record, save_checkpoint
+from simtest.estimators.keypoints.checkpoint import load_checkpoint
 from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box
 from simtest.estimators.keypoints.infer import KeypointEstimator as FullImageKeypointEstimator

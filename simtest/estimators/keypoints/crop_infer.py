@@ -52,11 +52,16 @@ import numpy as np
 from simtest.camera import pinhole_pixels
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
-from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
+from simtest.estimators.checkpoint import check_objects
+from simtest.estimators.keypoints.checkpoint import load_checkpoint
+from simtest.estimators.onnx_net import OnnxNet, check_device, resolve_runtime, softplus
+from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT
+from simtest.estimators.segicp.infer import REGION_RANKS, Segmenter
+from simtest.estimators.silhouette import fit_translation
+from simtest.io.bop import mask_bbox
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
 from simtest.estimators.shipped import choose, matches
-from simtest.estimators.training import check_device
 
 __all__ = ["CropKeypointEstimator", "CROP_FORMAT", "DETECTORS", "FUSIONS", "default_checkpoint",
            "default_detector", "crop_maps"]
@@ -91,8 +96,6 @@ def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any], x
     ``prob`` (h, w) mask probability, ``points`` (J, 2, h, w) keypoints in crop pixels, ``conf`` (J, h, w),
     ``centers`` (2, h, w) the cells' centres (crop pixels); with ``xyz`` (4 H C, h, w) also ``xyz``
     (H, 3, h, w) model-frame points (metres) and ``xyz_conf`` (H, h, w) of the ``H`` hypotheses."""
-    from simtest.estimators.onnx_net import softplus
-
     J, stride = int(cfg["num_keypoints"]), int(cfg.get("stride", 4))
     h, w = fg.shape[-2:]
     c = int(label) - 1
@@ -176,8 +179,6 @@ class CropKeypointEstimator:
             raise ConfigError(f"keypoints: candidates must be an integer 1-8, got {candidates!r}")
         #: Detector regions tried per expected instance; the best-scored poses are kept (localization).
         self.candidates = int(candidates)
-        from simtest.estimators.segicp.infer import REGION_RANKS
-
         if region_rank not in REGION_RANKS:
             raise ConfigError(f"keypoints: region_rank must be one of {', '.join(REGION_RANKS)}, got {region_rank!r}")
         #: Which detector regions of a class are posed first: ``prob`` (most certain) or ``area`` (largest).
@@ -239,8 +240,6 @@ class CropKeypointEstimator:
 
     def _load_detector(self, path: str | Path | None) -> None:
         """The segmentation network that finds the objects (None: segicp's shipped RGB-D one)."""
-        from simtest.estimators.segicp.infer import Segmenter
-
         if self.detect == "rgb" and self._options["detector"] is None and not Path(path).is_file():
             raise ConfigError(f"keypoints: the shipped detector {str(path)!r} is missing; pass "
                               "--opt detector=SEGMENTATION_CHECKPOINT or --opt detect=gt")
@@ -253,8 +252,6 @@ class CropKeypointEstimator:
     def _ship_for(self, objects: Any) -> None:
         """Swap in the shipped crop network (and, unless one was named, the shipped detector) trained for
         ``objects``; a :class:`ConfigError` names the shipped sets when none was."""
-        from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT
-
         net = choose("keypoints", CROP_FORMAT, objects, what="keypoints")
         self._load(net.path, self._options["runtime"], self._options["threads"])
         self._configure()
@@ -263,8 +260,6 @@ class CropKeypointEstimator:
             self._load_detector(det.path)
 
     def _load(self, checkpoint: str | Path | None, runtime: str, threads: int | None) -> None:
-        from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
-
         shipped = checkpoint is None
         path = default_checkpoint() if shipped else Path(checkpoint)
         if shipped and not path.is_file():
@@ -317,8 +312,6 @@ class CropKeypointEstimator:
     def detections(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float, np.ndarray]]:
         """``(target index or None, obj_id, box [x, y, w, h], detection score, mask (H, W) bool)`` per object
         found."""
-        from simtest.io.bop import mask_bbox
-
         out = []
         if self.detect == "gt":
             obs.require_targets("keypoints (detect=gt)")
@@ -391,8 +384,6 @@ class CropKeypointEstimator:
         """``refine="silhouette"``: the pose fitted to the crop network's mask probability in the crop
         (:func:`simtest.estimators.silhouette.fit_translation`, through the cell rule at ``refine_coverage``),
         counting the crop pixels inside the image and outside the other detections' masks."""
-        from simtest.estimators.silhouette import fit_translation
-
         S = int(self.cfg["crop_size"])
         prob = cv2.resize(maps["prob"].astype(np.float32), (S, S), interpolation=cv2.INTER_LINEAR)
         valid = warp_crop(np.ones(shape, np.float32), M, S) >= 0.5

@@ -16,10 +16,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from simtest.estimators.blocks import Residual, conv_bn_relu
+from simtest.estimators.blocks import Residual, conv_bn_relu, init_conv_weights
+from simtest.estimators.efficientnet_lite import EfficientNetLite0Encoder, load_imagenet_weights
 from simtest.estimators.keypoints.loss import C_MAX, confidence
 from simtest.estimators.keypoints.model import KeypointNet, NetConfig, cell_centers
-from simtest.estimators.training import init_conv_weights
 
 __all__ = ["CropNetConfig", "CropKeypointNet", "select_class", "select_class_xyz", "crop_targets", "crop_loss",
            "xyz_loss", "BACKBONES", "EFFICIENTNET_WIDTHS"]
@@ -103,8 +103,6 @@ class CropKeypointNet(nn.Module):
             self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
             self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
         else:  # pretrained weights are loaded by init_weights (training); a checkpoint holds them afterwards
-            from simtest.estimators.efficientnet_lite import EfficientNetLite0Encoder
-
             self.encoder = EfficientNetLite0Encoder(levels=4)
         self.s16b = nn.Sequential(conv_bn_relu(w4 + e, w4), Residual(w4, dilation=4))
         self.up8 = nn.Sequential(conv_bn_relu(w4 + w3, d8), Residual(d8))
@@ -122,8 +120,6 @@ class CropKeypointNet(nn.Module):
         encoder is then filled with its ImageNet weights (bit for bit)."""
         init_conv_weights(self, generator)
         if self.cfg.backbone == "efficientnet-lite0":
-            from simtest.estimators.efficientnet_lite import load_imagenet_weights
-
             load_imagenet_weights(self.encoder)
         heads = [self.fg_head[-1], self.kp_head[-1]] + ([self.xyz_head[-1]] if self.cfg.dense else [])
         for head in heads:

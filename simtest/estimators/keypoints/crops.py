@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from simtest.camera import backproject
 from simtest.errors import ConfigError
 
 __all__ = ["crop_intrinsics", "crop_window_for_box", "warp_crop", "map_pixels", "jitter_box", "KeypointCrops",
@@ -198,8 +199,6 @@ def object_coords_image(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, R: n
     """(H, W, 3) float32: at each pixel of ``mask`` with depth, the model-frame point ``R^T (X - t)`` of its
     back-projected camera-frame surface point ``X`` (metres; ``depth`` planar, ``K`` the image's intrinsics);
     zero elsewhere."""
-    from simtest.camera import backproject
-
     sel = np.asarray(mask, bool) & (np.asarray(depth) > 0)
     out = np.zeros(depth.shape + (3,), np.float32)
     pts = backproject(depth, K, sel)

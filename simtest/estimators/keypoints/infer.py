@@ -23,8 +23,9 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
-from simtest.estimators.keypoints.checkpoint import FORMAT, check_objects, load_checkpoint
-from simtest.estimators.training import check_device
+from simtest.estimators.checkpoint import check_objects
+from simtest.estimators.keypoints.checkpoint import FORMAT, load_checkpoint
+from simtest.estimators.onnx_net import OnnxNet, check_device, resolve_runtime, softmax, softplus
 
 __all__ = ["KeypointEstimator", "fuse_keypoints", "solve_pnp", "mask_cells", "PNP_METHODS", "predict_maps",
            "predict_maps_onnx"]
@@ -160,8 +161,6 @@ def predict_maps(model: Any, rgb: np.ndarray, device: str = "cpu") -> dict[str, 
 def predict_maps_onnx(net: Any, rgb: np.ndarray) -> dict[str, np.ndarray]:
     """:func:`predict_maps` through an exported network (:class:`~simtest.estimators.onnx_net.OnnxNet`), without
     torch: the same maps (to float32 rounding)."""
-    from simtest.estimators.onnx_net import softmax, softplus
-
     cfg = net.meta["net"]
     H, W = rgb.shape[:2]
     x = rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0)
@@ -214,8 +213,6 @@ class KeypointEstimator:
         if model is None:
             if checkpoint is None:
                 raise ConfigError("keypoints: give checkpoint=PATH (a model file from `simtest train keypoints`)")
-            from simtest.estimators.onnx_net import resolve_runtime
-
             self.runtime, path = resolve_runtime(Path(checkpoint), runtime, "keypoints")
             self.checkpoint = str(path)
         else:
@@ -223,8 +220,6 @@ class KeypointEstimator:
             if objects_record is None:
                 raise ConfigError("keypoints: a model given in memory needs its objects_record")
         if self.runtime == "onnx":
-            from simtest.estimators.onnx_net import OnnxNet
-
             if device != "cpu":
                 raise ConfigError(f"keypoints: the ONNX runtime runs on the CPU; device={device!r} needs "
                                   "runtime=torch and a .pt checkpoint")

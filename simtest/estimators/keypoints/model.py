@@ -20,8 +20,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from simtest.estimators.blocks import Residual, conv_bn_relu
-from simtest.estimators.training import init_conv_weights
+from simtest.estimators.blocks import Residual, conv_bn_relu, init_conv_weights
 
 __all__ = ["NetConfig", "KeypointNet", "cell_centers"]
 

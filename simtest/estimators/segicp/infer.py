@@ -26,10 +26,10 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
+from simtest.estimators.checkpoint import check_objects, load_checkpoint
 from simtest.estimators.icp import ICPEstimator
-from simtest.estimators.onnx_net import resolve_runtime
+from simtest.estimators.onnx_net import OnnxNet, check_device, resolve_runtime, softmax
 from simtest.estimators.segicp.inputs import DEPTH_RANGE_M, depth_channel_np, size_multiple
-from simtest.estimators.training import check_device
 
 __all__ = ["Segmenter", "SegICPEstimator", "estimate_segmented", "default_checkpoint", "DEFAULT_CHECKPOINT_NAME",
            "FORMAT", "DEPTH_RANGE_M", "depth_channel_np", "size_multiple"]
@@ -85,8 +85,6 @@ class Segmenter:
                               "and a .pt checkpoint")
         self.checkpoint = str(path)
         if self.runtime == "onnx":
-            from simtest.estimators.onnx_net import OnnxNet
-
             self.net = OnnxNet(path, FORMAT, threads)
             meta = self.net.meta
             self.depth_input = bool(meta["net"].get("depth_input", False))
@@ -95,7 +93,6 @@ class Segmenter:
         else:
             import torch
 
-            from simtest.estimators.keypoints.checkpoint import load_checkpoint
             from simtest.estimators.segicp.model import SegNet, SegNetConfig
 
             if threads is not None:
@@ -120,8 +117,6 @@ class Segmenter:
         ids and meshes; other objects may be there too, the network does not look for them)."""
         if id(objects) in self._checked:
             return
-        from simtest.estimators.keypoints.checkpoint import check_objects
-
         where = f"segicp checkpoint {self.checkpoint}" + (" (the shipped one)" if self.shipped else "")
         known = set(int(i) for i in getattr(objects, "ids", []))
         check_objects(self.record, objects.subset(self.class_ids) if known >= set(self.class_ids) else objects,
@@ -146,8 +141,6 @@ class Segmenter:
         return prob
 
     def _onnx_probabilities(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        from simtest.estimators.onnx_net import softmax
-
         h, w = rgb.shape[:2]
         chans = [rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0)]
         if self.depth_input:
@@ -210,27 +203,37 @@ class Segmenter:
                 out.append((oid, self._erode(mask), p))
         return out
 
+    def fit_regions(self, icp: ICPEstimator, obs: Observation) -> list[PoseEstimate]:
+        """Poses of the objects this network finds in ``obs``, each region fitted by ``icp``
+        (:meth:`~simtest.estimators.icp.ICPEstimator.fit_mask`); an estimate's score is the ICP fitness times the
+        region's mean class probability. Objects asked for that the network does not know are reported in
+        ``icp.last_failures``.
+
+        Raises:
+            ConfigError: The observation's object set is not the one the network was trained for.
+        """
+        self.check_objects(obs.objects)
+        rng = obs.rng(icp.seed)
+        for oid in sorted(set(obs.target_obj_ids or ()) - set(self.class_ids)):
+            icp.last_failures.append({"obj_id": int(oid), "target_index": None,
+                                      "reason": f"object {oid} is not one the segmentation network was trained "
+                                                f"for ({', '.join(map(str, self.class_ids))})"})
+        out = []
+        for oid, mask, p in self.regions(obs):
+            est = icp.fit_mask(obs, oid, mask, None, rng)
+            if est is not None:
+                out.append(replace(est, score=float(est.score * p),
+                                   info={**est.info, "region_pixels": int(mask.sum()), "region_prob": p}))
+        return out
+
 
 def estimate_segmented(icp: ICPEstimator, obs: Observation) -> list[PoseEstimate]:
-    """Poses of the objects ``icp.segmenter`` finds in ``obs``, fitted by ``icp`` (see the module doc).
+    """Poses of the objects ``icp.segmenter`` finds in ``obs``, fitted by ``icp`` (:meth:`Segmenter.fit_regions`).
 
     Raises:
         ConfigError: The observation's object set is not the one the network was trained for.
     """
-    seg = icp.segmenter
-    seg.check_objects(obs.objects)
-    rng = obs.rng(icp.seed)
-    for oid in sorted(set(obs.target_obj_ids or ()) - set(seg.class_ids)):
-        icp.last_failures.append({"obj_id": int(oid), "target_index": None,
-                                  "reason": f"object {oid} is not one the segmentation network was trained for "
-                                            f"({', '.join(map(str, seg.class_ids))})"})
-    out = []
-    for oid, mask, p in seg.regions(obs):
-        est = icp.fit_mask(obs, oid, mask, None, rng)
-        if est is not None:
-            out.append(replace(est, score=float(est.score * p),
-                               info={**est.info, "region_pixels": int(mask.sum()), "region_prob": p}))
-    return out
+    return icp.segmenter.fit_regions(icp, obs)
 
 
 class SegICPEstimator(ICPEstimator):

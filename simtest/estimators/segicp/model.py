@@ -19,10 +19,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from simtest.estimators.blocks import Residual, conv_bn_relu
-from simtest.estimators.efficientnet_lite import FEATURE_CHANNELS
+from simtest.estimators.blocks import Residual, conv_bn_relu, init_conv_weights
+from simtest.estimators.efficientnet_lite import FEATURE_CHANNELS, EfficientNetLite0Encoder, load_imagenet_weights
 from simtest.estimators.segicp.inputs import DEPTH_RANGE_M
-from simtest.estimators.training import init_conv_weights
 
 __all__ = ["SegNetConfig", "SegNet", "depth_channel", "net_input", "DEPTH_RANGE_M", "BACKBONES",
            "EFFICIENTNET_WIDTHS"]
@@ -100,8 +99,6 @@ class SegNet(nn.Module):
             self.s8 = nn.Sequential(conv_bn_relu(w2, w3, 2), Residual(w3))
             self.s16 = nn.Sequential(conv_bn_relu(w3, w4, 2), Residual(w4, dilation=2))
         else:  # pretrained weights are loaded by init_weights (training); a checkpoint holds them afterwards
-            from simtest.estimators.efficientnet_lite import EfficientNetLite0Encoder
-
             self.encoder = EfficientNetLite0Encoder(levels=4)
             self.s16 = Residual(w4, dilation=2)  # context beyond the encoder's receptive field, trained from scratch
         self.up8 = conv_bn_relu(w4 + w3, w3)
@@ -116,8 +113,6 @@ class SegNet(nn.Module):
         out predicting background); a pretrained encoder is then filled with its ImageNet weights (bit for bit)."""
         init_conv_weights(self, generator)
         if self.cfg.backbone != "plain":
-            from simtest.estimators.efficientnet_lite import load_imagenet_weights
-
             load_imagenet_weights(self.encoder)
         nn.init.normal_(self.head.weight, std=0.01, generator=generator)
         nn.init.zeros_(self.head.bias)

@@ -227,7 +227,7 @@ def test_the_crop_network_starts_from_the_pretrained_encoder(checkpoint):
     heads come from the seed, and the outputs keep the plain network's shapes."""
     from simtest.errors import ConfigError as Refused
     from simtest.estimators.keypoints.crop_model import EFFICIENTNET_WIDTHS, CropNetConfig
-    from simtest.estimators.keypoints.train import TrainConfig, build_crop_model
+    from simtest.training.keypoints import TrainConfig, build_crop_model
 
     net = build_crop_model(3, 8, seed=0, xyz_scale=(0.05, 0.06, 0.07), hypotheses=2, backbone="efficientnet-lite0")
     assert net.cfg.widths == EFFICIENTNET_WIDTHS and len(net.encoder.blocks) == 11
@@ -256,7 +256,7 @@ def test_the_segmentation_network_starts_from_the_pretrained_encoder(checkpoint)
     settings it cannot take (depth input, crop sides not multiples of 32) are refused by name."""
     from simtest.estimators.segicp.inputs import size_multiple
     from simtest.estimators.segicp.model import SegNetConfig
-    from simtest.estimators.segicp.train import SegTrainConfig, build_segnet
+    from simtest.training.segmentation import SegTrainConfig, build_segnet
 
     net = build_segnet(3, seed=0, backbone="efficientnet-lite0")
     assert net.cfg.widths == (16, 24, 40, 112) and size_multiple(net.cfg.to_dict()) == 32
@@ -284,8 +284,8 @@ def test_the_pretrained_encoder_can_learn_slower_be_frozen_and_keep_its_batch_no
     its weights unchanged by a step while the decoder moves); ``--freeze-encoder-bn``: its batch norms stay in
     eval mode in training (running statistics untouched), the decoder's train; both refused for the plain
     encoder."""
-    from simtest.estimators.segicp.train import SegTrainConfig, build_segnet
-    from simtest.estimators.training import make_optimizer, set_lr, train_mode
+    from simtest.training.segmentation import SegTrainConfig, build_segnet
+    from simtest.training import make_optimizer, set_lr, train_mode
 
     net = build_segnet(3, seed=0, backbone="efficientnet-lite0")
     opt = make_optimizer(net, 1e-3, 1e-4, encoder_lr_scale=0.1)

@@ -17,7 +17,7 @@ from simtest.estimators.keypoints import check_objects, fuse_keypoints, load_che
 from simtest.estimators.keypoints.infer import KeypointEstimator  # noqa: E402
 from simtest.estimators.keypoints.loss import confidence, keypoint_loss, make_targets, total_loss  # noqa: E402
 from simtest.estimators.keypoints.model import cell_centers  # noqa: E402
-from simtest.estimators.keypoints.train import TrainConfig, build_model, train_keypoints  # noqa: E402
+from simtest.training.keypoints import TrainConfig, build_model, train_keypoints  # noqa: E402
 from simtest.evaluation.run import evaluate, load_dataset_objects  # noqa: E402
 
 

@@ -83,11 +83,11 @@ torch = pytest.importorskip("torch")
 
 from simtest.data import PoseDataset  # noqa: E402
 from simtest.estimators.base import Observation  # noqa: E402
-from simtest.estimators.keypoints.checkpoint import object_record, save_checkpoint  # noqa: E402
+from simtest.estimators.checkpoint import object_record, save_checkpoint  # noqa: E402
 from simtest.estimators.keypoints.crop_infer import CROP_FORMAT, CropKeypointEstimator  # noqa: E402
 from simtest.estimators.keypoints.crop_model import crop_loss  # noqa: E402
 from simtest.estimators.keypoints.crops import KeypointCrops, collate_crops  # noqa: E402
-from simtest.estimators.keypoints.train import build_crop_model  # noqa: E402
+from simtest.training.keypoints import build_crop_model  # noqa: E402
 from simtest.metrics.pose import add, add_s  # noqa: E402
 from simtest.objects.loaders import load_dataset_objects  # noqa: E402
 

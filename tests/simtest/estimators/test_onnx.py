@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 
 from simtest.errors import ConfigError  # noqa: E402
 from simtest.estimators.keypoints.infer import KeypointEstimator, predict_maps, predict_maps_onnx  # noqa: E402
-from simtest.estimators.keypoints.train import TrainConfig, train_keypoints  # noqa: E402
+from simtest.training.keypoints import TrainConfig, train_keypoints  # noqa: E402
 from simtest.estimators.onnx_export import export_checkpoint  # noqa: E402
 from simtest.estimators.onnx_net import OnnxNet, file_sha256, onnx_path_for  # noqa: E402
 from simtest.estimators.segicp import SegICPEstimator, Segmenter, default_checkpoint  # noqa: E402

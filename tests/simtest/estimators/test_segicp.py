@@ -15,7 +15,7 @@ from simtest.estimators.base import Observation  # noqa: E402
 from simtest.estimators.registry import load_estimator  # noqa: E402
 from simtest.estimators.icp import ICPEstimator  # noqa: E402
 from simtest.estimators.segicp import SegICPEstimator, default_checkpoint  # noqa: E402
-from simtest.estimators.segicp.train import FORMAT, SegTrainConfig, train_segmentation  # noqa: E402
+from simtest.training.segmentation import FORMAT, SegTrainConfig, train_segmentation  # noqa: E402
 from simtest.evaluation.run import evaluate  # noqa: E402
 
 

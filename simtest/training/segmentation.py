@@ -1,4 +1,5 @@
-"""Training loop of the segmentation network of ``segicp`` (``simtest train segmentation``).
+"""The trainer of ``segicp``'s segmentation network (``simtest train segmentation``): its settings, network, loss
+and validation, run by the one training loop (:func:`simtest.training.fit.fit`).
 
 Samples come from :class:`simtest.data.PoseDataset` (visible masks after the on-the-fly corruptions of
 :func:`simtest.data.augmentation`), optionally as crops; the per-pixel target is the class of the visible
@@ -6,10 +7,10 @@ mask covering the pixel (0 = background). Loss: cross-entropy plus the soft Dice
 present in the batch (small objects count as much as the large background).
 
 Every random choice is seeded from ``seed`` (weights, sample order per epoch, corruptions per sample and
-epoch). After each epoch the full state goes to ``OUT/last.pt`` (atomic write), so ``resume=True`` continues
-after the last finished epoch; with a validation dataset the mean IoU of the object classes is measured on
-full images and the best epoch is kept in ``OUT/best.pt``. The final weights go to ``OUT/model.pt``. All
-checkpoints are dicts of tensors and plain types (``torch.load(..., weights_only=True)``)::
+epoch). The run folder (``last.pt`` after every epoch, so ``resume=True`` continues after the last finished
+epoch; ``best.pt``; ``model.pt``; ``history.json``) is :func:`~simtest.training.fit.fit`'s; with a validation
+dataset the mean IoU of the object classes is measured on full images and its best epoch kept in ``best.pt``.
+All checkpoints are dicts of tensors and plain types (``torch.load(..., weights_only=True)``)::
 
     {"format": "simtest-segmentation/1", "net": SegNetConfig dict, "objects": object record,
      "model": state_dict, "epoch": int, "optimizer": state_dict | None, "history": [...], "train": settings,
@@ -18,23 +19,23 @@ checkpoints are dicts of tensors and plain types (``torch.load(..., weights_only
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
+from simtest.data import PoseDataset, augmentation, labelled_mixture
 from simtest.errors import ConfigError
+from simtest.estimators.checkpoint import check_objects, object_record
 from simtest.estimators.segicp.infer import FORMAT
-from simtest.estimators.training import (TrainResult, check_encoder_settings, check_settings, epoch_loader,
-                                        export_beside, lr_at, make_optimizer, optimizer_step, set_lr,
-                                        settings_dict, train_mode)
+from simtest.estimators.segicp.inputs import size_multiple
+from simtest.objects.loaders import load_dataset_objects
+from simtest.training.fit import Plan, TrainResult, fit
+from simtest.training.settings import check_encoder_settings, check_settings, settings_dict
 
-__all__ = ["SegTrainConfig", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
-           "FORMAT", "data_roots"]
-
+__all__ = ["SegTrainConfig", "TrainResult", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
+           "validate_segmentation", "FORMAT", "data_roots"]
 
 
 @dataclass(frozen=True)
@@ -149,36 +150,19 @@ def seg_loss(logits, target) -> dict[str, Any]:
     return {"loss": ce + dl, "ce": ce.detach(), "dice": dl.detach()}
 
 
-def _train_epoch(net, opt, dataset, cfg: SegTrainConfig, epoch: int, steps: int, total: int,
-                 progress: bool) -> dict[str, float]:
-    """One epoch of optimisation; returns the mean losses."""
-    from tqdm import tqdm
-
-    from simtest.estimators.segicp.inputs import size_multiple
+def _losses(net, batch: dict[str, Any], cfg: SegTrainConfig) -> dict[str, Any]:
+    """Cross-entropy + Dice of one batch, its images padded to the network's size multiple, on the device."""
     from simtest.estimators.segicp.model import net_input
 
-    loader = epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
-    sums = {"loss": 0.0, "ce": 0.0, "dice": 0.0}
-    n = 0
-    bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress,
-               dynamic_ncols=True, leave=False)
-    for i, batch in enumerate(bar):
-        set_lr(opt, lr_at(epoch * steps + i, total, cfg.lr))
-        x = net_input(batch["rgb"], batch["depth"], cfg.depth_input, size_multiple(net.cfg.to_dict())).to(cfg.device)
-        target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
-        losses = seg_loss(net(x), target)
-        optimizer_step(net, opt, losses, sums)
-        n += 1
-        bar.set_postfix(loss=f"{sums['loss'] / n:.3f}")
-    bar.close()
-    return {k: v / max(n, 1) for k, v in sums.items()}
+    x = net_input(batch["rgb"], batch["depth"], cfg.depth_input, size_multiple(net.cfg.to_dict())).to(cfg.device)
+    target = label_targets(batch, tuple(x.shape[-2:])).to(cfg.device)
+    return seg_loss(net(x), target)
 
 
 def validate_segmentation(net, dataset, cfg: SegTrainConfig) -> dict[str, Any]:
     """Mean IoU (object classes present in the validation images) and pixel accuracy on full images."""
     import torch
 
-    from simtest.estimators.segicp.inputs import size_multiple
     from simtest.estimators.segicp.model import net_input
 
     net.eval()
@@ -213,8 +197,6 @@ def data_roots(data: str | tuple[str, ...] | list[str]) -> list[str]:
 
 def _datasets(cfg: SegTrainConfig, objects: Any):
     """The training dataset (augmented, optionally cropped) and the validation dataset (or None)."""
-    from simtest.data import PoseDataset, augmentation, labelled_mixture
-
     train = labelled_mixture(data_roots(cfg.data), cfg.split, cfg.data_weights, int(cfg.seed), objects=objects,
                              transform=augmentation(list(cfg.augment), p=cfg.augment_p), crop=cfg.crop,
                              crop_jitter=0.5, max_images=cfg.max_images)
@@ -222,6 +204,25 @@ def _datasets(cfg: SegTrainConfig, objects: Any):
     if cfg.val is not None:
         val = PoseDataset(cfg.val, cfg.val_split, objects=objects, max_images=cfg.val_images)
     return train, val
+
+
+def _setup(cfg: SegTrainConfig) -> Plan:
+    """The run's plan: objects checked across the training and validation datasets, the feeds, the training
+    images' focal length, a seeded network on the device, its loss and validation."""
+    roots = data_roots(cfg.data)
+    objects = load_dataset_objects(roots[0])
+    record = object_record(objects)
+    for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
+        check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
+    dataset, val = _datasets(cfg, objects)
+    first = dataset.datasets[0] if hasattr(dataset, "datasets") else dataset
+    focal = float(first.load_numpy(0)["K"][0, 0])
+    net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths, cfg.backbone)
+    return Plan(fmt=FORMAT, net=net.to(cfg.device), record=record, objects=objects, dataset=dataset,
+                losses=lambda n, batch: _losses(n, batch, cfg), loss_names=("loss", "ce", "dice"),
+                describe=lambda r: f"loss {r['loss']:.3f} (ce {r['ce']:.3f}, dice {r['dice']:.3f})",
+                validate=None if val is None else (lambda n: validate_segmentation(n, val, cfg)),
+                score="val_miou", score_label="mIoU", extra={"focal_px": focal})
 
 
 def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: bool = True,
@@ -233,72 +234,4 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
             a validation dataset for a different object set.
         DatasetError: Missing dataset or split.
     """
-    import torch
-
-    from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint, object_record, save_checkpoint
-    from simtest.io.files import atomic_write_text
-    from simtest.objects.loaders import load_dataset_objects
-
-    t_start = time.perf_counter()
-    if cfg.threads is not None:
-        torch.set_num_threads(int(cfg.threads))
-    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device {cfg.device!r} asked but CUDA is not available to this torch build; use cpu")
-    out = Path(cfg.out)
-    last_path, best_path, model_path = out / "last.pt", out / "best.pt", out / "model.pt"
-    if last_path.exists() and not resume:
-        raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
-                          "output folder")
-    roots = data_roots(cfg.data)
-    objects = load_dataset_objects(roots[0])
-    record = object_record(objects)
-    for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
-        check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
-    dataset, val = _datasets(cfg, objects)
-    first = dataset.datasets[0] if hasattr(dataset, "datasets") else dataset
-    focal = float(first.load_numpy(0)["K"][0, 0])
-    net = build_segnet(len(record["obj_ids"]), int(cfg.seed), cfg.depth_input, cfg.widths, cfg.backbone).to(cfg.device)
-    opt = make_optimizer(net, cfg.lr, cfg.weight_decay, cfg.encoder_lr_scale)
-    history: list[dict[str, Any]] = []
-    start_epoch, best = 0, -1.0
-    if resume and last_path.exists():
-        ck = load_checkpoint(last_path, fmt=FORMAT)
-        check_objects(ck["objects"], objects, where=f"checkpoint {last_path}")
-        net.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
-        history = list(ck["history"])
-        start_epoch = int(ck["epoch"]) + 1
-        best = max([h.get("val_miou", -1.0) for h in history] + [-1.0])
-        log(f"resuming {out} after epoch {start_epoch} of {cfg.epochs}")
-    steps = len(dataset) // cfg.batch_size or 1
-
-    def checkpoint(epoch: int, with_optimizer: bool) -> dict[str, Any]:
-        return {"format": FORMAT, "net": net.cfg.to_dict(), "objects": record,
-                "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": int(epoch),
-                "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
-                "train": cfg.to_dict(), "focal_px": focal}
-
-    for epoch in range(start_epoch, cfg.epochs):
-        train_mode(net, cfg.freeze_encoder_bn)
-        t0 = time.perf_counter()
-        rec: dict[str, Any] = {"epoch": epoch, **_train_epoch(net, opt, dataset, cfg, epoch, steps,
-                                                              steps * cfg.epochs, progress)}
-        rec["train_seconds"] = time.perf_counter() - t0
-        msg = f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (ce {rec['ce']:.3f}, dice {rec['dice']:.3f}), " \
-              f"{rec['train_seconds']:.0f} s"
-        if val is not None:
-            rec.update(validate_segmentation(net, val, cfg))
-            msg += f"; val mIoU {100 * rec['val_miou']:.1f} %"
-        history.append(rec)
-        if val is not None and rec["val_miou"] > best:
-            best = rec["val_miou"]
-            save_checkpoint(best_path, checkpoint(epoch, False))
-        log(msg)
-        save_checkpoint(last_path, checkpoint(epoch, True))
-        atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
-    final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
-    save_checkpoint(model_path, checkpoint(final_epoch, False))
-    export_beside(model_path, best_path)
-    return TrainResult(model_path=model_path, last_path=last_path,
-                          best_path=best_path if best_path.exists() else None, history=history,
-                          seconds=time.perf_counter() - t_start)
+    return fit(cfg, lambda: _setup(cfg), resume=resume, progress=progress, log=log)

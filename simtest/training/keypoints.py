@@ -1,4 +1,5 @@
-"""Training loop of the keypoint estimator (``simtest train keypoints``).
+"""The keypoint estimator's trainer (``simtest train keypoints``): its settings, networks, losses and validation,
+run by the one training loop (:func:`simtest.training.fit.fit`).
 
 Two networks: ``arch="crop"`` (the ``keypoints`` estimator: zoom-in crops around each object's jittered visible
 box, :class:`~simtest.estimators.keypoints.crops.KeypointCrops`, the crop network of :mod:`.crop_model`,
@@ -8,26 +9,32 @@ Several training datasets are mixed with stated weights by :func:`simtest.data.l
 
 Every random choice is seeded from ``seed``: weights from a ``torch.Generator``, the sample order of epoch
 ``e`` from a generator keyed by ``(seed, e)``, corruptions per sample by ``(seed, e, index)``
-(:func:`simtest.data.sample_rng`). After each epoch the full state goes to ``OUT/last.pt`` (atomic write), so
-``resume=True`` continues after the last finished epoch; with a validation dataset, ADD(-S)-0.1d is measured
-with :func:`simtest.evaluation.run.evaluate` (ground-truth masks as targets, no VSD) and the best epoch is kept in
-``OUT/best.pt``. The final weights go to ``OUT/model.pt``. All three load with ``torch.load(...,
-weights_only=True)`` and record the network config, the training settings and the object set (ids, names,
-mesh hashes, keypoints).
+(:func:`simtest.data.sample_rng`). The run folder (``last.pt`` after every epoch, so ``resume=True`` continues
+after the last finished epoch; ``best.pt``; ``model.pt``; ``history.json``) is :func:`~simtest.training.fit.fit`'s;
+with a validation dataset, ADD(-S)-0.1d is measured with :func:`simtest.evaluation.run.evaluate` (ground-truth
+masks as targets, no VSD) and its best epoch kept in ``best.pt``. The checkpoints record the network config, the
+training settings and the object set (ids, names, mesh hashes, keypoints).
 """
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from simtest.data import augmentation, labelled_mixture
 from simtest.errors import ConfigError
-from simtest.estimators.training import (TrainResult, check_encoder_settings, check_settings, epoch_generator,
-                                        epoch_loader, export_beside, lr_at, make_optimizer, optimizer_step, pad16,
-                                        set_lr, settings_dict, train_mode)
+from simtest.estimators.checkpoint import check_objects, object_record
+from simtest.estimators.keypoints.checkpoint import FORMAT, load_checkpoint
+from simtest.estimators.keypoints.crop_infer import CROP_FORMAT, CropKeypointEstimator
+from simtest.estimators.keypoints.crops import KeypointCrops, collate_crops
+from simtest.estimators.keypoints.infer import KeypointEstimator
+from simtest.estimators.onnx_net import file_sha256
+from simtest.evaluation.run import evaluate
+from simtest.objects.loaders import load_dataset_objects
+from simtest.training.batches import pad16
+from simtest.training.fit import Plan, TrainResult, fit
+from simtest.training.settings import check_encoder_settings, check_settings, settings_dict
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model", "build_crop_model", "ARCHS"]
 
@@ -169,15 +176,9 @@ def validate(net, record: dict[str, Any], val: str, split: str, device: str, max
              arch: str = "full") -> dict[str, Any]:
     """ADD(-S)-0.1d (overall and per object) of the network on a validation dataset (ground-truth masks or
     boxes as targets)."""
-    from simtest.evaluation.run import evaluate
-
     if arch == "crop":
-        from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
-
         est = CropKeypointEstimator(model=net, objects_record=record, device=device, detect="gt")
     else:
-        from simtest.estimators.keypoints.infer import KeypointEstimator
-
         est = KeypointEstimator(model=net, objects_record=record, device=device)
     rep = evaluate(val, est, split=split, vsd=False, progress=False, max_images=max_images)
     net.train()
@@ -185,19 +186,6 @@ def validate(net, record: dict[str, Any], val: str, split: str, device: str, max
             "val_per_object": {str(o): float(m["add_s_or_add_01d"]) for o, m in rep.per_object.items()},
             "val_median_re_deg": float(rep.overall["median_re_deg"]),
             "val_median_te_m": float(rep.overall["median_te_m"])}
-
-
-def _loader(dataset, cfg: TrainConfig, epoch: int):
-    """The epoch's shuffled loader: whole images (:func:`epoch_loader`) or their crops (``collate_crops``)."""
-    if cfg.arch != "crop":
-        return epoch_loader(dataset, cfg.batch_size, cfg.workers, cfg.seed, epoch)
-    from torch.utils.data import DataLoader
-
-    from simtest.estimators.keypoints.crops import collate_crops
-
-    dataset.set_epoch(epoch)
-    return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-                      num_workers=int(cfg.workers), collate_fn=collate_crops, generator=epoch_generator(cfg.seed, epoch))
 
 
 def _losses(net, batch, cfg: TrainConfig):
@@ -220,35 +208,14 @@ def _losses(net, batch, cfg: TrainConfig):
     return out
 
 
-def _train_epoch(net, opt, dataset, cfg: TrainConfig, epoch: int, steps_per_epoch: int, total_steps: int,
-                 progress: bool) -> tuple[dict[str, float], int]:
-    """One epoch of optimisation (cosine learning rate per step); returns the summed losses and the batch count."""
-    from tqdm import tqdm
-
-    sums = {"loss": 0.0, "fg": 0.0, "kp": 0.0, **({"xyz": 0.0} if cfg.arch == "crop" and cfg.dense else {})}
-    n = 0
-    bar = tqdm(_loader(dataset, cfg, epoch), desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch",
-               disable=not progress, dynamic_ncols=True, leave=False)
-    for i, batch in enumerate(bar):
-        if cfg.arch == "crop" and len(batch["labels"]) == 0:
-            continue
-        step = epoch * steps_per_epoch + i
-        set_lr(opt, lr_at(step, total_steps, cfg.lr))
-        optimizer_step(net, opt, _losses(net, batch, cfg), sums)
-        n += 1
-        bar.set_postfix({k: f"{v / n:.3f}" for k, v in sums.items()})
-    bar.close()
-    return sums, n
+def _describe(rec: dict[str, Any]) -> str:
+    xyz = f", xyz {rec['xyz']:.3f}" if "xyz" in rec else ""
+    return f"loss {rec['loss']:.3f} (mask {rec['fg']:.3f}, kp {rec['kp']:.3f}{xyz})"
 
 
-def _setup(cfg: TrainConfig):
-    """``(record, objects, training feed, network)`` of a run: objects checked across the training and validation
-    datasets, the (mixed, augmented; cropped for the crop arch) feed, a seeded network on the device."""
-    from simtest.data import augmentation, labelled_mixture
-    from simtest.estimators.keypoints.checkpoint import check_objects, object_record
-    from simtest.estimators.keypoints.crops import KeypointCrops
-    from simtest.objects.loaders import load_dataset_objects
-
+def _setup(cfg: TrainConfig) -> Plan:
+    """The run's plan: objects checked across the training and validation datasets, the (mixed, augmented;
+    cropped for the crop arch) feed, a seeded network on the device, its losses and validation."""
     roots = [str(cfg.data)] if isinstance(cfg.data, (str, Path)) else [str(d) for d in cfg.data]
     objects = load_dataset_objects(roots[0])
     record = object_record(objects, cfg.keypoints)
@@ -269,7 +236,18 @@ def _setup(cfg: TrainConfig):
                                cfg.hypotheses, cfg.backbone)
     else:
         net = build_model(C, J, int(cfg.seed), cfg.widths, cfg.decoder)
-    return record, objects, dataset, net.to(cfg.device)
+    crop_arch = cfg.arch == "crop"
+    fmt = CROP_FORMAT if crop_arch else FORMAT
+    return Plan(
+        fmt=fmt, net=net.to(cfg.device), record=record, objects=objects, dataset=dataset,
+        losses=lambda n, batch: _losses(n, batch, cfg),
+        loss_names=("loss", "fg", "kp") + (("xyz",) if crop_arch and cfg.dense else ()), describe=_describe,
+        collate=collate_crops if crop_arch else None,
+        skip=(lambda batch: len(batch["labels"]) == 0) if crop_arch else None,
+        validate=None if cfg.val is None else (
+            lambda n: validate(n, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch)),
+        score="val_add_s_or_add_01d", score_label="ADD(-S)-0.1d",
+        warm_start=None if cfg.init is None else (lambda n: _warm_start(n, cfg, objects, fmt)))
 
 
 def _warm_start(net, cfg: TrainConfig, objects: Any, fmt: str) -> str:
@@ -279,9 +257,6 @@ def _warm_start(net, cfg: TrainConfig, objects: Any, fmt: str) -> str:
         ConfigError: A missing or unreadable file, another format (the other ``arch``), another object set or
             another network configuration (naming the fields that differ).
     """
-    from simtest.estimators.keypoints.checkpoint import check_objects, load_checkpoint
-    from simtest.estimators.onnx_net import file_sha256
-
     ck = load_checkpoint(cfg.init, fmt=fmt)
     check_objects(ck["objects"], objects, where=f"init checkpoint {cfg.init}")
     mine = net.cfg.to_dict()
@@ -303,75 +278,4 @@ def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = 
             a validation dataset for a different object set.
         DatasetError: Missing dataset or split.
     """
-    import torch
-
-    from simtest.estimators.keypoints.checkpoint import FORMAT, check_objects, load_checkpoint, save_checkpoint
-    from simtest.estimators.keypoints.crop_infer import CROP_FORMAT
-    from simtest.io.files import atomic_write_text
-
-    t_start = time.perf_counter()
-    if cfg.threads is not None:
-        torch.set_num_threads(int(cfg.threads))
-    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device {cfg.device!r} asked but CUDA is not available to this torch build "
-                          f"({torch.__version__}); use --device cpu")
-    fmt = CROP_FORMAT if cfg.arch == "crop" else FORMAT
-    out = Path(cfg.out)
-    last_path, best_path, model_path = out / "last.pt", out / "best.pt", out / "model.pt"
-    if last_path.exists() and not resume:
-        raise ConfigError(f"{out} already holds a run (last.pt); pass resume to continue it or choose another "
-                          "output folder")
-    record, objects, dataset, net = _setup(cfg)
-    resuming = resume and last_path.exists()
-    # a resumed run takes its weights from last.pt; the init checkpoint only starts a new one
-    init_sha = _warm_start(net, cfg, objects, fmt) if cfg.init is not None and not resuming else None
-    opt = make_optimizer(net, cfg.lr, cfg.weight_decay, cfg.encoder_lr_scale)
-    history: list[dict[str, Any]] = []
-    start_epoch = 0
-    best = -1.0
-    if resuming:
-        ck = load_checkpoint(last_path, fmt=fmt)
-        check_objects(ck["objects"], objects, where=f"checkpoint {last_path}")
-        init_sha = ck["train"].get("init_sha256")
-        net.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
-        history = list(ck["history"])
-        start_epoch = int(ck["epoch"]) + 1
-        best = max([h.get("val_add_s_or_add_01d", -1.0) for h in history] + [-1.0])
-        log(f"resuming {out} after epoch {start_epoch} of {cfg.epochs}")
-    steps_per_epoch = len(dataset) // cfg.batch_size or 1
-    total_steps = steps_per_epoch * cfg.epochs
-
-    def checkpoint(epoch: int, with_optimizer: bool) -> dict[str, Any]:
-        return {"format": fmt, "net": net.cfg.to_dict(), "objects": record,
-                "model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "epoch": int(epoch),
-                "optimizer": opt.state_dict() if with_optimizer else None, "history": history,
-                "train": {**cfg.to_dict(), **({"init_sha256": init_sha} if init_sha else {})}}
-
-    for epoch in range(start_epoch, cfg.epochs):
-        train_mode(net, cfg.freeze_encoder_bn)
-        t0 = time.perf_counter()
-        sums, n = _train_epoch(net, opt, dataset, cfg, epoch, steps_per_epoch, total_steps, progress)
-        rec: dict[str, Any] = {"epoch": epoch, **{k: v / max(n, 1) for k, v in sums.items()},
-                               "train_seconds": time.perf_counter() - t0}
-        if cfg.val is not None:
-            t1 = time.perf_counter()
-            rec.update(validate(net, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch))
-            rec["val_seconds"] = time.perf_counter() - t1
-        history.append(rec)
-        xyz = f", xyz {rec['xyz']:.3f}" if "xyz" in rec else ""
-        msg = (f"epoch {epoch + 1}/{cfg.epochs}: loss {rec['loss']:.3f} (mask {rec['fg']:.3f}, kp {rec['kp']:.3f}"
-               f"{xyz}), {rec['train_seconds']:.0f} s")
-        if "val_add_s_or_add_01d" in rec:
-            msg += f"; val ADD(-S)-0.1d {100 * rec['val_add_s_or_add_01d']:.1f} %"
-            if rec["val_add_s_or_add_01d"] > best:
-                best = rec["val_add_s_or_add_01d"]
-                save_checkpoint(best_path, checkpoint(epoch, False))
-        log(msg)
-        save_checkpoint(last_path, checkpoint(epoch, True))
-        atomic_write_text(out / "history.json", json.dumps(history, indent=2) + "\n")
-    final_epoch = history[-1]["epoch"] if history else cfg.epochs - 1
-    save_checkpoint(model_path, checkpoint(final_epoch, False))
-    export_beside(model_path, best_path)
-    return TrainResult(model_path=model_path, last_path=last_path, best_path=best_path if best_path.exists() else None,
-                       history=history, seconds=time.perf_counter() - t_start)
+    return fit(cfg, lambda: _setup(cfg), resume=resume, progress=progress, log=log)
