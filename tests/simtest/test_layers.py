@@ -175,21 +175,11 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
-#: Import loops still to be cut (function-level imports included); the list only shrinks.
-KNOWN_CYCLES: list[list[str]] = [
-    ["simtest.estimators.keypoints.crop_model", "simtest.estimators.keypoints.loss",
-     "simtest.estimators.keypoints.model", "simtest.estimators.onnx_export", "simtest.estimators.segicp.model",
-     "simtest.estimators.training"],
-    ["simtest.estimators.icp", "simtest.estimators.segicp.infer"],
-]
-
-
 def test_no_import_cycle_even_inside_functions():
     """A loop hidden in a function-level import is a loop all the same: modules of one layer included, the
     run-time import graph has no cycle (imports for type annotations only do not count)."""
     found = _cycles(_run_time_graph())
-    new = [c for c in found if c not in KNOWN_CYCLES]
-    assert not new, "import cycles: " + "; ".join(" <-> ".join(c) for c in new)
+    assert not found, "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
 
 
 def test_no_private_name_imported_from_another_module():
