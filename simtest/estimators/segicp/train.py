@@ -59,6 +59,8 @@ class SegTrainConfig:
         freeze_encoder_bn: The pretrained encoder's batch norms keep their ImageNet statistics.
         device, seed, workers, threads: As ``simtest train keypoints``.
         max_images: Train on the first N images only (None: all).
+        init: A segmentation checkpoint (e.g. the shipped one) whose weights start the run instead of a random
+            initialisation (same network and objects; fresh optimiser and schedule); a resumed run ignores it.
     """
 
     data: str | tuple[str, ...]
@@ -85,6 +87,7 @@ class SegTrainConfig:
     data_weights: tuple[float, ...] | None = None
     encoder_lr_scale: float = 1.0
     freeze_encoder_bn: bool = False
+    init: str | None = None
 
     def __post_init__(self) -> None:
         check_settings(self, "segmentation training")
@@ -270,6 +273,13 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
         start_epoch = int(ck["epoch"]) + 1
         best = max([h.get("val_miou", -1.0) for h in history] + [-1.0])
         log(f"resuming {out} after epoch {start_epoch} of {cfg.epochs}")
+    elif cfg.init is not None:
+        ck = load_checkpoint(cfg.init, fmt=FORMAT)
+        check_objects(ck["objects"], objects, where=f"init checkpoint {cfg.init}")
+        if ck["net"] != net.cfg.to_dict():
+            raise ConfigError(f"segmentation training: init checkpoint {cfg.init} has the network {ck['net']}, this "
+                              f"run builds {net.cfg.to_dict()}; match depth_input, widths and backbone")
+        net.load_state_dict(ck["model"])
     steps = len(dataset) // cfg.batch_size or 1
 
     def checkpoint(epoch: int, with_optimizer: bool) -> dict[str, Any]:
