@@ -276,7 +276,7 @@ def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: b
     elif cfg.init is not None:
         ck = load_checkpoint(cfg.init, fmt=FORMAT)
         check_objects(ck["objects"], objects, where=f"init checkpoint {cfg.init}")
-        if ck["net"] != net.cfg.to_dict():
+        if {"backbone": "plain", **ck["net"]} != net.cfg.to_dict():  # checkpoints before backbones were plain
             raise ConfigError(f"segmentation training: init checkpoint {cfg.init} has the network {ck['net']}, this "
                               f"run builds {net.cfg.to_dict()}; match depth_input, widths and backbone")
         net.load_state_dict(ck["model"])
