@@ -199,7 +199,7 @@ def _adapt_md(result: dict[str, Any]) -> str:
     lines += ["", "| arm | images | CPU min generate | CPU min train | CPU min evaluate |", "|---|---|---|---|---|"]
     for arm in ARMS:
         c = arms[arm]["cpu_min"]
-        lines.append(f"| {arm} | {arms[arm]['images']} | {c["generate"]:.2f} | {c["train"]:.2f} | {c["evaluate"]:.2f} |")
+        lines.append(f"| {arm} | {arms[arm]['images']} | {c['generate']:.2f} | {c['train']:.2f} | {c['evaluate']:.2f} |")
     lines += ["", f"Weakest condition before: **{v['weakest_condition']}**; adapted - control = "
                   f"{100 * v['adapted_minus_control']:+.1f} points (control's 95 % half-width "
                   f"{100 * v['control_ci95_half_width']:.1f}). Adapted above the control's interval: "

@@ -42,12 +42,12 @@ def mass_figure(fits: Sequence[FactorFit], path: str | Path, title: str = "") ->
         if ax is axes.ravel()[0]:
             h1, l1 = ax.get_legend_handles_labels()
             h2, l2 = twin.get_legend_handles_labels()
-            ax.legend(h1 + h2, l1 + l2, fontsize=7, frameon=False, loc="upper left")
+            fig.legend(h1 + h2, l1 + l2, fontsize=8, frameon=False, loc="lower center", ncol=3)
     for ax in axes.ravel()[len(fits):]:
         ax.axis("off")
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
     path = Path(path)
     fig.savefig(path, format="png", dpi=90)
     plt.close(fig)
