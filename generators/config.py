@@ -22,7 +22,7 @@ from simtest.schema import build, pair as _rng_pair, read_config_file, to_plain,
 
 __all__ = [
     "CameraConfig", "OcclusionConfig", "ShellRig", "SequenceRig", "SceneConfig", "LightConfig", "MaterialConfig", "RenderConfig",
-    "GenerateConfig", "load_config", "CAMERA_FILE_FIELDS", "camera_file_values",
+    "GenerateConfig", "load_config", "CAMERA_FILE_FIELDS", "camera_file_values", "AIM_FIELDS", "check_weights",
 ]
 
 #: The ``camera`` fields a BOP ``camera.json`` named by ``camera.file`` sets (its ``depth_scale``, when it has
@@ -64,6 +64,21 @@ class ShellRig:
     azimuth_deg: tuple[float, float] = field(default=(0.0, 360.0), metadata=_rng_pair(-360.0, 720.0))
     roll_deg: float = field(default=10.0, metadata=_bounds(0.0, 180.0))  # in-plane jitter, +/-
     poi_jitter: float = field(default=0.05, metadata=_bounds(0.0, 1.0))  # metres, around the objects' centre
+    # where the views aim (simtest adapt; docs/adapt.md). The in-plane rotation range [min, max] degrees replaces
+    # the +/- roll_deg jitter when given; each *_weights splits its range into len(weights) equal parts and draws
+    # a part in proportion to its weight, then uniformly inside it (empty: uniform over the whole range)
+    roll_range_deg: tuple[float, float] | None = field(default=None, metadata=_rng_pair(-180.0, 180.0))
+    distance_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
+    elevation_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
+    roll_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
+
+    def __post_init__(self) -> None:
+        for name in ("distance_weights", "elevation_weights", "roll_weights"):
+            check_weights(f"shell.{name}", getattr(self, name))
+
+    def roll_range(self) -> tuple[float, float]:
+        """The in-plane rotation range of a view, degrees: ``roll_range_deg``, else ``(-roll_deg, roll_deg)``."""
+        return self.roll_range_deg if self.roll_range_deg is not None else (-self.roll_deg, self.roll_deg)
 
 
 @dataclass(frozen=True)
@@ -99,6 +114,15 @@ class SceneConfig:
     wall_height: float = field(default=1.6, metadata=_bounds(0.1, 20.0))
     # an emissive panel above the room (BlenderProc's BOP recipe: 3 x 3 m, 10 m up), brightness drawn per scene
     ceiling_light: bool = False
+    # relative frequency of each object id as a target ({"13" = 2.0}; ids left out weigh 1; empty: uniform)
+    object_weights: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for key, value in self.object_weights.items():
+            if not str(key).isdigit() or isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not 0.0 <= value <= 1e6:
+                raise ConfigError(f"scene.object_weights.{key} = {value!r} is invalid; allowed: an object id as key "
+                                  f"and a weight in [0, 1e6]")
 
 
 @dataclass(frozen=True)
@@ -119,6 +143,23 @@ class LightConfig:
     # brightness of the ceiling panel (scene.ceiling_light): the irradiance it gives the floor's centre, as the
     # display value a white floor would show (0.5 = mid grey)
     ceiling_strength: tuple[float, float] = field(default=(0.3, 0.6), metadata=_rng_pair(0.0, 10.0))
+
+
+#: The sampling weights and targeting ranges ``simtest adapt`` writes (section, field); :meth:`GenerateConfig.
+#: to_dict` leaves them out while unset, so a config without them records exactly what it did before they existed.
+AIM_FIELDS = (("shell", "roll_range_deg"), ("shell", "distance_weights"), ("shell", "elevation_weights"),
+              ("shell", "roll_weights"), ("scene", "object_weights"), ("occlusion", "visib_band"),
+              ("occlusion", "visib_weights"))
+#: At most this many parts per weighted range.
+MAX_WEIGHTS = 64
+
+
+def check_weights(name: str, weights: tuple[float, ...]) -> None:
+    """Raise a :class:`ConfigError` naming ``name`` unless ``weights`` is empty or 1..MAX_WEIGHTS values >= 0
+    with a positive sum."""
+    if weights and (len(weights) > MAX_WEIGHTS or sum(weights) <= 0):
+        raise ConfigError(f"{name} = {list(weights)} is invalid; allowed: 1 to {MAX_WEIGHTS} weights >= 0 with a "
+                          f"positive sum, or [] for uniform")
 
 
 #: The procedural material families (simtest.materials.FAMILIES), all on by default.
@@ -209,6 +250,23 @@ class OcclusionConfig:
     definition: Literal["pascal3d+", "objectcentric"] = field(
         default="pascal3d+", metadata=_bounds(choices=("pascal3d+", "objectcentric")))
     standing_first: bool = True  # try a box standing on the table before a floating plate
+    # a band [min, max] of the target's visible fraction (instead of ``level``): the occluder aims at it in every
+    # view; visib_weights splits it into equal sub-bands drawn in proportion (simtest adapt; docs/adapt.md)
+    visib_band: tuple[float, float] | None = field(default=None, metadata=_rng_pair(0.0, 1.0))
+    visib_weights: tuple[float, ...] = field(default=(), metadata=_bounds(0.0, 1e6))
+
+    def __post_init__(self) -> None:
+        if self.visib_band is not None and self.level is not None:
+            raise ConfigError(f"occlusion.visib_band = {list(self.visib_band)} and occlusion.level = {self.level!r} "
+                              f"are both set; give one of them")
+        if self.visib_weights and self.visib_band is None:
+            raise ConfigError(f"occlusion.visib_weights = {list(self.visib_weights)} needs occlusion.visib_band")
+        check_weights("occlusion.visib_weights", self.visib_weights)
+
+    @property
+    def physical(self) -> bool:
+        """Whether views get a physical occluder (a level or a visibility band)."""
+        return self.level is not None or self.visib_band is not None
 
 
 @dataclass(frozen=True)
@@ -276,6 +334,9 @@ class GenerateConfig:
         data = to_plain(dataclasses.asdict(self))
         if not camera_file:
             data["camera"]["file"] = None
+        for section, name in AIM_FIELDS:  # unset: recorded as before they existed
+            if data[section][name] in (None, [], {}):
+                del data[section][name]
         return data
 
     def build_options(self) -> BuildOptions:
@@ -288,7 +349,7 @@ class GenerateConfig:
         return BuildOptions(
             camera=CameraModel(self.camera.K(), self.camera.width, self.camera.height), room=self.room(),
             timestep=sc.timestep, quality=self.render.profile, panda=bool(sc.panda or self.rig == "wrist"),
-            occluder_slots=N_OCCLUDERS if self.occlusion.level is not None else 0,
+            occluder_slots=N_OCCLUDERS if self.occlusion.physical else 0,
             material_folder=self.materials.textures, texture_size=self.materials.texture_size)
 
     def room(self) -> Room:

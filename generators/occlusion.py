@@ -142,8 +142,9 @@ def _visible_counts(scene: SimScene, renderer: Renderer) -> np.ndarray:
 
 def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level: str, definition: str,
                  px_count_all: dict[int, int], table_height: float, rng: np.random.Generator,
-                 standing_first: bool = True) -> OcclusionRecord:
-    """Place the occluder for one view so that a target's occluded fraction lies in ``level``'s band.
+                 standing_first: bool = True, band: tuple[float, float] | None = None) -> OcclusionRecord:
+    """Place the occluder for one view so that a target's occluded fraction lies in ``level``'s band (or in
+    ``band``).
 
     Args:
         scene: Settled scene; its occluder body is moved (and left in place for rendering).
@@ -155,13 +156,15 @@ def occlude_view(scene: SimScene, camera: CameraModel, renderer: Renderer, level
         table_height: Table top height (metres).
         rng: The scene's generator.
         standing_first: Try a standing box before a floating plate.
+        band: ``(lo, hi)`` occluded fraction in [0, 1] to aim at instead of ``level``'s band (``level`` is then
+            only the name recorded); a band ending at 0 places no occluder.
     """
     rec = OcclusionRecord(level, definition)
     hide_occluders(scene)
     scene.set_camera(camera)
-    if level == "L0" or not _geoms(scene):
+    if (level == "L0" and band is None) or (band is not None and band[1] <= 0.0) or not _geoms(scene):
         return rec
-    lo, hi = OCCLUSION_BANDS[definition][int(level[1])][0]
+    lo, hi = band if band is not None else OCCLUSION_BANDS[definition][int(level[1])][0]
     visible = _visible_counts(scene, renderer)
     # Target: the most visible instance that is mostly in view (its visible fraction is what we lower).
     cands = [(visible[i] / px_count_all[i], visible[i], i) for i in px_count_all

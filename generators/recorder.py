@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from simtest.camera import CameraModel
+from simtest.generators.aiming import weighted_part
 from simtest.generators.annotate import amodal_counts, annotate
 from simtest.generators.builder import SimScene
 from simtest.generators.config import GenerateConfig
@@ -123,14 +124,17 @@ class SceneRecorder:
     def _occlude(self, cam: CameraModel, renderer):
         """Stand the physical occluder for this view (``occlusion.level`` set); its record, or ``None``."""
         occ = self.cfg.occlusion
-        if occ.level is None:
+        if not occ.physical:
             return None
         scene = self.scene
-        level = occ.level
+        level, band = occ.level, None
         if level == "mixed":
             level = ("L0", "L1", "L2", "L3")[int(scene.rng.integers(4))]
+        if occ.visib_band is not None:  # a visible-fraction band: the occluded-fraction band it means
+            lo, hi = weighted_part(scene.rng, occ.visib_band, occ.visib_weights)
+            level, band = f"visib {lo:.3g}-{hi:.3g}", (1.0 - hi, 1.0 - lo)
         return occlude_view(scene, cam, renderer, level, occ.definition, amodal_counts(scene, cam, self.objects),
-                            self.cfg.scene.table_height, scene.rng, occ.standing_first)
+                            self.cfg.scene.table_height, scene.rng, occ.standing_first, band=band)
 
     def _render(self, renderer, pbr, im_id: int):
         """The view's frame: the rasterizer's depth and segmentation, the RGB of the path tracer or its own."""

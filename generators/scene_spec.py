@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from simtest.errors import ConfigError
+from simtest.generators.aiming import object_probabilities, weighted_uniform
 from simtest.generators.config import GenerateConfig
 from simtest.generators.looks import EnvironmentSpec, appearance_rng, sample_environment, sample_material, surface_maps
 from simtest.objects import ObjectModel, ObjectSet
@@ -180,7 +181,12 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
     if not sc.allow_repeats and n_obj > len(ids):
         raise ConfigError(f"scene.objects_per_scene max {n_obj} exceeds the {len(ids)} objects of set "
                           f"{objects.name!r} while scene.allow_repeats is false")
-    chosen = rng.choice(ids, size=n_obj, replace=sc.allow_repeats)
+    p = object_probabilities(objects.ids, sc.object_weights)
+    if p is not None and not sc.allow_repeats and n_obj > int((p > 0).sum()):
+        raise ConfigError(f"scene.objects_per_scene max {n_obj} exceeds the {int((p > 0).sum())} objects of set "
+                          f"{objects.name!r} with a positive scene.object_weights while scene.allow_repeats is false")
+    chosen = (rng.choice(ids, size=n_obj, replace=sc.allow_repeats) if p is None
+              else rng.choice(ids, size=n_obj, replace=sc.allow_repeats, p=p))
     n_dis = int(rng.integers(sc.distractors[0], sc.distractors[1] + 1))
 
     # Non-overlapping drop positions: bounding spheres over the drop area, stacked in height if needed.
@@ -285,10 +291,10 @@ def _sample_views(cfg: GenerateConfig, rng: np.random.Generator) -> list[ViewSpe
     out = []
     for _ in range(n):
         out.append(ViewSpec(
-            distance=float(rng.uniform(*sh.distance)),
-            elevation=float(np.deg2rad(rng.uniform(*sh.elevation_deg))),
+            distance=weighted_uniform(rng, sh.distance, sh.distance_weights),
+            elevation=float(np.deg2rad(weighted_uniform(rng, sh.elevation_deg, sh.elevation_weights))),
             azimuth=float(np.deg2rad(rng.uniform(*sh.azimuth_deg))),
-            roll=float(np.deg2rad(rng.uniform(-sh.roll_deg, sh.roll_deg))),
+            roll=float(np.deg2rad(weighted_uniform(rng, sh.roll_range(), sh.roll_weights))),
             poi_offset=tuple(float(v) for v in rng.uniform(-sh.poi_jitter, sh.poi_jitter, 3) * [1, 1, 0.3])))
     return out
 

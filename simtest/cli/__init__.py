@@ -24,8 +24,8 @@ from simtest.errors import SimtestError
 from simtest.io.lock import output_lock
 
 #: Sub-command modules, in the order ``simtest --help`` lists them.
-COMMAND_MODULES = ["objects", "generate", "corrupt", "eval", "pool", "grasp", "train", "export", "sweep", "bench",
-                   "demo", "show", "masks", "tolerance", "calibrate"]
+COMMAND_MODULES = ["objects", "generate", "corrupt", "eval", "pool", "grasp", "train", "export", "sweep", "adapt",
+                   "bench", "demo", "show", "masks", "tolerance", "calibrate"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -78,8 +78,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--init", metavar="CHECKPOINT",
-                   help="keypoints: start from this checkpoint's weights (same network and objects; fresh optimiser "
-                        "and schedule), e.g. to fine-tune the shipped network on more data")
+                   help="start from this checkpoint's weights (same network and objects; fresh optimiser and "
+                        "schedule), e.g. to fine-tune the shipped network on more data")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu)")
     p.add_argument("--workers", type=int, help="data-loading worker processes (default: 1 keypoints, 0 "
                                                "segmentation)")
@@ -125,8 +125,6 @@ def _given(args: argparse.Namespace, **names: str) -> dict:
 def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
 
-    if args.model == "segmentation" and args.init is not None:  # before the run folder is touched
-        raise ConfigError("--init is a keypoints option; segmentation runs start from random weights")
     prepare_out_dir(args.out, overwrite=args.overwrite, resume=args.resume, can_resume=True, clear=True,
                     protect=list(args.data) + [p for p in (args.val, args.init) if p], what="run folder")
     try:
@@ -171,7 +169,7 @@ def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
     from simtest.training.segmentation import SegTrainConfig, train_segmentation
 
     cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, backbone=args.backbone,
-                         **common)
+                         init=args.init, **common)
     res = train_segmentation(cfg, resume=args.resume, progress=not args.quiet)
     print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")

@@ -28,11 +28,12 @@ from typing import Any, Callable
 from simtest.errors import ConfigError
 from simtest.estimators.checkpoint import check_objects, load_checkpoint, save_checkpoint
 from simtest.estimators.onnx_export import export_checkpoint
+from simtest.estimators.onnx_net import file_sha256
 from simtest.io.files import atomic_write_text
 from simtest.training.batches import epoch_loader
 from simtest.training.optim import lr_at, make_optimizer, optimizer_step, set_lr, train_mode
 
-__all__ = ["Plan", "TrainResult", "fit", "export_beside", "eta_text"]
+__all__ = ["Plan", "TrainResult", "fit", "export_beside", "eta_text", "load_warm_start"]
 
 logger = logging.getLogger(__name__)
 
@@ -218,3 +219,33 @@ def fit(cfg: Any, setup: Callable[[], Plan], *, resume: bool = False, progress: 
     export_beside(model_path, best_path)
     return TrainResult(model_path=model_path, last_path=last_path, best_path=best_path if best_path.exists() else None,
                        history=history, seconds=time.perf_counter() - t_start)
+
+
+def load_warm_start(net: Any, init: str | Path, objects: Any, fmt: str, what: str,
+                    defaults: dict[str, Any] | None = None) -> str:
+    """Load the weights of checkpoint ``init`` into ``net`` to start a new run from them (a warm start);
+    returns the file's SHA-256 (recorded in the run's checkpoints).
+
+    Args:
+        net: The freshly built network (its ``cfg.to_dict()`` must equal the checkpoint's network).
+        init: The checkpoint (``model.pt``, ``best.pt`` or ``last.pt`` of an earlier run).
+        objects: The run's object set (the checkpoint's must be the same).
+        fmt: The checkpoint format this trainer writes.
+        what: The trainer's name for errors (``"keypoint training"``).
+        defaults: Network settings a checkpoint older than them did not record (their value then).
+
+    Raises:
+        ConfigError: A missing or unreadable file, another format, another object set or another network
+            configuration (naming the fields that differ).
+    """
+    ck = load_checkpoint(init, fmt=fmt)
+    check_objects(ck["objects"], objects, where=f"init checkpoint {init}")
+    mine, theirs = net.cfg.to_dict(), {**(defaults or {}), **ck["net"]}
+    diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+    if diff:
+        raise ConfigError(f"{what}: init checkpoint {init} has another network: "
+                          + "; ".join(f"{k} {theirs.get(k)!r} there, {mine.get(k)!r} here" for k in diff)
+                          + " (give the options it was trained with)")
+    net.load_state_dict(ck["model"])
+    return file_sha256(init)
+

@@ -29,11 +29,10 @@ from simtest.estimators.keypoints.checkpoint import FORMAT, load_checkpoint
 from simtest.estimators.keypoints.crop_infer import CROP_FORMAT, CropKeypointEstimator
 from simtest.estimators.keypoints.crops import KeypointCrops, collate_crops
 from simtest.estimators.keypoints.infer import KeypointEstimator
-from simtest.estimators.onnx_net import file_sha256
 from simtest.evaluation.run import evaluate
 from simtest.objects.loaders import load_dataset_objects
 from simtest.training.batches import pad16
-from simtest.training.fit import Plan, TrainResult, fit
+from simtest.training.fit import Plan, TrainResult, fit, load_warm_start
 from simtest.training.settings import check_encoder_settings, check_settings, settings_dict
 
 __all__ = ["TrainConfig", "TrainResult", "train_keypoints", "build_model", "build_crop_model", "ARCHS"]
@@ -247,26 +246,8 @@ def _setup(cfg: TrainConfig) -> Plan:
         validate=None if cfg.val is None else (
             lambda n: validate(n, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch)),
         score="val_add_s_or_add_01d", score_label="ADD(-S)-0.1d",
-        warm_start=None if cfg.init is None else (lambda n: _warm_start(n, cfg, objects, fmt)))
-
-
-def _warm_start(net, cfg: TrainConfig, objects: Any, fmt: str) -> str:
-    """Load ``cfg.init``'s weights into ``net`` (``TrainConfig.init``); returns the file's SHA-256.
-
-    Raises:
-        ConfigError: A missing or unreadable file, another format (the other ``arch``), another object set or
-            another network configuration (naming the fields that differ).
-    """
-    ck = load_checkpoint(cfg.init, fmt=fmt)
-    check_objects(ck["objects"], objects, where=f"init checkpoint {cfg.init}")
-    mine = net.cfg.to_dict()
-    diff = sorted(k for k in set(mine) | set(ck["net"]) if mine.get(k) != ck["net"].get(k))
-    if diff:
-        raise ConfigError(f"keypoint training: init checkpoint {cfg.init} has another network: "
-                          + "; ".join(f"{k} {ck['net'].get(k)!r} there, {mine.get(k)!r} here" for k in diff)
-                          + " (give the options it was trained with)")
-    net.load_state_dict(ck["model"])
-    return file_sha256(cfg.init)
+        warm_start=None if cfg.init is None else (
+            lambda n: load_warm_start(n, cfg.init, objects, fmt, "keypoint training")))
 
 
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,

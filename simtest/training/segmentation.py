@@ -31,7 +31,7 @@ from simtest.estimators.checkpoint import check_objects, object_record
 from simtest.estimators.segicp.infer import FORMAT
 from simtest.estimators.segicp.inputs import size_multiple
 from simtest.objects.loaders import load_dataset_objects
-from simtest.training.fit import Plan, TrainResult, fit
+from simtest.training.fit import Plan, TrainResult, fit, load_warm_start
 from simtest.training.settings import check_encoder_settings, check_settings, settings_dict
 
 __all__ = ["SegTrainConfig", "TrainResult", "train_segmentation", "build_segnet", "label_targets", "seg_loss",
@@ -60,6 +60,8 @@ class SegTrainConfig:
         freeze_encoder_bn: The pretrained encoder's batch norms keep their ImageNet statistics.
         device, seed, workers, threads: As ``simtest train keypoints``.
         max_images: Train on the first N images only (None: all).
+        init: A segmentation checkpoint (same network settings and object set) whose weights start the run
+            instead of a random initialisation (warm start; its SHA-256 is recorded); a resumed run ignores it.
     """
 
     data: str | tuple[str, ...]
@@ -86,6 +88,7 @@ class SegTrainConfig:
     data_weights: tuple[float, ...] | None = None
     encoder_lr_scale: float = 1.0
     freeze_encoder_bn: bool = False
+    init: str | None = None
 
     def __post_init__(self) -> None:
         check_settings(self, "segmentation training")
@@ -222,7 +225,9 @@ def _setup(cfg: SegTrainConfig) -> Plan:
                 losses=lambda n, batch: _losses(n, batch, cfg), loss_names=("loss", "ce", "dice"),
                 describe=lambda r: f"loss {r['loss']:.3f} (ce {r['ce']:.3f}, dice {r['dice']:.3f})",
                 validate=None if val is None else (lambda n: validate_segmentation(n, val, cfg)),
-                score="val_miou", score_label="mIoU", extra={"focal_px": focal})
+                score="val_miou", score_label="mIoU", extra={"focal_px": focal},
+                warm_start=None if cfg.init is None else (lambda n: load_warm_start(
+                    n, cfg.init, objects, FORMAT, "segmentation training", defaults={"backbone": "plain"})))
 
 
 def train_segmentation(cfg: SegTrainConfig, *, resume: bool = False, progress: bool = True,

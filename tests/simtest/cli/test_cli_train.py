@@ -39,7 +39,7 @@ def test_train_keypoints_on_a_mixture_and_resume(small_dataset, tmp_path, capsys
     assert "hypotheses 4 there, 2 here" in capsys.readouterr().err
     assert main(["train", "segmentation", "--data", str(small_dataset), "--out", str(tmp_path / "seg"),
                  "--init", str(out / "model.pt"), "--quiet"]) == 2
-    assert "--init is a keypoints option" in capsys.readouterr().err
+    assert "not a segmentation checkpoint" in capsys.readouterr().err
 
 
 def test_train_segmentation_on_a_mixture(small_dataset, tmp_path):
