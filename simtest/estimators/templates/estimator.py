@@ -25,6 +25,7 @@ from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.templates.bank import BankSettings, TemplateBank, load_or_build
 from simtest.estimators.templates.crops import region_crop
 from simtest.estimators.templates.encoder import FeatureEncoder
+from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES"]
@@ -45,8 +46,9 @@ class TemplateEstimator:
             ``inplane_deg`` (degrees).
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
         refine: ``silhouette`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
-            refine_max_scale: its largest relative depth change.
-        threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: torch).
+            refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
+        threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
+            ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
 
     default_object_set = None
@@ -54,10 +56,11 @@ class TemplateEstimator:
     def __init__(self, detect: str = "rgb", detector: str | None = None, views: int = 600,
                  min_elevation_deg: float = -20.0, size: int = 128, margin: float = 1.2, stride: int = 8,
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
-                 refine: str = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.3,
+                 refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob") -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
+        refine = "none" if refine is None else refine
         if refine not in REFINES:
             raise ConfigError(f"templates: unknown refine {refine!r}; valid: {', '.join(REFINES)}")
         if not float(inplane_deg) > 0 or not float(inplane_range_deg) >= 0:
@@ -71,6 +74,9 @@ class TemplateEstimator:
         self.detect, self.detector_path, self.region_rank = detect, detector, region_rank
         self.query_mask, self.refine = bool(query_mask), refine
         self.refine_deg, self.refine_max_scale = float(refine_deg), float(refine_max_scale)
+        self.refine_min_px = float(refine_min_px)
+        if encoder is None and default_encoder().is_file():
+            encoder = str(default_encoder())
         self.encoder = FeatureEncoder(self.settings.stride, encoder, threads)
         self.needs_gt_masks = detect == "gt"
         self.needs_depth = False
@@ -159,6 +165,7 @@ class TemplateEstimator:
             valid &= ~(cv2.warpPerspective(occ, H, (S, S), flags=cv2.INTER_NEAREST) > 0)
         Rv = crop.R_virt
         fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, crop.mask.astype(np.float64), valid,
-                              max_scale=self.refine_max_scale, step_deg=self.refine_deg)
+                              max_scale=self.refine_max_scale, step_deg=self.refine_deg,
+                              min_step_px=self.refine_min_px)
         return Rv.T @ fit.R, Rv.T @ fit.t, {"applied": fit.applied, "iou_before": fit.iou_before,
                                              "iou_after": fit.iou_after, "scale": fit.scale}
