@@ -42,8 +42,8 @@ def summary(run: Path) -> str:
             ok = adds < 0.1 * float(row["diameter_m"])
             hits.append(ok)
             per.setdefault(int(row["obj_id"]), []).append(ok)
-            if matched and row.get("re_s_deg", row.get("re_deg", "")):
-                rot.append(float(row.get("re_s_deg") or row["re_deg"]))
+            if matched and row["re_sym"]:
+                rot.append(float(row["re_sym"]))
     n, k = len(hits), sum(hits)
     lo, hi = wilson_interval(k, n)
     med = sorted(rot)[len(rot) // 2] if rot else math.nan
