@@ -51,8 +51,6 @@ class TemplateEstimator:
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
 
-    default_object_set = None
-
     def __init__(self, detect: str = "rgb", detector: str | None = None, views: int = 600,
                  min_elevation_deg: float = -20.0, size: int = 128, margin: float = 1.2, stride: int = 8,
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,

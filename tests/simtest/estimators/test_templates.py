@@ -110,3 +110,12 @@ def test_bad_options_name_the_value():
         TemplateEstimator(detect="depth")
     with pytest.raises(ConfigError, match="multiple of 32"):
         TemplateEstimator(size=100)
+
+
+def test_registered_by_name():
+    from simtest.estimators.base import estimator_label
+    from simtest.estimators.registry import load_estimator
+
+    est = load_estimator("templates", detect="gt", views=60)
+    assert isinstance(est, TemplateEstimator) and est.needs_gt_masks and not est.needs_depth
+    assert estimator_label("templates", est) == "templates (GT masks)"
