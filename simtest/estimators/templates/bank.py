@@ -27,7 +27,7 @@ from simtest.estimators.templates.render import ObjectRenderer
 from simtest.estimators.templates.views import sphere_directions, view_rotation
 from simtest.objects.cache import cache_dir
 
-__all__ = ["BankSettings", "TemplateBank", "build_bank", "load_or_build", "bank_path", "FORMAT"]
+__all__ = ["BankSettings", "TemplateBank", "build_bank", "render_intrinsics", "render_templates", "load_or_build", "bank_path", "FORMAT"]
 
 #: Version of the bank file; a change of what a bank holds or how it is made bumps it.
 FORMAT = "simtest-templates/1"
@@ -91,30 +91,42 @@ def bank_path(obj, settings: BankSettings, folder: Path | None = None) -> Path:
     return (folder or cache_dir() / "templates") / f"{obj.name}_{digest}.npz"
 
 
-def build_bank(obj, settings: BankSettings, encoder: FeatureEncoder) -> TemplateBank:
-    """Render, crop and encode ``obj``'s views (see the module doc)."""
-    settings.check()
-    S, D = int(settings.size), float(settings.distance)
-    f = settings.fill * RENDER_SIZE * D / max(float(obj.diameter), 1e-6)
+def render_intrinsics(obj, settings: BankSettings) -> np.ndarray:
+    """Intrinsics (pixels) of the 256-pixel template render: ``obj`` at ``distance`` spans ``fill`` of it."""
+    f = settings.fill * RENDER_SIZE * float(settings.distance) / max(float(obj.diameter), 1e-6)
     c = (RENDER_SIZE - 1) / 2.0
-    K_r = np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
-    dirs = sphere_directions(settings.views, settings.min_elevation_deg)
+    return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
+
+
+def render_templates(renderer: ObjectRenderer, rotations: np.ndarray, settings: BankSettings,
+                     encoder: FeatureEncoder, directions: np.ndarray | None = None) -> TemplateBank:
+    """Templates of the object of ``renderer`` (made with :func:`render_intrinsics`) at ``rotations`` (n, 3, 3),
+    model to camera, at ``distance`` on the optical axis: rendered, cropped and encoded."""
+    S, D = int(settings.size), float(settings.distance)
+    K_r = renderer.K
     crops, Rs, ts, Ks = [], [], [], []
-    with ObjectRenderer(obj, K_r, RENDER_SIZE, RENDER_SIZE) as renderer:
-        for d in dirs:
-            R = view_rotation(d)
-            t = np.array([0.0, 0.0, D])
-            rgb, mask = renderer.render(R, t)
-            crop = region_crop(rgb, mask, K_r, S, settings.margin)
-            crops.append((crop.rgb, crop.mask))
-            Rs.append(crop.R_virt @ R)
-            ts.append(crop.R_virt @ t)
-            Ks.append(crop.K)
+    for R in rotations:
+        t = np.array([0.0, 0.0, D])
+        rgb, mask = renderer.render(R, t)
+        crop = region_crop(rgb, mask, K_r, S, settings.margin)
+        crops.append((crop.rgb, crop.mask))
+        Rs.append(crop.R_virt @ R)
+        ts.append(crop.R_virt @ t)
+        Ks.append(crop.K)
     feats = encoder.features(np.stack([c[0] for c in crops]))
     h, w = feats.shape[-2:]
     masks = np.stack([cv2.resize(c[1].astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for c in crops])
+    dirs = np.zeros((len(Rs), 3)) if directions is None else directions
     return TemplateBank(feats=feats.astype(np.float16), masks=masks.astype(np.float32), R=np.stack(Rs),
                         t=np.stack(ts), K=np.stack(Ks), directions=dirs, settings=settings)
+
+
+def build_bank(obj, settings: BankSettings, encoder: FeatureEncoder) -> TemplateBank:
+    """Render, crop and encode ``obj``'s views (see the module doc)."""
+    settings.check()
+    dirs = sphere_directions(settings.views, settings.min_elevation_deg)
+    with ObjectRenderer(obj, render_intrinsics(obj, settings), RENDER_SIZE, RENDER_SIZE) as renderer:
+        return render_templates(renderer, np.stack([view_rotation(d) for d in dirs]), settings, encoder, dirs)
 
 
 def load_or_build(obj, settings: BankSettings, encoder: FeatureEncoder, folder: Path | None = None

@@ -8,7 +8,9 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
 2. Each crop is encoded by the frozen EfficientNet-Lite0 (:mod:`.encoder`) and scored against every template
    (:mod:`.match`); the best (angle, template) gives the rotation, and the crop pixel and size of the template's
    object give the translation.
-3. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
+3. With ``local_deg`` templates rendered on the fly around the best match replace it while they match better
+   (:mod:`.local`).
+4. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
    (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
 """
 
@@ -22,11 +24,13 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
-from simtest.estimators.templates.bank import BankSettings, TemplateBank, load_or_build
+from simtest.estimators.templates.bank import RENDER_SIZE, BankSettings, TemplateBank, load_or_build, render_intrinsics
 from simtest.estimators.templates.crops import region_crop
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
+from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
+from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES"]
 
@@ -47,6 +51,8 @@ class TemplateEstimator:
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
         refine: ``silhouette`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
             refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
+        local_deg: First step (degrees) of the local template search around the best bank match (0: none;
+            :mod:`.local`).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -55,7 +61,8 @@ class TemplateEstimator:
                  min_elevation_deg: float = -20.0, size: int = 128, margin: float = 1.2, stride: int = 8,
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
-                 threads: int = 1, encoder: str | None = None, region_rank: str = "prob") -> None:
+                 threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
+                 local_deg: float = 0.0) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -79,6 +86,9 @@ class TemplateEstimator:
         self.needs_gt_masks = detect == "gt"
         self.needs_depth = False
         self.banks: dict[int, tuple[TemplateBank, np.ndarray]] = {}
+        #: First step of the local template search (degrees; 0: none), :mod:`.local`.
+        self.local_deg = float(local_deg)
+        self.renderers: dict[int, ObjectRenderer] = {}
         self.segmenter = None
         self.last_failures: list[dict[str, Any]] = []
 
@@ -140,13 +150,26 @@ class TemplateEstimator:
             qm = np.stack([cv2.resize(c.mask.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for c in crops])
         scores = match_scores(q, weights, qm)
         a, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        crop = crops[a]
-        R, t = template_pose(bank, j, crop.K, crop.R_virt)
+        crop, best = crops[a], float(scores[a, j])
         info: dict[str, Any] = {"template": int(j), "inplane_deg": float(np.degrees(self.inplane[a])),
-                                "match": float(scores[a, j])}
+                                "match": best}
+        if self.local_deg > 0:
+            found, best, info["local_renders"] = local_search(
+                self._renderer(obj), self.settings, self.encoder, q[a], None if qm is None else qm[a], bank.R[j],
+                best, step_deg=self.local_deg)
+            if found is not None:
+                bank, j, info["match_local"] = found, 0, best
+        R, t = template_pose(bank, j, crop.K, crop.R_virt)
         if self.refine == "silhouette":
             R, t, info["silhouette"] = self._refine(obj, R, t, crop, K, rgb.shape[:2], others)
-        return R, t, float(scores[a, j]), info
+        return R, t, best, info
+
+    def _renderer(self, obj) -> ObjectRenderer:
+        """``obj``'s template renderer (made at first use, kept)."""
+        if obj.obj_id not in self.renderers:
+            self.renderers[obj.obj_id] = ObjectRenderer(obj, render_intrinsics(obj, self.settings), RENDER_SIZE,
+                                                        RENDER_SIZE)
+        return self.renderers[obj.obj_id]
 
     def _refine(self, obj, R: np.ndarray, t: np.ndarray, crop, K: np.ndarray, shape: tuple[int, int],
                 others: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:

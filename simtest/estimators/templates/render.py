@@ -43,7 +43,7 @@ class ObjectRenderer:
             raise ConfigError(f"ObjectRenderer: K must be 3x3 with positive focal lengths, got {K.tolist()!r}")
         if int(width) < 8 or int(height) < 8:
             raise ConfigError(f"ObjectRenderer: image must be at least 8x8 pixels, got {width!r}x{height!r}")
-        self.width, self.height = int(width), int(height)
+        self.width, self.height, self.K = int(width), int(height), K
         try:
             self.model = _compile(obj, K, self.width, self.height, float(ambient), float(diffuse))
             self.data = mujoco.MjData(self.model)
