@@ -12,6 +12,10 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
    (:mod:`.local`).
 4. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
    (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
+
+On the 100 real LM-O frames (734 targets; docs/sim2real_templates.py) with ground-truth visible masks
+(``detect=gt``, a diagnostic) and the defaults: 50.5 % [46.9, 54.1] ADD(-S)-0.1d, median rotation error
+9.6 degrees, against 4.0 % [2.8, 5.6] and 107 degrees for the ``keypoints`` crop network on the same masks.
 """
 
 from __future__ import annotations
