@@ -14,6 +14,11 @@ rates. Run from the repository root::
 ``--opt KEY=VALUE`` passes more estimator options (e.g. ``views=1000``, ``stride=16``, ``refine=none``). The
 template banks are cached in simtest's cache folder (``$SIMTEST_CACHE``), built in about a minute per object
 set at first use.
+
+Measured (100 real LM-O frames, 734 targets, defaults: 600 views, 128-pixel crops, stride-8 features, roll
+-60..60 degrees in 10-degree steps, silhouette refinement of the translation): ``gt`` 50.5 % [46.9, 54.1],
+median rotation error 9.6 degrees; ``rgb`` 1.6 % [0.9, 2.8], 71.9 degrees. ``--opt local_deg=4`` (local template
+search) on the first 40 frames (296 targets, ``simtest eval ... --max-images 40``): 55.1 % against 49.3 % without.
 """
 
 from __future__ import annotations
