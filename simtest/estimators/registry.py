@@ -204,5 +204,6 @@ for _name, _target in {
     "keypoints": "simtest.estimators.keypoints:KeypointEstimator",
     "segicp": "simtest.estimators.segicp:SegICPEstimator",
     "track-icp": "simtest.estimators.track_icp:TrackICPEstimator",
+    "templates": "simtest.estimators.templates:TemplateEstimator",
 }.items():
     register_estimator(_name, _target)

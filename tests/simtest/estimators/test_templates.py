@@ -1,0 +1,121 @@
+"""The template estimator on real renders of built-in objects: crops through the virtual camera, the bank cache,
+and poses of clean renders recovered from templates and frozen ImageNet features."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from simtest.errors import ConfigError
+from simtest.estimators.base import Observation
+from simtest.estimators.templates import TemplateEstimator
+from simtest.estimators.templates.bank import BankSettings, bank_path, load_or_build
+from simtest.estimators.templates.crops import region_crop
+from simtest.estimators.templates.encoder import FeatureEncoder
+from simtest.estimators.templates.export import default_encoder
+from simtest.estimators.templates.render import ObjectRenderer
+from simtest.estimators.templates.views import inplane_rotation, sphere_directions, view_rotation
+from simtest.objects import load_object_set
+
+K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
+W, H = 640, 480
+
+
+@pytest.fixture(scope="module")
+def objects():
+    return load_object_set("builtin-small")
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("templates")
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def test_views_cover_the_upper_sphere():
+    d = sphere_directions(400, min_elevation_deg=0.0)
+    assert 190 <= len(d) <= 210 and np.allclose(np.linalg.norm(d, axis=1), 1.0) and (d[:, 2] >= 0).all()
+    R = view_rotation(d[7])
+    assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(R @ d[7], [0.0, 0.0, -1.0])  # the camera looks at the model origin
+    with pytest.raises(ConfigError, match="count"):
+        sphere_directions(1)
+
+
+def test_region_crop_is_a_pinhole_view_of_the_same_pose(objects):
+    """A pose in the real camera seen through the crop's camera (``R_virt``, ``K_crop``) projects where the warp
+    puts the full image's pixel, and the rendered object lands inside the crop."""
+    obj = objects.by_name("banana_0")
+    R, t = inplane_rotation(0.4) @ view_rotation([0.3, -0.5, 0.8]), np.array([0.15, -0.08, 0.7])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    crop = region_crop(rgb, mask, K, 128, 1.2, inplane_rad=0.3)
+    full = K @ t
+    in_crop = crop.K @ (crop.R_virt @ t)
+    Hm = crop.K @ crop.R_virt @ np.linalg.inv(K)
+    warped = cv2.perspectiveTransform((full[:2] / full[2]).reshape(1, 1, 2), Hm).ravel()
+    assert np.allclose(in_crop[:2] / in_crop[2], warped, atol=1e-6)
+    rows, cols = np.nonzero(crop.mask)
+    span = max(np.ptp(rows), np.ptp(cols)) + 1  # the box's longer side is 1 / margin of the crop
+    assert 128 / 1.2 - 3 <= span <= 128 / 1.2 + 3, span
+    assert not (crop.mask[0].any() or crop.mask[-1].any() or crop.mask[:, 0].any() or crop.mask[:, -1].any())
+    with pytest.raises(ConfigError, match="non-empty mask"):
+        region_crop(rgb, np.zeros_like(mask), K, 128)
+
+
+def test_bank_is_cached_and_reused(objects, cache):
+    obj = objects.by_name("mug_0")
+    settings = BankSettings(views=60, min_elevation_deg=0.0)
+    enc = FeatureEncoder(settings.stride, default_encoder() if default_encoder().is_file() else None)
+    path = bank_path(obj, settings, cache)
+    assert not path.exists()
+    first = load_or_build(obj, settings, enc, cache)
+    stamp = path.stat().st_mtime_ns
+    again = load_or_build(obj, settings, enc, cache)
+    assert path.stat().st_mtime_ns == stamp  # read, not rebuilt
+    assert np.array_equal(first.feats, again.feats) and np.allclose(first.R, again.R)
+    assert first.feats.shape == (len(first), 40, 16, 16) and first.masks.max() > 0.9
+    assert bank_path(obj, BankSettings(views=61, min_elevation_deg=0.0), cache) != path
+
+
+@pytest.mark.parametrize("name", ["banana_0", "mug_0"])
+def test_clean_render_pose_from_templates(objects, cache, monkeypatch, name):
+    """A clean render at a pose between the bank's views: rotation within 15 degrees, the centre
+    within 6 pixels, the depth within 10 % (the views lie about 8 degrees apart)."""
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    obj = objects.by_name(name)
+    est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0)
+    rng = np.random.default_rng(3)
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        for _ in range(2):
+            d = rng.normal(size=3)
+            d[2] = abs(d[2]) + 0.3
+            R = inplane_rotation(np.radians(rng.uniform(-25, 25))) @ view_rotation(d)
+            t = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 0.8)])
+            rgb, mask = renderer.render(R, t)
+            obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                              target_obj_ids=(obj.obj_id,), masks=(mask,))
+            (e,) = est.estimate(obs)
+            assert _angle_deg(e.R, R) < 15.0, (name, _angle_deg(e.R, R), e.info)
+            px = np.linalg.norm((K @ e.t)[:2] / e.t[2] - (K @ t)[:2] / t[2])
+            assert px < 6.0 and abs(e.t[2] / t[2] - 1.0) < 0.1, (name, px, e.t, t)
+
+
+def test_bad_options_name_the_value():
+    with pytest.raises(ConfigError, match="'depth'"):
+        TemplateEstimator(detect="depth")
+    with pytest.raises(ConfigError, match="multiple of 32"):
+        TemplateEstimator(size=100)
+
+
+def test_registered_by_name():
+    from simtest.estimators.base import estimator_label
+    from simtest.estimators.registry import load_estimator
+
+    est = load_estimator("templates", detect="gt", views=60)
+    assert isinstance(est, TemplateEstimator) and est.needs_gt_masks and not est.needs_depth
+    assert estimator_label("templates", est) == "templates (GT masks)"
