@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simtest.generators.config import GenerateConfig
+from simtest.render.pbr_stages import process_stages
 
 __all__ = ["bench_generate", "GenerateBench", "bench_profiles", "ProfileBench", "ProfileRow", "cpu_seconds",
            "ThreadCpu"]
@@ -69,6 +70,12 @@ class GenerateBench:
         """2-worker frames/s (busy time, or wall time with ``wall``) over :attr:`ideal_fps`."""
         fps = self.pipeline_fps_2workers_wall if wall else self.pipeline_fps_2workers
         return None if fps is None or not self.ideal_fps else fps / self.ideal_fps
+
+    def to_dict(self) -> dict:
+        """The measurement as JSON-ready data: ``{"kind": "generate", ...}`` (the fields, frames/s, CPU ms)."""
+        from dataclasses import asdict
+
+        return {"kind": "generate", **asdict(self), "ratio": self.ratio, "ideal_fps": self.ideal_fps}
 
     def table(self) -> str:
         rows = [
@@ -337,6 +344,10 @@ class ProfileRow:
         spp: Samples per pixel used (``pbr``; ``None`` for the rasterized profiles).
         variant: What rendered it: the Mitsuba variant and, on ``llvm_ad_rgb``, the libLLVM version and file
             (from the run's manifest; ``pbr`` only).
+        stages: ``pbr`` only: wall seconds per frame of each path-tracer stage of the 1-worker run
+            (:mod:`simtest.render.pbr_stages`), and ``"rest"``: the rest of the frame (rasterized depth and masks,
+            cameras, the hand-off to annotation and writing; scene sampling and settling run ahead).
+        scene_loads: ``pbr`` only: Mitsuba scenes loaded in the 1-worker run (one per settled scene).
     """
 
     profile: str
@@ -347,6 +358,8 @@ class ProfileRow:
     wall_2workers: float | None = None
     spp: int | None = None
     variant: str | None = None
+    stages: dict[str, float] | None = None
+    scene_loads: int | None = None
 
     @property
     def speedup_2workers(self) -> float | None:
@@ -375,7 +388,25 @@ class ProfileBench:
         if variants:
             lines += ["", f"pbr path tracer: {'; '.join(variants)}; {self.scenes} scenes x {self.frames_per_scene} "
                           f"views per measurement"]
+        staged = [r for r in self.rows if r.stages]
+        if staged:
+            names = list(staged[0].stages)
+            lines += ["", "pbr frame by stage, 1 worker, wall s/frame (rest: rasterized depth and masks, cameras, "
+                          "hand-off to annotation and writing)", "",
+                      "| image size | " + " | ".join(names) + " | Mitsuba scenes loaded |",
+                      "|---|" + "---|" * (len(names) + 1)]
+            for r in staged:
+                lines.append(f"| {r.width}x{r.height} | " + " | ".join(f"{r.stages[k]:.3f}" for k in names)
+                             + f" | {r.scene_loads} |")
         return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """The table as JSON-ready data: ``{"kind": "profiles", "scenes", "frames_per_scene", "rows": [...]}``
+        (each row the fields of :class:`ProfileRow`; seconds per frame)."""
+        from dataclasses import asdict
+
+        return {"kind": "profiles", "scenes": self.scenes, "frames_per_scene": self.frames_per_scene,
+                "rows": [asdict(r) for r in self.rows]}
 
 
 def _variant_text(manifest: dict) -> str:
@@ -420,17 +451,22 @@ def bench_profiles(profiles: list[str], sizes: list[tuple[int, int]], objects_pe
             with tempfile.TemporaryDirectory(prefix="simtest-bench-") as tmp:
                 # warm-up outside the timing: GL context, path tracer and denoiser start-up
                 generate(cfg.replace(scenes=1, frames_per_scene=1), os.path.join(tmp, "warm"), progress=False)
+                stages0 = process_stages().copy()
                 cpu0 = cpu_seconds()
                 rep = generate(cfg, os.path.join(tmp, "out"), progress=False)
                 cpu = (cpu_seconds() - cpu0) / rep.frames_written
+                stages = process_stages().since(stages0)
                 two = _two_workers_seconds(cfg, os.path.join(tmp, "w2")) if two_workers and scenes >= 2 else None
                 manifest = json.loads((Path(tmp) / "out" / "manifest.json").read_text())
                 variant = _variant_text(manifest) if profile == "pbr" else None
-            spp = None
+            wall = sum(s.seconds for s in rep.scenes) / rep.frames_written
+            spp = by_stage = loads = None
             if profile == "pbr":
                 from simtest.render.pbr import auto_spp
 
                 spp = auto_spp(w, h) if pbr_spp == "auto" else int(pbr_spp)
-            rows.append(ProfileRow(profile, w, h, sum(s.seconds for s in rep.scenes) / rep.frames_written, cpu, two,
-                                   spp, variant))
+                by_stage = {k: round(v, 4) for k, v in stages.per_frame().items()}
+                by_stage["rest"] = round(max(0.0, wall - sum(by_stage.values())), 4)
+                loads = stages.loads
+            rows.append(ProfileRow(profile, w, h, wall, cpu, two, spp, variant, by_stage, loads))
     return ProfileBench(rows, scenes, frames_per_scene)

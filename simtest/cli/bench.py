@@ -1,4 +1,4 @@
-"""``simtest bench generate|grasp|metrics|corruptions|panda|objects|backend|channels|stereo|appearance``: speed figures measured in the same run (ratios
+"""``simtest bench generate|check|grasp|metrics|corruptions|panda|objects|backend|channels|stereo|appearance``: speed figures measured in the same run (ratios
 against raw MuJoCo)."""
 
 from __future__ import annotations
@@ -37,10 +37,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "320x240, 8 at 640x480, as render.pbr_spp)")
     g.add_argument("--pbr-variant", default="auto", choices=["auto", "cuda", "llvm", "scalar"],
                    help="Mitsuba variant of the pbr profile (--profiles; default auto, as render.pbr_variant)")
+    g.add_argument("--json", metavar="FILE", dest="json_out",
+                   help="also write the table as JSON to FILE (with the cores and load average of the run; "
+                        "`simtest bench check` compares such a file of a --profiles run with a fresh run)")
     g.add_argument("--channels", action="store_true",
                    help="also the milliseconds per frame of each dense ground-truth channel (generate --channels) "
                         "at --width x --height, as `simtest bench channels`")
     g.set_defaults(func=_generate)
+    ck = bsub.add_parser("check", parents=[common_parser()],
+                         help="a fresh `bench generate --profiles` run against the figures recorded in the "
+                              "repository: fresh / recorded seconds per frame")
+    ck.add_argument("--recorded", default=None,
+                    help="recorded figures (default simtest/benchmarks/recorded.json)")
+    ck.add_argument("--fresh", default=None, metavar="FILE",
+                    help="compare this `bench generate --profiles ... --json` file instead of running anew")
+    ck.add_argument("--tolerance", type=float, default=1.3,
+                    help="largest fresh / recorded ratio that passes (default 1.3); exit status 1 above it")
+    ck.add_argument("--measure", choices=["cpu", "wall"], default="cpu",
+                    help="the ratio checked against --tolerance: CPU s/frame (default; moved less by other work "
+                         "on the machine) or wall s/frame")
+    ck.set_defaults(func=_check)
     gr = bsub.add_parser("grasp", parents=[common_parser()],
                          help="grasp env steps/s vs raw mj_step; oracle episode wall time; reset ms and RSS")
     gr.add_argument("--episodes", type=int, default=3)
@@ -144,6 +160,7 @@ def _generate(args: argparse.Namespace) -> int:
         res = bench_generate(args.width, args.height, args.objects_per_scene, args.scenes, args.frames_per_scene,
                              args.objects, two_workers=not args.no_workers, overrides=looks)
         print(res.table())
+        _write_json(args, res.to_dict())
         code = 0
     if args.channels:
         print()
@@ -171,10 +188,36 @@ def _profiles(args: argparse.Namespace) -> int:
         if not spp.isdigit() or not 1 <= int(spp) <= 65536:
             raise ConfigError(f"--pbr-spp: expected auto or an integer in [1, 65536], got {spp!r}")
         spp = int(spp)
-    print(bench_profiles(profiles, sizes, args.objects_per_scene, args.scenes, args.frames_per_scene,
-                         args.objects, pbr_spp=spp, pbr_variant=args.pbr_variant,
-                         two_workers=not args.no_workers).table())
+    res = bench_profiles(profiles, sizes, args.objects_per_scene, args.scenes, args.frames_per_scene,
+                         args.objects, pbr_spp=spp, pbr_variant=args.pbr_variant, two_workers=not args.no_workers)
+    print(res.table())
+    _write_json(args, res.to_dict())
     return 0
+
+
+def _write_json(args: argparse.Namespace, table: dict) -> None:
+    """``--json FILE``: the table with the run's command (its measurement options), cores and load average."""
+    if getattr(args, "json_out", None):
+        from simtest.benchmarks.check import bench_record
+        from simtest.io.files import atomic_write_json
+
+        opts = [f"--profiles {args.profiles}", f"--sizes {args.sizes}" if args.sizes else
+                f"--width {args.width} --height {args.height}"] if args.profiles else [
+            f"--width {args.width} --height {args.height}"]
+        opts += [f"--scenes {args.scenes}", f"--views {args.frames_per_scene}", f"--objects {args.objects}",
+                 f"--objects-per-scene {args.objects_per_scene}"] + (["--no-workers"] if args.no_workers else [])
+        atomic_write_json(args.json_out, bench_record(table, " ".join(["simtest bench generate", *opts])))
+        print(f"\nwrote {args.json_out}")
+
+
+def _check(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.check import RECORDED, check_table, compare, fresh_record, read_record
+
+    recorded = read_record(args.recorded or RECORDED)
+    fresh = read_record(args.fresh) if args.fresh else fresh_record(recorded)
+    rows = compare(recorded, fresh, args.tolerance, args.measure)
+    print(check_table(rows, recorded, fresh, args.tolerance, args.measure))
+    return 1 if any(r.ok is False for r in rows) else 0
 
 
 def _grasp(args: argparse.Namespace) -> int:

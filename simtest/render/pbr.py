@@ -45,6 +45,7 @@ from simtest.errors import RenderError
 from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
 from simtest.render.pbr_film import FilmGrid, film_grid, resample_to_image
 from simtest.render.pbr_lights import emitters
+from simtest.render.pbr_stages import StageTimes, process_stages
 from simtest.render.pbr_shapes import box_arrays, mesh_from_arrays, sphere_arrays, transform
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
@@ -195,7 +196,9 @@ class PbrRenderer:
             (:func:`simtest.render.llvm.choose_variant`); :attr:`variant` is the Mitsuba variant used.
 
     Views of one scene whose geometry, materials and lights are unchanged reuse the loaded Mitsuba scene with
-    only the sensor changed (the same bytes as loading it again).
+    only the sensor changed (the same bytes as loading it again); its compiled kernel is the same for every
+    view and scene (Dr.Jit's kernel cache answers it). Geoms with one material and colour share one BSDF.
+    :attr:`stages` keeps the wall seconds of each stage of its frames (:mod:`simtest.render.pbr_stages`).
 
     Any pinhole K renders, ``fx != fy`` included (:class:`FilmGrid`: the path tracer's square-pixel film is
     area-resampled onto the image's grid along one axis).
@@ -223,7 +226,10 @@ class PbrRenderer:
         self._grid = film_grid(camera)
         self._groups = frozenset(int(g) for g in geomgroups)
         self._textures: dict[tuple, Any] = {}
+        self._bsdfs: dict[tuple, Any] = {}  # (material, rgba) -> loaded BSDF, shared by the geoms drawn with it
         self._aux = None
+        #: Wall seconds per stage of this renderer's frames (:mod:`simtest.render.pbr_stages`).
+        self.stages = StageTimes()
         self._loaded: tuple[bytes, Any] | None = None  # (scene key, loaded Mitsuba scene)
         self._environment: tuple[np.ndarray, float] | None = None
         self._env_bitmap = None
@@ -267,24 +273,37 @@ class PbrRenderer:
         cid = self._camera_id(camera)
         cam = CameraModel.from_mujoco(data.cam_xpos[cid], data.cam_xmat[cid], self.camera.K, self.width,
                                       self.height)
-        key = self._scene_key(data)
-        if self._loaded is None or self._loaded[0] != key:
-            self._loaded = None  # free the previous scene first
-            self._loaded = (key, mi.load_dict(self._scene_dict(data, cam)))
+        also = process_stages()
+        with self.stages.stage("scene", also):
+            key = self._scene_key(data)
+            if self._loaded is None or self._loaded[0] != key:
+                self._loaded = None  # free the previous scene first
+                self._bsdfs.clear()
+                self._loaded = (key, mi.load_dict(self._scene_dict(data, cam)))
+                self.stages.loads += 1
+                also.loads += 1
         scene = self._loaded[1]
-        sensor = mi.load_dict(camera_sensor(mi, cam, self.spp))
+        with self.stages.stage("sensor", also):
+            sensor = mi.load_dict(camera_sensor(mi, cam, self.spp))
         seed = int(seed) & 0xFFFFFFFF
-        color = np.maximum(_finite(mi.render(scene, sensor=sensor, seed=seed, spp=self.spp)), 0.0)
+        with self.stages.stage("trace", also):
+            color = np.maximum(_finite(mi.render(scene, sensor=sensor, seed=seed, spp=self.spp)), 0.0)
         if self.denoise:
             # The guides come from a second, cheaper pass: Mitsuba's aov integrator costs ~2.5x a path sample.
-            if self._aux is None:
-                self._aux = mi.load_dict({"type": "aov", "aovs": "albedo:albedo,nn:sh_normal"})
-            aux = _finite(mi.render(scene, sensor=sensor, integrator=self._aux, seed=seed,
-                                    spp=min(self.spp, AUX_SPP)))
-            color = self._oidn.denoise(color, np.ascontiguousarray(np.clip(aux[..., 0:3], 0.0, 1.0)),
-                                       np.ascontiguousarray(np.clip(aux[..., 3:6], -1.0, 1.0)), hdr=True)
-        color = resample_to_image(np.asarray(color, dtype=np.float32), self._grid, self.width, self.height)
-        return Frame(linear_to_srgb8(color), None, None)
+            with self.stages.stage("guides", also):
+                if self._aux is None:
+                    self._aux = mi.load_dict({"type": "aov", "aovs": "albedo:albedo,nn:sh_normal"})
+                aux = _finite(mi.render(scene, sensor=sensor, integrator=self._aux, seed=seed,
+                                        spp=min(self.spp, AUX_SPP)))
+            with self.stages.stage("denoise", also):
+                color = self._oidn.denoise(color, np.ascontiguousarray(np.clip(aux[..., 0:3], 0.0, 1.0)),
+                                           np.ascontiguousarray(np.clip(aux[..., 3:6], -1.0, 1.0)), hdr=True)
+        with self.stages.stage("image", also):
+            color = resample_to_image(np.asarray(color, dtype=np.float32), self._grid, self.width, self.height)
+            rgb = linear_to_srgb8(color)
+        self.stages.frames += 1
+        also.frames += 1
+        return Frame(rgb, None, None)
 
     def _scene_key(self, data: mujoco.MjData) -> bytes:
         """A digest of everything :meth:`_scene_dict` reads apart from the camera: equal keys, equal scenes."""
@@ -319,7 +338,7 @@ class PbrRenderer:
             if mat >= 0 and m.mat_emission[mat] > 0 and int(m.geom_type[g]) == _G.mjGEOM_BOX:
                 scene[f"geom_{g}_panel"] = self._panel(data, g, rgba[:3] * float(m.mat_emission[mat]))
                 continue
-            bsdf = self._bsdf(g, rgba)
+            bsdf = self._shared_bsdf(g, rgba)
             for k, shape in enumerate(self._geom_shapes(data, g, bsdf)):
                 scene[f"geom_{g}_{k}"] = shape
         scene.update(emitters(mi, self.model, data))
@@ -347,6 +366,15 @@ class PbrRenderer:
                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
 
     # --- materials ----------------------------------------------------------------------------------------
+    def _shared_bsdf(self, g: int, rgba: np.ndarray):
+        """The BSDF of geom ``g`` (:meth:`_bsdf`), loaded once per (material, colour) for the scene being built:
+        geoms drawn with the same material (walls, table legs) share one BSDF and its textures (same image as
+        one BSDF per geom; fewer texture copies and a faster scene load)."""
+        key = (int(self.model.geom_matid[g]), np.asarray(rgba, dtype=np.float64).tobytes())
+        if key not in self._bsdfs:
+            self._bsdfs[key] = self._bsdf(g, rgba)
+        return self._bsdfs[key]
+
     def _bsdf(self, g: int, rgba: np.ndarray):
         """Two-sided principled BSDF of geom ``g``: base colour (texture x rgba, sRGB read as linear radiance
         reflectance); roughness = the material's ``roughness`` when set (>= 0), else 1 - shininess, times its
@@ -491,6 +519,7 @@ class PbrRenderer:
 
     def close(self) -> None:
         self._textures.clear()
+        self._bsdfs.clear()
 
     def __enter__(self) -> "PbrRenderer":
         return self
