@@ -2,8 +2,9 @@
 
 The protocol of grasp-detection papers (VGN, GIGA): a *round* starts with ``n`` objects of the set on the table,
 
-* ``"pile"``: dropped in random orientations from a 0.12 m wide column above the middle of the table (a box
-  lifted away), settled into a heap;
+* ``"pile"``: dropped one after another in random orientations from a 0.12 m wide column above the middle of
+  the table, each released 5 mm above the heap so far and given 0.6 s to fall (a box lifted away), then
+  settled together;
 * ``"packed"``: standing upright (:func:`~simtest.envs.scene.rest_rotation`, random yaw) side by side in the
   reachable part of the table, 5-25 mm apart;
 
@@ -40,7 +41,8 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest import robot
-from simtest.envs.episode import FAILURE_REASONS, _Monitor, _move_joints, _orthonormal, execute_grasp
+from simtest.envs.episode import FAILURE_REASONS, execute_grasp, orthonormal
+from simtest.envs.execution import PhaseMonitor, move_joints
 from simtest.envs.options import load_objects
 from simtest.envs.planner import GraspPlanner, observed_obstacles
 from simtest.envs.runner import GraspRunConfig, episode_seed
@@ -52,7 +54,7 @@ from simtest.estimators.guard import call_estimator, check_estimate
 from simtest.estimators.registry import load_estimator
 from simtest.generators.build_options import SettleOptions
 from simtest.generators.scene_spec import ObjectPlacement, random_quat_wxyz
-from simtest.generators.settle import park, settle
+from simtest.generators.settle import FAR_AWAY, park, settle
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
 from simtest.io.files import atomic_write_json, jsonable, prepare_out_dir
@@ -94,6 +96,8 @@ class DeclutterTask(GraspTask):
         spec = sample_grasp_spec(builder, objs, int(objs.ids[0]), rng)
         spec = dataclasses.replace(spec, objects=tuple(_placements(builder, objs, rng, scene, int(n))))
         sim = self._model_cache(name).build(spec)
+        if scene == "pile":
+            _drop_one_by_one(sim, float(builder.options.room.table_height))
         settle(sim, SettleOptions(max_time=4.0, room=builder.options.room))
         if sim.model is not self.model:
             self._bind_model(sim)
@@ -165,7 +169,7 @@ def _placements(builder, objs, rng: np.random.Generator, scene: str, n: int) -> 
         rgba = (*(float(c) for c in np.clip(np.asarray(obj.rgba[:3]) + rng.normal(0, 0.08, 3), 0.02, 0.98)), 1.0)
         if scene == "pile":
             xy = np.array([cx, cy]) + rng.uniform(-_PILE_HALF, _PILE_HALF, 2)
-            pos = (float(xy[0]), float(xy[1]), z0 + 0.06 + 0.08 * k)
+            pos = (float(xy[0]), float(xy[1]), z0 + 0.5 * float(obj.diameter) + 0.005)  # dropped later
             quat = random_quat_wxyz(rng)
         else:
             R0 = rest_rotation(obj)
@@ -188,6 +192,38 @@ def _placements(builder, objs, rng: np.random.Generator, scene: str, n: int) -> 
                                    specular=float(rng.uniform(0.0, 0.4)), shininess=float(rng.uniform(0.0, 0.5)),
                                    reflectance=0.0))
     return out
+
+
+def _drop_one_by_one(sim, table_z: float) -> None:
+    """Drop the instances of ``sim`` (placed in the pile's column) one at a time, each released 5 mm above the
+    top of the heap so far at its own x, y and orientation, with 0.6 s of physics to fall (metres, seconds)."""
+    m, d = sim.model, sim.data
+    n = len(sim.instance_bodies)
+    start = [d.qpos[q:q + 7].copy() for q in sim.instance_qpos]
+    grav = [float(m.body_gravcomp[b]) for b in sim.instance_bodies]
+    for i in range(1, n):  # all but the first wait far away, floating
+        q = sim.instance_qpos[i]
+        d.qpos[q:q + 3] = FAR_AWAY + [10.0 * i, 20.0, 0.0]
+        m.body_gravcomp[sim.instance_bodies[i]] = 1.0
+    steps = int(round(0.6 / m.opt.timestep))
+    for i in range(n):
+        mujoco.mj_forward(m, d)
+        top = max([table_z] + [float(d.xpos[sim.instance_bodies[j]][2]) + 0.5 * float(_radius(m, sim, j))
+                               for j in range(i)])
+        q, v = sim.instance_qpos[i], sim.instance_dofs[i]
+        d.qpos[q:q + 7] = start[i]
+        d.qpos[q + 2] = top + start[i][2] - table_z  # start[i][2] = table_z + half the diameter + 5 mm
+        d.qvel[v:v + 6] = 0.0
+        m.body_gravcomp[sim.instance_bodies[i]] = grav[i]
+        mujoco.mj_step(m, d, steps)
+
+
+def _radius(m: mujoco.MjModel, sim, i: int) -> float:
+    """Twice the bounding radius of instance ``i``'s geoms about its body origin (about its diameter), m."""
+    b = sim.instance_bodies[i]
+    adr, num = int(m.body_geomadr[b]), int(m.body_geomnum[b])
+    return 2.0 * float(max((np.linalg.norm(m.geom_pos[g]) + m.geom_rbound[g] for g in range(adr, adr + num)),
+                           default=0.05))
 
 
 @dataclass
@@ -249,8 +285,8 @@ def _attempt(task: DeclutterTask, est: Any, planner: GraspPlanner, seed: int, k:
     """One attempt (observe, estimate every object, plan, grasp the most graspable); its record."""
     row = {"attempt": k, "obj_name": "", "reason": "no_estimate", "estimates": 0, "candidates": 0, "error": ""}
     task.look_at_pile()
-    monitor = _Monitor(task, None)
-    _move_joints(task, task.q_observe, monitor)
+    monitor = PhaseMonitor(task, None)
+    move_joints(task, task.q_observe, monitor)
     obs = task.capture()
     elements, fault = call_estimator(est, _observation(task, est, obs, seed, k), timeout)
     if fault is not None:
@@ -264,7 +300,7 @@ def _attempt(task: DeclutterTask, est: Any, planner: GraspPlanner, seed: int, k:
         if why is not None:
             continue
         row["estimates"] += 1
-        T_world_obj = T_world_cam @ Pose(_orthonormal(e.R), e.t)
+        T_world_obj = T_world_cam @ Pose(orthonormal(e.R), e.t)
         inst = _instance_of(task, int(e.obj_id), T_world_obj.t)
         if inst is None:
             continue
@@ -383,7 +419,8 @@ def declutter_markdown(s: dict) -> str:
     cfg = s.get("config") or {}
     pct = lambda x: f"{100 * x:.1f}%"  # noqa: E731
     lines = ["# Clutter removal", "", f"Estimator `{cfg.get('estimator')}`, scene `{cfg.get('scene')}`, "
-             f"{cfg.get('objects_per_scene')} objects per round, objects `{cfg.get('objects')}`, seed {cfg.get('seed')}.",
+             f"{cfg.get('objects_per_scene')} objects per round, objects `{cfg.get('objects')}`, "
+             f"seed {cfg.get('seed')}.",
              "", "| rounds | objects | removed | attempts | GSR | 95% CI | DR | 95% CI |",
              "|---:|---:|---:|---:|---:|---|---:|---|",
              f"| {s['rounds']} | {s['objects']} | {s['removed']} | {s['attempts']} | {pct(s['gsr'])} | "
@@ -425,7 +462,8 @@ def run_declutter(cfg: GraspRunConfig, out_dir: str | Path | None = None, *, pro
                 print(f"round {i}: {r.removed}/{r.objects} removed in {r.attempts} attempts", file=sys.stderr)
     finally:
         task.close()
-    summary = {**summarize_rounds(rounds), "config": cfg.to_dict(),
+    summary = {**summarize_rounds(rounds), "config": {**cfg.to_dict(), "task": "declutter", "scene": cfg.scene,
+                                                      "objects_per_scene": cfg.objects_per_scene},
                "command_line": list(command_line) if command_line is not None else None}
     if out_dir is not None:
         out = Path(out_dir)

@@ -46,9 +46,9 @@ import mujoco
 
 from simtest.envs.options import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
-from simtest.envs.execution import (COLLISION_FORCE, GUARD_FORCE, _Collision, _Monitor,  # noqa: F401
-                                    _move_joints, _TableTouch, _to_pregrasp)
-from simtest.envs.recording import EpisodeRecorder as _Recorder
+from simtest.envs.execution import (COLLISION_FORCE, GUARD_FORCE, Collision, PhaseMonitor,  # noqa: F401
+                                    TableTouch, move_joints, to_pregrasp)
+from simtest.envs.recording import EpisodeRecorder
 from simtest.envs.reobserve import (FUSIONS, UPDATES, PoseFusion, ReobserveSpec, check_choice, parse_reobserve,
                                     plan_moved, waypoint)
 from simtest.envs.task import GraspTask, as_task
@@ -63,6 +63,11 @@ from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_w
                            set_gripper, tcp_pose)
 
 log = logging.getLogger(__name__)
+
+# The episode's internal names of the motion helpers (simtest.envs.execution, simtest.envs.recording).
+_Collision, _TableTouch, _Monitor = Collision, TableTouch, PhaseMonitor
+_move_joints, _to_pregrasp = move_joints, to_pregrasp
+_Recorder = EpisodeRecorder
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
            "pose_errors"]
@@ -248,7 +253,7 @@ def _no_estimate_reason(est: Any, obj_id: int, notes: list[str]) -> str:
     return "; ".join(r for r in reasons if r) or "; ".join(notes)
 
 
-def _orthonormal(R: np.ndarray) -> np.ndarray:
+def orthonormal(R: np.ndarray) -> np.ndarray:
     """The rotation nearest to ``R`` (a checked rotation, within rounding)."""
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
@@ -367,7 +372,7 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
     if chosen is None:
         result.error = why.message if why is not None else _no_estimate_reason(est, tid, notes)
         return finish("estimator_error" if why is not None and why.problem != "non-finite" else "no_estimate")
-    R_e, t_e = _orthonormal(chosen.R), chosen.t
+    R_e, t_e = orthonormal(chosen.R), chosen.t
     errs = pose_errors(obj, R_e, t_e, R_g, t_g)
     result.add_s, result.re_deg, result.re_sym_deg, result.te, result.mssd = (
         errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
@@ -384,26 +389,15 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
     result.approach_tilt_deg = float(np.degrees(planned.plan.approach_tilt))
 
     # 4. Execute, looking again on the way in when asked.
-    q_pre = None
+    plan, q_pre = planned.plan, None
     if spec.active:
-        result.stages = [_stage_row("first", True, errs, errs, False, result.visible_pixels, result.estimate_s)]
         looks = _Looks(u, est, planner, obj, PoseFusion(T_world_obj, _symmetries(obj), reobserve_fusion),
                        reobserve_update, seed, timeout, recorder, result)
         try:
-            plan, q_pre = looks.run(spec, planned.plan, monitor)
-        except _Collision as exc:
+            plan, q_pre = looks.run(spec, plan, monitor, errs)
+        except (_Collision, UnreachableError) as exc:
             result.error = str(exc)
-            return finish("collision")
-        except UnreachableError as exc:
-            result.error = str(exc)
-            return finish("ik_failure")
-        errs = looks.used_errors
-        result.add_s, result.re_deg, result.re_sym_deg, result.te, result.mssd = (
-            errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
-        result.grasp_index = plan.index
-        result.approach_tilt_deg = float(np.degrees(plan.approach_tilt))
-    else:
-        plan = planned.plan
+            return finish("collision" if isinstance(exc, _Collision) else "ik_failure")
     reason = execute_grasp(u, plan, monitor, q_pregrasp=q_pre)
     result.error = monitor.note
     return finish(reason)
@@ -439,9 +433,22 @@ class _Looks:
             self.tracker = TrackICPEstimator()
         self.used_errors: dict = {}
 
-    def run(self, spec: ReobserveSpec, plan: GraspPlan, monitor: _Monitor) -> tuple[GraspPlan, np.ndarray]:
-        """Look at every stage of ``spec`` on the way to ``plan``'s pre-grasp pose; returns the plan to execute
-        and the joint command (7,) rad at its pre-grasp pose (the arm stands there)."""
+    def run(self, spec: ReobserveSpec, plan: GraspPlan, monitor: _Monitor, first: dict
+            ) -> tuple[GraspPlan, np.ndarray]:
+        """Look at every stage of ``spec`` on the way to ``plan``'s pre-grasp pose (``first``: the first look's
+        pose errors); returns the plan to execute and the joint command (7,) rad at its pre-grasp pose (the arm
+        stands there). The result's pose errors and grasp become those of the final pose and plan."""
+        res = self.result
+        res.stages = [_stage_row("first", True, first, first, False, res.visible_pixels, res.estimate_s)]
+        plan, q = self._stages(spec, plan, monitor)
+        errs = self.used_errors
+        res.add_s, res.re_deg, res.re_sym_deg, res.te, res.mssd = (
+            errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
+        res.grasp_index = plan.index
+        res.approach_tilt_deg = float(np.degrees(plan.approach_tilt))
+        return plan, q
+
+    def _stages(self, spec: ReobserveSpec, plan: GraspPlan, monitor: _Monitor) -> tuple[GraspPlan, np.ndarray]:
         u = self.u
         d, ids = u.data, u.ids
         start = tcp_pose(d, ids)
@@ -493,7 +500,7 @@ class _Looks:
             notes = [f"{name}: {fault.message}"]
         look = None
         if chosen is not None:
-            R_e, t_e = _orthonormal(chosen.R), chosen.t
+            R_e, t_e = orthonormal(chosen.R), chosen.t
             look = pose_errors(obj, R_e, t_e, R_g, t_g)
             self.fusion.add(T_world_cam @ Pose(R_e, t_e))
         elif notes:

@@ -1,10 +1,10 @@
 """Scripted arm motion under watch: the collision monitor of an episode's phases, joint-space moves and the way
 to the pre-grasp pose (forces in newtons, lengths in metres, times in seconds).
 
-:class:`_Monitor` runs every control period: it feeds the optional recorder and, in the phases ``free``,
-``descent`` and ``approach``, raises :class:`_Collision` when the robot pushes against the table or another
+:class:`PhaseMonitor` runs every control period: it feeds the optional recorder and, in the phases ``free``,
+``descent`` and ``approach``, raises :class:`Collision` when the robot pushes against the table or another
 object harder than :data:`COLLISION_FORCE` (or touches the target before the approach), and
-:class:`_TableTouch` when the fingertips meet the table during the approach (a guarded move).
+:class:`TableTouch` when the fingertips meet the table during the approach (a guarded move).
 """
 
 from __future__ import annotations
@@ -20,22 +20,22 @@ from simtest.envs.recording import EpisodeRecorder
 from simtest.envs.task import GraspTask, as_task
 from simtest.robot import min_jerk, move_to, set_gripper, tcp_pose
 
-__all__ = ["COLLISION_FORCE", "GUARD_FORCE"]
+__all__ = ["COLLISION_FORCE", "GUARD_FORCE", "Collision", "TableTouch", "PhaseMonitor", "move_joints", "to_pregrasp"]
 
 #: Contact force (N) between the robot and the table / another object that counts as a collision.
 COLLISION_FORCE = 15.0
 #: Fingertip-table contact force (N) at which the approach stops (a guarded move) and the gripper closes.
 GUARD_FORCE = 3.0
 
-class _Collision(Exception):
+class Collision(Exception):
     pass
 
 
-class _TableTouch(Exception):
+class TableTouch(Exception):
     """The fingertips touched the table during the approach: a guarded approach stops there."""
 
 
-class _Monitor:
+class PhaseMonitor:
     """Per control period: collision checks for the current phase and the optional recorder."""
 
     def __init__(self, task: GraspTask, recorder: EpisodeRecorder | None) -> None:
@@ -69,15 +69,15 @@ class _Monitor:
             mujoco.mj_contactForce(model, data, int(i), self._force)
             if (self.phase == "approach" and np.isin(geoms[i], self._fingers).any()
                     and np.isin(geoms[i], self._table).any() and abs(self._force[0]) > GUARD_FORCE):
-                raise _TableTouch()
+                raise TableTouch()
             if abs(self._force[0]) > COLLISION_FORCE or self.phase != "approach" and np.isin(
                     geoms[i], self.task.target_geoms).any():
                 a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom {int(g)}"
                         for g in geoms[i])
-                raise _Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
+                raise Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
 
 
-def _move_joints(task: GraspTask, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
+def move_joints(task: GraspTask, q_goal: np.ndarray, monitor: PhaseMonitor, joint_speed: float = 1.0,
                  settle: float = 0.5) -> None:
     """Minimum-jerk joint-space motion of the arm to ``q_goal`` (rad), then hold until at rest."""
     task = as_task(task)
@@ -101,9 +101,9 @@ def _move_joints(task: GraspTask, q_goal: np.ndarray, monitor: _Monitor, joint_s
         monitor(m, d)
 
 
-def _to_pregrasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor) -> np.ndarray:
+def to_pregrasp(task: GraspTask, plan: GraspPlan, monitor: PhaseMonitor) -> np.ndarray:
     """Open the gripper and move the TCP straight to above the pre-grasp pose, then down to it; returns the
-    joint command (7,) rad. Raises :class:`_Collision` / :class:`UnreachableError` as the monitor and IK do."""
+    joint command (7,) rad. Raises :class:`Collision` / :class:`UnreachableError` as the monitor and IK do."""
     m, d, ids = task.model, task.data, task.ids
     monitor.phase = "free"
     set_gripper(d, ids, plan.open_width)
