@@ -39,7 +39,6 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 
 import simtest  # noqa: F401
@@ -47,17 +46,28 @@ import mujoco
 
 from simtest.envs.options import CONTROL_DT, HOLD_TIME, SUCCESS_HEIGHT
 from simtest.envs.planner import GraspPlan, GraspPlanner, observed_obstacles
+from simtest.envs.execution import (COLLISION_FORCE, GUARD_FORCE, Collision, PhaseMonitor,  # noqa: F401
+                                    TableTouch, move_joints, to_pregrasp)
+from simtest.envs.recording import EpisodeRecorder
+from simtest.envs.reobserve import (FUSIONS, UPDATES, PoseFusion, ReobserveSpec, check_choice, parse_reobserve,
+                                    plan_moved, waypoint)
 from simtest.envs.task import GraspTask, as_task
 from simtest.estimators.base import Observation, PoseEstimate, gt_access
 from simtest.estimators.registry import load_estimator
+from simtest.estimators.track_icp import TrackICPEstimator
 from simtest.estimators.guard import DEFAULT_TIMEOUT_S, InvalidEstimate, call_estimator, check_estimate, log_fault
 from simtest.geometry import Pose
 from simtest.io.bop import mask_bbox
 from simtest.metrics import pose as pose_metrics
-from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, min_jerk, move_to,
+from simtest.robot import (UnreachableError, approach, close_and_wait, gripper_width, lift_to, move_to,
                            set_gripper, tcp_pose)
 
 log = logging.getLogger(__name__)
+
+# The episode's internal names of the motion helpers (simtest.envs.execution, simtest.envs.recording).
+_Collision, _TableTouch, _Monitor = Collision, TableTouch, PhaseMonitor
+_move_joints, _to_pregrasp = move_joints, to_pregrasp
+_Recorder = EpisodeRecorder
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
            "pose_errors"]
@@ -65,11 +75,6 @@ __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode",
 #: Every failure reason an episode can end with ("none" = success).
 FAILURE_REASONS = ("none", "no_estimate", "no_feasible_grasp", "ik_failure", "missed", "slipped", "collision",
                    "estimator_error", "estimator_timeout")
-#: Contact force (N) between the robot and the table / another object that counts as a collision.
-COLLISION_FORCE = 15.0
-#: Fingertip-table contact force (N) at which the approach stops (a guarded move) and the gripper closes.
-GUARD_FORCE = 3.0
-
 _SYMMETRY_CACHE: dict[str, np.ndarray] = {}
 
 
@@ -107,6 +112,9 @@ class EpisodeResult:
             simulator's geometry) or ``"observed"`` (the observation's depth image).
         trace: The estimator's full traceback (not written to ``episodes.csv``; ``--fail-fast`` prints it).
         frames: Video frames (third-person | wrist), only when recording.
+        stages: With re-observation, one record per look (``first``, ``approach k``, ``pregrasp``): its own
+            pose errors and those of the pose used after it (:data:`simtest.envs.reobserve.STAGE_COLUMNS`);
+            empty without (not in ``episodes.csv``).
     """
 
     seed: int | None
@@ -134,135 +142,19 @@ class EpisodeResult:
     planner_obstacles: str = "sim"
     trace: str = field(default="", repr=False)
     frames: list = field(default=None, repr=False)  # type: ignore[assignment]
+    stages: list = field(default_factory=list, repr=False)
 
     def to_row(self) -> dict[str, Any]:
         """The scalar fields, for a CSV row."""
         row = asdict(self)
         row.pop("frames")
+        row.pop("stages")
         return row
 
 
-class _Collision(Exception):
-    pass
-
-
-class _TableTouch(Exception):
-    """The fingertips touched the table during the approach: a guarded approach stops there."""
-
-
-class _Recorder:
-    """Collects third-person | wrist frames every ``every`` control periods. Once ``T_world_obj_est`` (4x4,
-    metres) is set, the wrist image shows the target's true frame (thick axes, x red, y green, z blue) and
-    the estimated one (thin axes), projected into the current wrist camera."""
-
-    def __init__(self, task: GraspTask, every: int = 2) -> None:
-        self.task = as_task(task)
-        self.every = max(1, int(every))
-        self.frames: list[np.ndarray] = []
-        self._k = 0
-        self.T_world_obj_est: np.ndarray | None = None
-
-    def _draw_frames(self, wrist: np.ndarray) -> None:
-        """The true and estimated target axes on ``wrist`` (the wrist image, possibly resized)."""
-        task = self.task
-        cam = task.camera_model()
-        sx, sy = wrist.shape[1] / cam.width, wrist.shape[0] / cam.height
-        K = np.diag([sx, sy, 1.0]) @ cam.K  # pixel centres stay at integers: c' = s (c + 0.5) - 0.5
-        K[0, 2], K[1, 2] = sx * (cam.K[0, 2] + 0.5) - 0.5, sy * (cam.K[1, 2] + 0.5) - 0.5
-        T_cam_world = cam.T_cam_world.matrix()
-        axes = np.vstack([np.zeros(3), np.eye(3) * 0.5 * float(np.max(task.target_obj.size))])
-        for T, width in ((task.object_poses_world()[0], 3), (self.T_world_obj_est, 1)):
-            p = axes @ (T_cam_world @ T)[:3, :3].T + (T_cam_world @ T)[:3, 3]
-            if (p[:, 2] <= 1e-3).any():
-                continue
-            uv = np.clip(np.round((p @ K.T)[:, :2] / p[:, 2:] * 16), -2 ** 20, 2 ** 20).astype(int)
-            for k, col in enumerate(((230, 30, 30), (30, 200, 30), (40, 90, 255))):
-                cv2.line(wrist, tuple(uv[0]), tuple(uv[k + 1]), col, width, cv2.LINE_AA, 4)
-
-    def __call__(self, force: bool = False) -> None:
-        self._k += 1
-        if not force and (self._k - 1) % self.every:
-            return
-        task = self.task
-        tp = task.render_third_person()
-        wrist = task.render_wrist_rgb()
-        if wrist.shape[0] != tp.shape[0]:
-            scale = tp.shape[0] / wrist.shape[0]
-            wrist = cv2.resize(wrist, (int(round(wrist.shape[1] * scale)), tp.shape[0]))
-        if self.T_world_obj_est is not None:
-            wrist = np.array(wrist)
-            self._draw_frames(wrist)
-        self.frames.append(np.concatenate([tp, wrist], axis=1))
-
-
-class _Monitor:
-    """Per control period: collision checks for the current phase and the optional recorder."""
-
-    def __init__(self, task: GraspTask, recorder: _Recorder | None) -> None:
-        self.task = task = as_task(task)
-        self.recorder = recorder
-        self.phase = "free"
-        self.note = ""
-        self._force = np.zeros(6)
-        ids = task.ids
-        self._robot = ids.robot_geoms
-        self._fingers = ids.finger_geoms
-        self._table = np.array([g for g in range(task.model.ngeom) if (mujoco.mj_id2name(
-            task.model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith("table")])
-
-    def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        if self.recorder is not None:
-            self.recorder()
-        if self.phase in ("free", "descent", "approach"):
-            self._check(model, data)
-
-    def _check(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        n = data.ncon
-        if n == 0:
-            return
-        geoms = np.asarray(data.contact.geom[:n])
-        robot = np.isin(geoms, self._robot)
-        cand = robot[:, 0] ^ robot[:, 1]
-        if self.phase == "approach":
-            cand &= ~np.isin(geoms, self.task.target_geoms).any(axis=1)
-        for i in np.flatnonzero(cand):
-            mujoco.mj_contactForce(model, data, int(i), self._force)
-            if (self.phase == "approach" and np.isin(geoms[i], self._fingers).any()
-                    and np.isin(geoms[i], self._table).any() and abs(self._force[0]) > GUARD_FORCE):
-                raise _TableTouch()
-            if abs(self._force[0]) > COLLISION_FORCE or self.phase != "approach" and np.isin(
-                    geoms[i], self.task.target_geoms).any():
-                a, b = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom {int(g)}"
-                        for g in geoms[i])
-                raise _Collision(f"{self.phase}: {a} - {b}, {abs(self._force[0]):.1f} N")
-
-
-def _move_joints(task: GraspTask, q_goal: np.ndarray, monitor: _Monitor, joint_speed: float = 1.0,
-                 settle: float = 0.5) -> None:
-    """Minimum-jerk joint-space motion of the arm to ``q_goal`` (rad), then hold until at rest."""
-    task = as_task(task)
-    m, d, ids = task.model, task.data, task.ids
-    q0 = d.ctrl[ids.arm_actuators].copy()
-    duration = max(0.5, float(np.abs(q_goal - q0).max()) / joint_speed * 1.875)  # peak speed of min-jerk
-    n = max(1, int(round(duration / CONTROL_DT)))
-    lead = task.servo_lead
-    q_prev = q0
-    for k in range(1, n + 1):
-        q = q0 + min_jerk(k / n) * (q_goal - q0)
-        d.ctrl[ids.arm_actuators] = q + lead * (q - q_prev) / CONTROL_DT
-        q_prev = q
-        task.advance(CONTROL_DT)
-        monitor(m, d)
-    d.ctrl[ids.arm_actuators] = q_goal
-    for _ in range(int(round(settle / CONTROL_DT))):
-        if np.abs(d.qvel[ids.arm_dof]).max() < 0.01 and np.abs(d.qpos[ids.arm_qpos] - q_goal).max() < 2e-3:
-            break
-        task.advance(CONTROL_DT)
-        monitor(m, d)
-
-
 def execute_grasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor | None = None, *, approach_speed: float = 0.08,
-                  close_time: float = 0.6, hold: float = HOLD_TIME) -> str:
+                  close_time: float = 0.6, hold: float = HOLD_TIME,
+                  q_pregrasp: np.ndarray | None = None) -> str:
     """Execute a planned grasp on ``task``'s physics: pre-grasp, approach, close, lift, hold.
 
     The approach, closing and lift are the phases of the scripted grasp (:func:`simtest.robot.approach`,
@@ -276,6 +168,8 @@ def execute_grasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor | None = N
         approach_speed: Mean TCP speed of the straight approach and lift, m/s.
         close_time: Time given to the gripper to close, s.
         hold: Hold time at the top, s.
+        q_pregrasp: The arm's joint command (7,) rad when it already stands at ``plan``'s pre-grasp pose (after
+            a re-observation there); None moves it there first.
 
     Returns:
         ``"none"`` on success, else ``"collision"``, ``"ik_failure"``, ``"missed"`` or ``"slipped"``.
@@ -284,18 +178,7 @@ def execute_grasp(task: GraspTask, plan: GraspPlan, monitor: _Monitor | None = N
     m, d, ids = task.model, task.data, task.ids
     monitor = monitor or _Monitor(task, None)
     try:
-        monitor.phase = "free"
-        set_gripper(d, ids, plan.open_width)
-        # A straight line from the observation pose (high above the table) to above the pre-grasp keeps the
-        # hand over the objects; joint-space interpolation could swing it through them.
-        start = tcp_pose(d, ids)
-        dist = float(np.linalg.norm(plan.above.t - start.t))
-        q = move_to(m, d, ids, plan.above, max(1.0, dist / 0.2), q_ref=d.ctrl[ids.arm_actuators].copy(),
-                    settle=0.3, callback=monitor)
-        monitor.phase = "descent"
-        if float(np.linalg.norm(plan.above.t - plan.pregrasp.t)) > 1e-4:
-            dist = float(np.linalg.norm(plan.above.t - plan.pregrasp.t))
-            q = move_to(m, d, ids, plan.pregrasp, max(0.5, dist / 0.15), q_ref=q, settle=0.3, callback=monitor)
+        q = _to_pregrasp(task, plan, monitor) if q_pregrasp is None else q_pregrasp
         monitor.phase = "approach"
         dist = float(np.linalg.norm(plan.grasp.t - plan.pregrasp.t))
         try:
@@ -370,15 +253,42 @@ def _no_estimate_reason(est: Any, obj_id: int, notes: list[str]) -> str:
     return "; ".join(r for r in reasons if r) or "; ".join(notes)
 
 
-def _orthonormal(R: np.ndarray) -> np.ndarray:
+def orthonormal(R: np.ndarray) -> np.ndarray:
     """The rotation nearest to ``R`` (a checked rotation, within rounding)."""
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
 
 
+def _observation(u: GraspTask, est: Any, obs: dict, seed: int | None, im_id: int, prior: tuple | None = None
+                 ) -> tuple[Observation, np.ndarray, np.ndarray, np.ndarray]:
+    """The estimator's :class:`Observation` of the capture ``obs`` (look ``im_id`` of the episode), the target's
+    visible mask and its ground-truth ``(R, t)`` in the camera frame at the capture. With ``prior`` (a ``(R, t)``
+    in this camera frame) the observation starts a track there (``track_ids``, ``init_poses``)."""
+    info = u.current_info()
+    mask = u.target_mask()
+    tid = int(u.target_obj.obj_id)
+    T_cam_obj_gt = info["T_cam_obj"][u.grasp_scene.target_instance]
+    R_g, t_g = T_cam_obj_gt[:3, :3], T_cam_obj_gt[:3, 3]
+    box = tuple(mask_bbox(mask)) if mask.any() else (0, 0, 0, 0)  # BOP's bbox_visib convention
+    gt_masks, needs_gt = gt_access(est)
+    observation = Observation(
+        rgb=obs["rgb"], depth=obs["depth"], K=obs["K"], width=u.width, height=u.height, objects=u.objects,
+        target_obj_ids=(tid,), masks=(mask,) if gt_masks else None, boxes=(box,) if gt_masks else None,
+        gt_poses=((R_g.copy(), t_g.copy()),) if needs_gt else None,
+        scene_id=int(seed) if seed is not None else 0, im_id=im_id,
+        **({} if prior is None else {"frame_index": 0, "track_ids": (0,), "init_poses": (prior,)}))
+    return observation, mask, R_g, t_g
+
+
+def _T_world_cam(u: GraspTask, obs: dict) -> Pose:
+    """``T_world_cam`` of the capture ``obs`` (m)."""
+    return Pose.from_matrix(u.current_info()["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])
+
+
 def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None, seed: int | None = None,
                 options: dict | None = None, *, record: bool = False, record_every: int = 2,
-                timeout: float | None = DEFAULT_TIMEOUT_S) -> EpisodeResult:
+                timeout: float | None = DEFAULT_TIMEOUT_S, reobserve: str | ReobserveSpec = "none",
+                reobserve_update: str = "estimate", reobserve_fusion: str = "mean") -> EpisodeResult:
     """Run one closed-loop episode (see the module docstring).
 
     Args:
@@ -398,12 +308,20 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
         record_every: Record every n-th control period (2 -> 10 frames per simulated second).
         timeout: Time limit of the estimator call, seconds (``None`` or 0: none); over it the episode ends
             as ``estimator_timeout``.
+        reobserve: Looks on the way in (:func:`~simtest.envs.reobserve.parse_reobserve`): ``"none"``,
+            ``"pregrasp"`` or ``"approach:K"``; every look's pose errors go to ``EpisodeResult.stages``.
+        reobserve_update, reobserve_fusion: How a look updates the pose
+            (:data:`~simtest.envs.reobserve.UPDATES`, :data:`~simtest.envs.reobserve.FUSIONS`).
 
     Returns:
         An :class:`EpisodeResult`; estimator failures (exceptions, ``sys.exit``, timeouts, invalid return
-        values) are recorded, never raised. ``KeyboardInterrupt`` propagates.
+        values) are recorded, never raised. ``KeyboardInterrupt`` propagates. With re-observation, the pose
+        errors of the result are those of the pose the grasp was finally planned from.
     """
     t_start = time.perf_counter()
+    spec = parse_reobserve(reobserve)
+    check_choice("reobserve_update", reobserve_update, UPDATES)
+    check_choice("reobserve_fusion", reobserve_fusion, FUSIONS)
     u = as_task(task)
     est = load_estimator(estimator)
     planner = planner or GraspPlanner()
@@ -438,18 +356,8 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
         result.error = str(exc)
         return finish("collision")
     obs = u.capture()
-    info = u.current_info()
-    mask = u.target_mask()
+    observation, mask, R_g, t_g = _observation(u, est, obs, seed, 0)
     result.visible_pixels = int(mask.sum())
-    T_cam_obj_gt = info["T_cam_obj"][u.grasp_scene.target_instance]
-    R_g, t_g = T_cam_obj_gt[:3, :3], T_cam_obj_gt[:3, 3]
-    box = tuple(mask_bbox(mask)) if mask.any() else (0, 0, 0, 0)  # BOP's bbox_visib convention
-    gt_masks, needs_gt = gt_access(est)
-    observation = Observation(
-        rgb=obs["rgb"], depth=obs["depth"], K=obs["K"], width=u.width, height=u.height, objects=u.objects,
-        target_obj_ids=(tid,), masks=(mask,) if gt_masks else None, boxes=(box,) if gt_masks else None,
-        gt_poses=((R_g.copy(), t_g.copy()),) if needs_gt else None,
-        scene_id=int(seed) if seed is not None else 0, im_id=0)
 
     # 2. Estimate.
     t0 = time.perf_counter()
@@ -464,14 +372,13 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
     if chosen is None:
         result.error = why.message if why is not None else _no_estimate_reason(est, tid, notes)
         return finish("estimator_error" if why is not None and why.problem != "non-finite" else "no_estimate")
-    R_e, t_e = _orthonormal(chosen.R), chosen.t
+    R_e, t_e = orthonormal(chosen.R), chosen.t
     errs = pose_errors(obj, R_e, t_e, R_g, t_g)
     result.add_s, result.re_deg, result.re_sym_deg, result.te, result.mssd = (
         errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
 
     # 3. Plan from the estimated pose, camera -> base -> world.
-    T_world_obj = (Pose.from_matrix(info["T_world_base"]) @ Pose.from_matrix(obs["T_base_cam"])
-                   @ Pose(R_e, t_e))
+    T_world_obj = _T_world_cam(u, obs) @ Pose(R_e, t_e)
     if recorder is not None:
         recorder.T_world_obj_est = T_world_obj.matrix()
     points = (observed_obstacles(u, obs, obj, T_world_obj) if planner.obstacles == "observed" else None)
@@ -481,7 +388,130 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
     result.grasp_index = planned.plan.index
     result.approach_tilt_deg = float(np.degrees(planned.plan.approach_tilt))
 
-    # 4. Execute.
-    reason = execute_grasp(u, planned.plan, monitor)
+    # 4. Execute, looking again on the way in when asked.
+    plan, q_pre = planned.plan, None
+    if spec.active:
+        looks = _Looks(u, est, planner, obj, PoseFusion(T_world_obj, _symmetries(obj), reobserve_fusion),
+                       reobserve_update, seed, timeout, recorder, result)
+        try:
+            plan, q_pre = looks.run(spec, plan, monitor, errs)
+        except (_Collision, UnreachableError) as exc:
+            result.error = str(exc)
+            return finish("collision" if isinstance(exc, _Collision) else "ik_failure")
+    reason = execute_grasp(u, plan, monitor, q_pregrasp=q_pre)
     result.error = monitor.note
     return finish(reason)
+
+
+def _symmetries(obj) -> np.ndarray:
+    key = obj.mesh_hash
+    if key not in _SYMMETRY_CACHE:
+        _SYMMETRY_CACHE[key] = obj.symmetry_transforms()
+    return _SYMMETRY_CACHE[key]
+
+
+def _stage_row(stage: str, found: bool, look: dict | None, used: dict, replanned: bool, visible: int,
+               estimate_s: float) -> dict:
+    """One look's record (:data:`~simtest.envs.reobserve.STAGE_COLUMNS` less the episode's own columns)."""
+    nan = float("nan")
+    return {"stage": stage, "found": found, "add_s": look["add_s"] if look else nan,
+            "re_sym_deg": look["re_sym_deg"] if look else nan, "te": look["te"] if look else nan,
+            "used_add_s": used["add_s"], "used_re_sym_deg": used["re_sym_deg"], "used_te": used["te"],
+            "replanned": replanned, "visible_pixels": int(visible), "estimate_s": float(estimate_s)}
+
+
+class _Looks:
+    """The re-observations of one episode (:mod:`simtest.envs.reobserve`): move, capture, update the pose,
+    re-plan; the stage records go to ``result.stages``."""
+
+    def __init__(self, u: GraspTask, est: Any, planner: GraspPlanner, obj, fusion: PoseFusion, update: str,
+                 seed: int | None, timeout: float | None, recorder: _Recorder | None, result: EpisodeResult) -> None:
+        self.u, self.est, self.planner, self.obj, self.fusion = u, est, planner, obj, fusion
+        self.update, self.seed, self.timeout, self.recorder, self.result = update, seed, timeout, recorder, result
+        self.tracker = None
+        if update == "track" and not callable(getattr(est, "track", None)):
+            self.tracker = TrackICPEstimator()
+        self.used_errors: dict = {}
+
+    def run(self, spec: ReobserveSpec, plan: GraspPlan, monitor: _Monitor, first: dict
+            ) -> tuple[GraspPlan, np.ndarray]:
+        """Look at every stage of ``spec`` on the way to ``plan``'s pre-grasp pose (``first``: the first look's
+        pose errors); returns the plan to execute and the joint command (7,) rad at its pre-grasp pose (the arm
+        stands there). The result's pose errors and grasp become those of the final pose and plan."""
+        res = self.result
+        res.stages = [_stage_row("first", True, first, first, False, res.visible_pixels, res.estimate_s)]
+        plan, q = self._stages(spec, plan, monitor)
+        errs = self.used_errors
+        res.add_s, res.re_deg, res.re_sym_deg, res.te, res.mssd = (
+            errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
+        res.grasp_index = plan.index
+        res.approach_tilt_deg = float(np.degrees(plan.approach_tilt))
+        return plan, q
+
+    def _stages(self, spec: ReobserveSpec, plan: GraspPlan, monitor: _Monitor) -> tuple[GraspPlan, np.ndarray]:
+        u = self.u
+        d, ids = u.data, u.ids
+        start = tcp_pose(d, ids)
+        q = d.ctrl[ids.arm_actuators].copy()
+        at_pre = False
+        for k, (name, frac) in enumerate(spec.stages(), start=1):
+            if frac < 1.0:
+                monitor.phase = "free"
+                set_gripper(d, ids, plan.open_width)
+                goal = waypoint(start, plan.above, frac)
+                dist = float(np.linalg.norm(goal.t - tcp_pose(d, ids).t))
+                q = move_to(u.model, d, ids, goal, max(0.5, dist / 0.2), q_ref=q, settle=0.3, callback=monitor)
+            else:
+                q = _to_pregrasp(u, plan, monitor)
+                at_pre = True
+            new = self._look(name, k, plan)
+            if new is not None and plan_moved(plan, new):
+                plan, at_pre = new, False
+                self.result.stages[-1]["replanned"] = True
+        if not at_pre:
+            q = _to_pregrasp(u, plan, monitor)
+        return plan, q
+
+    def _estimate(self, obs: dict, k: int) -> tuple[list, Any, np.ndarray, np.ndarray, np.ndarray, float]:
+        u, est = self.u, self.est
+        T_cam_world = _T_world_cam(u, obs).inverse()
+        prior = None
+        if self.update == "track":
+            P = T_cam_world @ self.fusion.pose
+            prior = (P.R.copy(), P.t.copy())
+        observation, mask, R_g, t_g = _observation(u, est, obs, self.seed, k, prior)
+        t0 = time.perf_counter()
+        if self.update == "track" and self.tracker is None:
+            elements, fault = call_estimator(lambda o: est.track(o, prior), observation, self.timeout)
+        else:
+            elements, fault = call_estimator(self.tracker or est, observation, self.timeout)
+        return elements, fault, mask, R_g, t_g, time.perf_counter() - t0
+
+    def _look(self, name: str, k: int, plan: GraspPlan) -> GraspPlan | None:
+        """Capture look ``k``, update the pose, re-plan; the new plan (None: none feasible or no estimate)."""
+        u, obj, res = self.u, self.obj, self.result
+        obs = u.capture()
+        elements, fault, mask, R_g, t_g, dt = self._estimate(obs, k)
+        T_world_cam = _T_world_cam(u, obs)
+        chosen = None
+        if fault is None:
+            chosen, _, notes = _pick_estimate(elements, int(obj.obj_id), set(u.objects.ids))
+        else:
+            notes = [f"{name}: {fault.message}"]
+        look = None
+        if chosen is not None:
+            R_e, t_e = orthonormal(chosen.R), chosen.t
+            look = pose_errors(obj, R_e, t_e, R_g, t_g)
+            self.fusion.add(T_world_cam @ Pose(R_e, t_e))
+        elif notes:
+            res.warnings = "; ".join(x for x in (res.warnings, f"{name}: no estimate ({'; '.join(notes)})") if x)
+        used = T_world_cam.inverse() @ self.fusion.pose
+        self.used_errors = pose_errors(obj, used.R, used.t, R_g, t_g)
+        res.stages.append(_stage_row(name, chosen is not None, look, self.used_errors, False, int(mask.sum()), dt))
+        if chosen is None:
+            return None
+        if self.recorder is not None:
+            self.recorder.T_world_obj_est = self.fusion.pose.matrix()
+        points = (observed_obstacles(u, obs, obj, self.fusion.pose) if self.planner.obstacles == "observed"
+                  else None)
+        return self.planner.plan(u, obj, self.fusion.pose, obstacle_points=points).plan

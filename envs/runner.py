@@ -13,7 +13,9 @@ the episodes that finished, lists the lost ones in ``summary.json`` (``run.lost_
 
 from __future__ import annotations
 
+import csv
 import functools
+import math
 import importlib
 import sys
 import time
@@ -30,6 +32,8 @@ from simtest.envs.episode import run_episode
 from simtest.envs.observation import ObservationModel, resolve_depth_sensor
 from simtest.envs.options import CONTROL_DT, EpisodeConfig, load_objects
 from simtest.envs.planner import OBSTACLE_SOURCES, GraspPlanner
+from simtest.envs.reobserve import (FUSIONS, STAGE_COLUMNS, UPDATES, check_choice, parse_reobserve, stage_markdown,
+                                    stage_table)
 from simtest.envs.task import GraspTask
 from simtest.errors import ConfigError, EstimatorError
 from simtest.estimators.base import estimator_label
@@ -104,6 +108,14 @@ class GraspRunConfig:
         planner_obstacles: Where the grasp planner's collision check takes the obstacles from
             (:data:`simtest.envs.planner.OBSTACLE_SOURCES`): ``"sim"`` (the simulator's geometry) or
             ``"observed"`` (only what the observation's depth image shows; the table stays known).
+        reobserve: Looks on the way in: ``"none"``, ``"pregrasp"`` or ``"approach:K"``
+            (:mod:`simtest.envs.reobserve`); with looks, ``stages.csv`` and a per-stage error table are written.
+        reobserve_update, reobserve_fusion: How a look updates the pose (``"estimate"`` | ``"track"``) and how the
+            looks are combined (``"mean"`` | ``"latest"``).
+        task: ``"single"`` (one target per episode) or ``"declutter"`` (clutter removal rounds,
+            :mod:`simtest.envs.declutter`; ``episodes`` counts rounds).
+        scene: With ``task="declutter"``: ``"pile"`` or ``"packed"``.
+        objects_per_scene: With ``task="declutter"``: objects on the table at the start of a round.
     """
 
     estimator: str = "oracle"
@@ -130,6 +142,12 @@ class GraspRunConfig:
     timeout: float | None = DEFAULT_TIMEOUT_S
     fail_fast: bool = False
     planner_obstacles: str = "sim"
+    reobserve: str = "none"
+    reobserve_update: str = "estimate"
+    reobserve_fusion: str = "mean"
+    task: str = "single"
+    scene: str = "pile"
+    objects_per_scene: int = 5
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -141,7 +159,15 @@ class GraspRunConfig:
         return opts
 
     def to_dict(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        """The fields as plain values; those of :data:`LATER_FIELDS` only when they differ from their
+        defaults (so the records of plain runs stay as they were)."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()
+                if k not in LATER_FIELDS or v != LATER_FIELDS[k]}
+
+
+#: Fields written into records only when not at these defaults (see :meth:`GraspRunConfig.to_dict`).
+LATER_FIELDS = {"reobserve": "none", "reobserve_update": "estimate", "reobserve_fusion": "mean", "task": "single",
+                "scene": "pile", "objects_per_scene": 5}
 
 
 @dataclass
@@ -209,8 +235,11 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
     record = bool(cfg.video and ctx["out"] is not None and index < cfg.video_episodes)
     res = run_episode(ctx["task"], ctx["estimator"], ctx["planner"], seed=seed,
                       options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
-                      timeout=cfg.timeout)
+                      timeout=cfg.timeout, reobserve=cfg.reobserve, reobserve_update=cfg.reobserve_update,
+                      reobserve_fusion=cfg.reobserve_fusion)
     row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
+    if res.stages:
+        row["stages"] = res.stages
     if record and res.frames:
         path = Path(ctx["out"]) / "videos" / f"episode_{index:04d}_{res.target_name}_{res.reason}.gif"
         video_files.write_video(res.frames, path, fps=1.0 / (CONTROL_DT * RECORD_EVERY))  # real time
@@ -245,6 +274,9 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
         raise ConfigError(f"seed must be >= 0, got {cfg.seed!r}")
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
+    parse_reobserve(cfg.reobserve)
+    check_choice("GraspRunConfig.reobserve_update", cfg.reobserve_update, UPDATES)
+    check_choice("GraspRunConfig.reobserve_fusion", cfg.reobserve_fusion, FUSIONS)
     resolve_depth_sensor(cfg.depth_sensor)  # a bad name fails here, listing the sensors
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
     out = None if out_dir is None else Path(out_dir)
@@ -276,8 +308,13 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     summary["run"] = {**stats.record(cfg.workers), "backend": cfg.backend, "ray_address": cfg.ray_address,
                       "retried": stats.retried, "lost_episodes": sorted(f.unit for f in stats.failures)}
     report = GraspRunReport(rows, summary, out, stats)
+    if parse_reobserve(cfg.reobserve).active:
+        summary["stages"] = write_stage_outputs(rows, out)
     if out is not None:
         run_summary.write_run_outputs(report.rows, report.summary, out)
+        if "stages" in summary:
+            with (out / "summary.md").open("a", encoding="utf-8") as f:
+                f.write("\n## Pose error per look\n\n" + stage_markdown(summary["stages"]))
     if lost is not None:
         ids = summary["run"]["lost_episodes"]
         raise BackendError(f"{len(ids)} of {cfg.episodes} episodes were lost with their workers more than "
@@ -343,3 +380,15 @@ def _tick(bar, rows: list[dict]) -> None:
     bar.update(1)
 
 
+def write_stage_outputs(rows: list[dict], out: Path | None) -> list[dict]:
+    """The per-stage error table of a run with re-observation (:func:`simtest.envs.reobserve.stage_table`); with
+    ``out``, every look as a row of ``stages.csv`` (:data:`~simtest.envs.reobserve.STAGE_COLUMNS`; m, deg)."""
+    looks = [{"episode": r["episode"], "seed": r["seed"], "target_name": r["target_name"], **st}
+             for r in rows for st in r.get("stages", ())]
+    if out is not None:
+        with (out / "stages.csv").open("w", newline="", encoding="utf-8") as f:
+            w = csv.DictWriter(f, fieldnames=STAGE_COLUMNS, extrasaction="ignore")
+            w.writeheader()
+            for r in looks:
+                w.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()})
+    return stage_table(looks)

@@ -56,6 +56,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty --out, replacing its results")
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
     p.add_argument("--video-episodes", type=int, default=5, help="how many episodes get a clip (default 5)")
+    p.add_argument("--reobserve", default="none", metavar="none|pregrasp|approach:K",
+                   help="look again on the way in: none (default), pregrasp (once at the pre-grasp pose) or "
+                        "approach:K (K looks on the way there, then one at the pre-grasp pose); writes stages.csv "
+                        "and a per-look pose-error table")
+    p.add_argument("--reobserve-update", default="estimate", choices=["estimate", "track"],
+                   help="how a new look updates the pose: the estimator again (default) or a tracker warm-started "
+                        "from the pose so far (the estimator's own track() if it has one, else track-icp)")
+    p.add_argument("--reobserve-fusion", default="mean", choices=["mean", "latest"],
+                   help="how the looks are combined: mean of every look in the world frame (default) or the latest")
+    p.add_argument("--task", default="single", choices=["single", "declutter"],
+                   help="single: one target per episode (default); declutter: clutter removal rounds (objects "
+                        "picked one after another until the table is clear; --episodes counts rounds)")
+    p.add_argument("--scene", default="pile", choices=["pile", "packed"],
+                   help="declutter scene: pile (dropped from a box) or packed (upright, side by side)")
+    p.add_argument("--objects-per-scene", type=int, default=5, help="declutter: objects per round (default 5)")
     add_fault_options(p, "episode", "an episode over it ends as 'estimator_timeout' and the run goes on",
                       "exit code 1 if the estimator failed in every episode")
     p.set_defaults(func=run)
@@ -93,7 +108,16 @@ def run(args: argparse.Namespace) -> int:
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, backend=args.backend or "local", ray_address=args.ray_address, video=args.video,
         video_episodes=args.video_episodes, timeout=args.timeout,
-        fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles)
+        fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles,
+        reobserve=args.reobserve, reobserve_update=args.reobserve_update, reobserve_fusion=args.reobserve_fusion,
+        task=args.task, scene=args.scene, objects_per_scene=args.objects_per_scene)
+    if cfg.task == "declutter":
+        from simtest.envs.declutter import run_declutter
+
+        result = run_declutter(cfg, args.out, progress=not args.quiet, command_line=["simtest", *sys.argv[1:]])
+        print(result.table())
+        print(f"wrote {args.out}/rounds.csv, attempts.csv, summary.json, summary.md")
+        return 0
     try:
         report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
                                     command_line=["simtest", *sys.argv[1:]])
@@ -103,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(report.run.summary(), file=sys.stderr)
     print(report.table())
+    if "stages" in report.summary:
+        from simtest.envs.reobserve import stage_markdown
+
+        print(stage_markdown(report.summary["stages"]))
     print(f"wrote {args.out}/episodes.csv, summary.json, summary.md")
     if report.all_estimator_faults():
         print(f"simtest grasp: error: {report.failure_summary()}; see {args.out}/episodes.csv", file=sys.stderr)
