@@ -21,7 +21,7 @@ from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
 
-__all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space",
+__all__ = ["Capture", "ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space",
            "capture_images", "T_world_cam_matrix", "observation_dict"]
 
 #: Depth sensor names the env takes: the exact depth, or a stereo preset.
@@ -29,6 +29,25 @@ DEPTH_SENSORS: tuple[str, ...] = ("none", *STEREO_PRESETS)
 
 #: Spawn-key entry of the sensor's stream below the episode's corruption stream.
 SENSOR_STREAM = 0x5E45
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One wrist-camera capture of an episode, kept for writing (:mod:`simtest.envs.observation_record`).
+
+    Attributes:
+        frame: The clean render (rgb, exact planar depth in metres, segmentation).
+        rgb: The observation's (H, W, 3) uint8 image, as the estimator saw it (corrupted if asked).
+        depth: The observation's (H, W) float32 depth, metres (sensed or exact; 0 = no measurement).
+        camera: The wrist camera at the capture (intrinsics and ``T_world_cam``, OpenCV).
+        state: The scene's instances at the capture (:meth:`simtest.generators.builder.SimScene.state`).
+    """
+
+    frame: Any
+    rgb: np.ndarray
+    depth: np.ndarray
+    camera: Any
+    state: Any
 
 
 def resolve_depth_sensor(name: str | None) -> StereoSensor | None:

@@ -25,9 +25,11 @@ from typing import Any, Sequence
 from tqdm import tqdm
 
 from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
+from simtest.camera import CameraModel
 from simtest.envs import summary as run_summary
 from simtest.envs.episode import run_episode
 from simtest.envs.observation import ObservationModel, resolve_depth_sensor
+from simtest.envs.observation_record import OBSERVATIONS_FOLDER, write_observation_models, write_observation_scene
 from simtest.envs.options import CONTROL_DT, EpisodeConfig, load_objects
 from simtest.envs.planner import OBSTACLE_SOURCES, GraspPlanner
 from simtest.envs.task import GraspTask
@@ -104,6 +106,11 @@ class GraspRunConfig:
         planner_obstacles: Where the grasp planner's collision check takes the obstacles from
             (:data:`simtest.envs.planner.OBSTACLE_SOURCES`): ``"sim"`` (the simulator's geometry) or
             ``"observed"`` (only what the observation's depth image shows; the table stays known).
+        looks: Dress every scene in the generator's looks (materials, prints, environment, lights), as datasets
+            are drawn (default); False: the plain look of earlier releases. Poses and masks are the same either
+            way (:mod:`simtest.envs.looks`).
+        save_observations: Write every episode's wrist captures as a BOP dataset in ``OUT/observations``
+            (:mod:`simtest.envs.observation_record`), for ``simtest eval`` and ``simtest show``.
     """
 
     estimator: str = "oracle"
@@ -130,6 +137,9 @@ class GraspRunConfig:
     timeout: float | None = DEFAULT_TIMEOUT_S
     fail_fast: bool = False
     planner_obstacles: str = "sim"
+    # How the wrist camera's scenes look, and what is kept of its captures.
+    looks: bool = True
+    save_observations: bool = False
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -196,7 +206,10 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     task = GraspTask(width=cfg.width, height=cfg.height, episode={"objects": cfg.objects},
                      observation=ObservationModel(depth_sensor=cfg.depth_sensor), object_units=cfg.units,
-                     object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
+                     object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240),
+                     looks=cfg.looks)
+    if cfg.save_observations and out_dir is not None:
+        task.captures = []
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
     return {"cfg": cfg, "task": task, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
             "planner": GraspPlanner(obstacles=cfg.planner_obstacles), "label": estimator_label(cfg.estimator, est)}
@@ -211,6 +224,10 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
                       options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
                       timeout=cfg.timeout)
     row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
+    if ctx["task"].captures is not None:
+        task = ctx["task"]
+        root = Path(ctx["out"]) / OBSERVATIONS_FOLDER
+        write_observation_scene(task.captures, task.objects, root, index, task.depth_sensor != "none")
     if record and res.frames:
         path = Path(ctx["out"]) / "videos" / f"episode_{index:04d}_{res.target_name}_{res.reason}.gif"
         video_files.write_video(res.frames, path, fps=1.0 / (CONTROL_DT * RECORD_EVERY))  # real time
@@ -250,6 +267,9 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+        if cfg.save_observations:
+            write_observation_models(load_objects(cfg.objects, cfg.units, cfg.scale),
+                                     CameraModel.default(cfg.width, cfg.height), out / OBSERVATIONS_FOLDER)
     t0 = time.perf_counter()
     rows: list[dict] = []
     bar = None

@@ -18,7 +18,10 @@ One episode::
 Random streams: :meth:`reset` seeds the task's generator (``seed``) or continues it (``seed=None``) and spawns
 the episode's independent streams from it in a fixed order: scene layout, occluder, observation (corruption;
 the depth sensor draws from a child of the observation stream, :func:`~simtest.envs.observation.sensor_stream`).
-A stream added later is spawned after these, so the existing ones (and their bytes) stay as they are.
+A stream added later is spawned after these, so the existing ones (and their bytes) stay as they are. The
+episode's looks (``looks=True``) come from the scene stream's appearance stream
+(:func:`simtest.envs.looks.looks_stream`, derived without drawing from it), so they change no pose, mask or
+depth of the scene: the same seed gives the same scene with and without looks, in other colours.
 
 Every capture (:meth:`observe`) renders the wrist camera at the arm's current configuration, so an episode may
 observe again at any time (e.g. at the pre-grasp pose); the corruption and sensor noise continue their streams.
@@ -37,9 +40,10 @@ import mujoco
 
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
-from simtest.envs.model_cache import GraspModelCache
-from simtest.envs.observation import (ObservationModel, T_world_cam_matrix, capture_images, observation_dict,
-                                      sensor_stream)
+from simtest.envs.looks import dress_grasp_spec, looks_stream
+from simtest.envs.model_cache import TRIM_SLACK_MB, GraspModelCache, trim_heap
+from simtest.envs.observation import (Capture, ObservationModel, T_world_cam_matrix, capture_images,
+                                      observation_dict, sensor_stream)
 from simtest.envs.options import (CONTROL_DT, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
                                   EpisodeConfig, load_objects, pick_target)
 from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, POOL_DISTRACTORS, build_grasp_scene,
@@ -87,12 +91,15 @@ class GraspTask:
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
         render_width, render_height: Size of the third-person view, pixels (default: the wrist camera size).
+        looks: Dress every scene in the generator's looks (materials, prints, environment, lights;
+            :mod:`simtest.envs.looks`), as datasets are drawn; False: the plain look of earlier releases (flat
+            table, checker floor). A dressed scene is compiled anew each episode (no model reuse).
     """
 
     def __init__(self, *, width: int = 320, height: int = 240, episode: EpisodeConfig | dict | None = None,
                  observation: ObservationModel | None = None, ik: str = "fast", model_pool: bool = True,
                  object_units: str = "auto", object_scale: float = 1.0, render_width: int | None = None,
-                 render_height: int | None = None) -> None:
+                 render_height: int | None = None, looks: bool = True) -> None:
         for name, v in (("width", width), ("height", height)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
                 raise ConfigError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
@@ -101,6 +108,9 @@ class GraspTask:
                               f"(simtest.robot.ik_step), got {ik!r}")
         if not isinstance(model_pool, bool):
             raise ConfigError(f"model_pool must be True or False, got {model_pool!r}")
+        if not isinstance(looks, bool):
+            raise ConfigError(f"looks must be True (the generator's looks) or False (the plain look), got {looks!r}")
+        self.looks = looks
         self.observation = observation if observation is not None else ObservationModel()
         if not isinstance(self.observation, ObservationModel):
             raise ConfigError(f"observation must be an ObservationModel, got {type(observation).__name__!r}")
@@ -131,6 +141,9 @@ class GraspTask:
         self.config = self.defaults
         self._frame: Frame | None = None
         self._obs: dict | None = None
+        #: With a list (``task.captures = []``), every capture of an episode is appended to it as a
+        #: :class:`Capture` (:mod:`simtest.envs.observation_record` writes them as a BOP scene); reset empties it.
+        self.captures: list[Capture] | None = None
 
     # --- episode setup -------------------------------------------------------------------------------------
     def _builder(self, objects_name: str) -> SceneBuilder:
@@ -173,9 +186,11 @@ class GraspTask:
         objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = pick_target(objects, cfg.target, scene_rng)
-        self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,
+        builder = self._builder(cfg.objects)
+        self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng,
                                              n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
-                                             placement=cfg.placement, models=self._model_cache(cfg.objects))
+                                             placement=cfg.placement, models=self._model_cache(cfg.objects),
+                                             looks=self._looks(builder, objects, scene_rng))
         sim = self.grasp_scene.sim
         if sim.model is not self.model:
             self._bind_model(sim)
@@ -210,7 +225,22 @@ class GraspTask:
         self._q_cmd = self.ids.arm_q(self.data)
         self._frame = None
         self._obs = None
+        if self.captures is not None:
+            self.captures.clear()
         return self.observe()
+
+    def _looks(self, builder: SceneBuilder, objects, scene_rng: np.random.Generator):
+        """The dresser of this episode's spec (None without looks); releases the cached model first (a dressed
+        scene is compiled anew) and returns freed heap to the system."""
+        if not self.looks:
+            return None
+        if self._models is not None:
+            self._models.clear()  # closes the renderers through _release_model
+        self._release_model()
+        trim_heap(TRIM_SLACK_MB)
+        look = looks_stream(scene_rng)
+        table_z = float(builder.options.room.table_height)
+        return lambda spec: dress_grasp_spec(spec, objects, look, table_z)
 
     def _model_cache(self, objects_name: str) -> GraspModelCache:
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
@@ -362,6 +392,9 @@ class GraspTask:
                                                   self._sensor_rng)
             self._images = tuple(images)
             self._T_base_cam_at_capture = self._T_base_world @ self._T_world_cam()
+            if self.captures is not None:
+                self.captures.append(Capture(self._frame, *self._images, self.camera_model(),
+                                             self.grasp_scene.sim.state()))
         self._obs = observation_dict(self._images, self._cam_K, self._T_base_cam_at_capture, self.data, self.ids)
         return self._obs
 

@@ -56,6 +56,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty --out, replacing its results")
     p.add_argument("--video", action="store_true", help="write third-person | wrist clips (GIF without ffmpeg)")
     p.add_argument("--video-episodes", type=int, default=5, help="how many episodes get a clip (default 5)")
+    p.add_argument("--plain-looks", action="store_true",
+                   help="draw scenes in the plain look of earlier releases (flat table, checker floor) instead of "
+                        "the generator's materials, prints, environments and lights (default: the looks datasets "
+                        "are drawn with; poses and masks are the same either way)")
+    p.add_argument("--save-observations", action="store_true",
+                   help="write every episode's wrist captures as a BOP dataset in OUT/observations (scene = "
+                        "episode; readable by simtest eval and simtest show)")
     add_fault_options(p, "episode", "an episode over it ends as 'estimator_timeout' and the run goes on",
                       "exit code 1 if the estimator failed in every episode")
     p.set_defaults(func=run)
@@ -93,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         width=args.width, height=args.height if args.height is not None else args.width * 3 // 4,
         workers=args.workers, backend=args.backend or "local", ray_address=args.ray_address, video=args.video,
         video_episodes=args.video_episodes, timeout=args.timeout,
-        fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles)
+        fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles,
+        looks=not args.plain_looks, save_observations=args.save_observations)
     try:
         report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
                                     command_line=["simtest", *sys.argv[1:]])
