@@ -109,6 +109,9 @@ class GraspRunConfig:
         looks: Dress every scene in the generator's looks (materials, prints, environment, lights), as datasets
             are drawn (default); False: the plain look of earlier releases. Poses and masks are the same either
             way (:mod:`simtest.envs.looks`).
+        observation_profile: How the wrist camera's captures are rendered
+            (:data:`simtest.envs.observation.OBSERVATION_PROFILES`): ``fast``, ``quality`` (shadows, MSAA) or
+            ``pbr`` (path-traced RGB of the captures only; depth and masks from the rasterizer).
         save_observations: Write every episode's wrist captures as a BOP dataset in ``OUT/observations``
             (:mod:`simtest.envs.observation_record`), for ``simtest eval`` and ``simtest show``.
     """
@@ -139,6 +142,7 @@ class GraspRunConfig:
     planner_obstacles: str = "sim"
     # How the wrist camera's scenes look, and what is kept of its captures.
     looks: bool = True
+    observation_profile: str = "fast"
     save_observations: bool = False
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
@@ -205,7 +209,8 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     task = GraspTask(width=cfg.width, height=cfg.height, episode={"objects": cfg.objects},
-                     observation=ObservationModel(depth_sensor=cfg.depth_sensor), object_units=cfg.units,
+                     observation=ObservationModel(depth_sensor=cfg.depth_sensor, profile=cfg.observation_profile),
+                     object_units=cfg.units,
                      object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240),
                      looks=cfg.looks)
     if cfg.save_observations and out_dir is not None:
@@ -263,6 +268,7 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     check_timeout(cfg.timeout)
     check_planner_obstacles(cfg.planner_obstacles)
     resolve_depth_sensor(cfg.depth_sensor)  # a bad name fails here, listing the sensors
+    ObservationModel(profile=cfg.observation_profile)  # so does a bad profile
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
     out = None if out_dir is None else Path(out_dir)
     if out is not None:

@@ -86,11 +86,12 @@ _OCCLUDER_PARK_XY = (0.33, 0.24)
 SETTLE_MAX_TIME = 2.0
 
 
-def scene_config(width: int, height: int) -> BuildOptions:
+def scene_config(width: int, height: int, quality: str = "fast") -> BuildOptions:
     """The building options of grasp scenes: the default table and room, the Panda, a ``width`` x ``height``
-    wrist camera with D435-like intrinsics (fx = fy = 615 px at 640 px width)."""
+    wrist camera with D435-like intrinsics (fx = fy = 615 px at 640 px width), models made for render
+    ``quality`` (:data:`simtest.generators.build_options.QUALITIES`)."""
     return BuildOptions(camera=CameraModel(default_intrinsics(int(width), int(height)), int(width), int(height)),
-                        panda=True)
+                        panda=True, quality=quality)
 
 
 @dataclass

@@ -43,7 +43,7 @@ from simtest.camera import CameraModel, look_at_pose
 from simtest.envs.looks import dress_grasp_spec, looks_stream
 from simtest.envs.model_cache import TRIM_SLACK_MB, GraspModelCache, trim_heap
 from simtest.envs.observation import (Capture, ObservationModel, T_world_cam_matrix, capture_images,
-                                      observation_dict, sensor_stream)
+                                      observation_dict, pbr_seed, sensor_stream)
 from simtest.envs.options import (CONTROL_DT, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
                                   EpisodeConfig, load_objects, pick_target)
 from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, POOL_DISTRACTORS, build_grasp_scene,
@@ -148,7 +148,7 @@ class GraspTask:
     # --- episode setup -------------------------------------------------------------------------------------
     def _builder(self, objects_name: str) -> SceneBuilder:
         if objects_name not in self._builders:
-            cfg = scene_config(self.width, self.height)
+            cfg = scene_config(self.width, self.height, self.observation.profile)
             objects = load_objects(objects_name, self.object_units, self.object_scale)
             self._builders[objects_name] = SceneBuilder(objects, cfg, panda_physics=True)
         return self._builders[objects_name]
@@ -227,6 +227,7 @@ class GraspTask:
         self._obs = None
         if self.captures is not None:
             self.captures.clear()
+        self._pbr_captures = 0  # the episode's path-traced captures so far (their sampler seeds)
         return self.observe()
 
     def _looks(self, builder: SceneBuilder, objects, scene_rng: np.random.Generator):
@@ -264,7 +265,9 @@ class GraspTask:
                 r.close()
         self._tp_renderer = None
         self.model, self.data, self.ids = sim.model, sim.data, sim.panda
-        self._renderer = Renderer(self.model, self.width, self.height)
+        self._renderer = Renderer(self.model, self.width, self.height,
+                                  profile="quality" if self.observation.profile == "quality" else "fast")
+        self._pbr = None  # the path tracer of this model, made at its first capture (pbr profile)
         self._scratch = mujoco.MjData(self.model)
         self._diffik = robot.DiffIK(self.model, self.ids)
         self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
@@ -277,9 +280,10 @@ class GraspTask:
 
     def _release_model(self) -> None:
         """Close the renderers (their GL resources) and drop every reference to the current model."""
-        for r in (self._renderer, self._tp_renderer):
+        for r in (self._renderer, self._tp_renderer, getattr(self, "_pbr", None)):
             if r is not None:
                 r.close()
+        self._pbr = None
         self._renderer = self._tp_renderer = None
         self.model = self.data = self.ids = None
         self.grasp_scene = None
@@ -389,7 +393,7 @@ class GraspTask:
         if render or self._obs is None:
             self._frame, *images = capture_images(self._renderer, self.data, self.ids, self._cam_K,
                                                   self.config.corruption, self._corrupt_rng, self._sensor,
-                                                  self._sensor_rng)
+                                                  self._sensor_rng, self._pbr_source())
             self._images = tuple(images)
             self._T_base_cam_at_capture = self._T_base_world @ self._T_world_cam()
             if self.captures is not None:
@@ -397,6 +401,22 @@ class GraspTask:
                                              self.grasp_scene.sim.state()))
         self._obs = observation_dict(self._images, self._cam_K, self._T_base_cam_at_capture, self.data, self.ids)
         return self._obs
+
+    def _pbr_source(self):
+        """With the pbr profile: the path-traced RGB of the current state (the model's renderer, made at its
+        first capture and reused; sampler seeds from the episode's stream, one per capture); else None."""
+        if self.observation.profile != "pbr":
+            return None
+        if self._pbr is None:
+            from simtest.generators.looks import environment_of  # the path tracer is an optional extra
+            from simtest.render.pbr import PbrRenderer
+
+            env = self.grasp_scene.sim.spec.environment
+            env = None if env is None else (environment_of(env).radiance, env.strength)
+            self._pbr = PbrRenderer(self.model, self.camera, spp="auto", environment=env)
+        k = self._pbr_captures
+        self._pbr_captures += 1
+        return lambda: self._pbr.render(self.data, self.ids.camera, seed=pbr_seed(self._corrupt_rng, k)).rgb
 
     def capture(self) -> dict:
         """Render a new (corrupted) observation at the current state and return it (:meth:`observe`)."""

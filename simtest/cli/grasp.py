@@ -60,6 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="draw scenes in the plain look of earlier releases (flat table, checker floor) instead of "
                         "the generator's materials, prints, environments and lights (default: the looks datasets "
                         "are drawn with; poses and masks are the same either way)")
+    p.add_argument("--observation-profile", default="fast", choices=["fast", "quality", "pbr"],
+                   help="how the wrist camera's captures are rendered: fast (rasterized, default), quality "
+                        "(rasterized with shadows and MSAA) or pbr (the path tracer for the captured observations "
+                        "only, about 1-3 s each; depth and masks from the rasterizer; needs the pbr extra)")
     p.add_argument("--save-observations", action="store_true",
                    help="write every episode's wrist captures as a BOP dataset in OUT/observations (scene = "
                         "episode; readable by simtest eval and simtest show)")
@@ -101,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers, backend=args.backend or "local", ray_address=args.ray_address, video=args.video,
         video_episodes=args.video_episodes, timeout=args.timeout,
         fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles,
-        looks=not args.plain_looks, save_observations=args.save_observations)
+        looks=not args.plain_looks, observation_profile=args.observation_profile,
+        save_observations=args.save_observations)
     try:
         report = run_grasp_episodes(cfg, args.out, progress=not args.quiet, overwrite=args.overwrite,
                                     command_line=["simtest", *sys.argv[1:]])
