@@ -229,6 +229,7 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
                       options=cfg.reset_options(index, ctx["targets"]), record=record, record_every=RECORD_EVERY,
                       timeout=cfg.timeout)
     row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
+    row["error"] = run_summary.failure_words(row)
     if ctx["task"].captures is not None:
         task = ctx["task"]
         root = Path(ctx["out"]) / OBSERVATIONS_FOLDER

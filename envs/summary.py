@@ -17,7 +17,7 @@ from simtest.io.files import atomic_write_json, jsonable
 from simtest.metrics.intervals import wilson_interval
 
 __all__ = ["CSV_COLUMNS", "summarize", "summary_markdown", "write_run_outputs", "percent", "rotation_error",
-           "raw_rotation_error"]
+           "raw_rotation_error", "failure_words"]
 
 #: Columns of ``episodes.csv`` (units: m, deg, s). The rotation error is ``re_sym_deg`` (the smallest over the
 #: object's symmetries, as ``simtest eval`` scores it); the raw geodesic one is kept as ``re_raw_deg`` (files of
@@ -47,6 +47,36 @@ def raw_rotation_error(row: dict):
     ``re_deg`` of rows and files of earlier releases)."""
     value = row.get("re_raw_deg")
     return row.get("re_deg") if value is None or value == "" else value
+
+
+def _cm(row: dict, key: str) -> str:
+    """``row[key]`` (metres) in centimetres with one decimal, ``"?"`` when missing or not finite."""
+    try:
+        v = float(row.get(key))
+    except (TypeError, ValueError):
+        return "?"
+    return f"{100 * v:.1f}" if math.isfinite(v) else "?"
+
+
+def failure_words(row: dict) -> str:
+    """Why an episode failed, in words: its ``error`` when the episode said why (the estimator's message, the
+    planner's rejections by cause), else a sentence from its reason and measurements; ``""`` for a success."""
+    reason = str(row.get("reason", ""))
+    error = str(row.get("error") or "")
+    if reason in ("", "none") or error:
+        return error
+    obj = f"{row.get('target_name')} (obj_id {row.get('target_obj_id')})"
+    lift = _cm(row, "lift_height")
+    words = {
+        "no_estimate": f"no_estimate: the estimator returned no pose for {obj} "
+                       f"({row.get('visible_pixels')} visible pixels)",
+        "missed": f"missed: after closing, {obj} does not touch both fingers (lifted {lift} cm)",
+        "slipped": f"slipped: {obj} was grasped but not held at least 10 cm up for the whole hold "
+                   f"(lifted {lift} cm)",
+        "collision": "collision: the arm pushed against the table or another object on its way to the grasp",
+        "ik_failure": "ik_failure: no inverse-kinematics solution reaches the planned motion",
+    }
+    return words.get(reason, reason)
 
 
 def summarize(rows: list[dict]) -> dict:

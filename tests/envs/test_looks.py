@@ -130,3 +130,14 @@ def test_saved_observations_are_a_dataset(tmp_path):
         header = next(csv.reader(f))
     assert "re_sym_deg" in header and "re_raw_deg" in header and "re_deg" not in header
     assert rep.summary["config"]["looks"] is True
+
+
+def test_every_failure_says_why():
+    """A failed episode without a message of its own gets one from its reason and measurements."""
+    from simtest.envs.summary import failure_words
+
+    row = {"reason": "slipped", "target_name": "can_0", "target_obj_id": 1, "lift_height": 0.031, "error": ""}
+    assert failure_words(row) == ("slipped: can_0 (obj_id 1) was grasped but not held at least 10 cm up for the "
+                                  "whole hold (lifted 3.1 cm)")
+    assert failure_words({**row, "error": "no_feasible_grasp: 12 candidates"}) == "no_feasible_grasp: 12 candidates"
+    assert failure_words({**row, "reason": "none"}) == ""
