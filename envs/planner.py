@@ -107,8 +107,9 @@ class PlanResult:
         n_candidates: Candidates of the object.
         n_geometric: Candidates passing the approach-direction and table checks.
         n_tried: Candidates whose IK was tried.
-        rejected: Candidates rejected, by cause (:data:`REJECTION_CAUSES`: approach too steep, table clearance,
-            unreachable, in collision, not tried beyond ``max_candidates``); causes with none are left out.
+        rejected: Candidates rejected, by cause (:data:`REJECTION_CAUSES`: approach tilted too far, table
+            clearance, unreachable, in collision, not tried beyond ``max_candidates``); without a plan the
+            counts add up to ``n_candidates``.
     """
 
     plan: GraspPlan | None
@@ -129,7 +130,7 @@ class PlanResult:
 
 
 #: Causes a grasp candidate is rejected for (:attr:`PlanResult.rejected`), with their words.
-REJECTION_CAUSES = {"approach": "rejected for an approach steeper than the tilt limit",
+REJECTION_CAUSES = {"approach": "rejected for an approach tilted beyond max_tilt",
                     "table": "rejected for table clearance",
                     "unreachable": "unreachable",
                     "collision": "in collision",
