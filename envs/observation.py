@@ -22,7 +22,8 @@ from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
 
-__all__ = ["Capture", "ObservationModel", "DEPTH_SENSORS", "OBSERVATION_PROFILES", "pbr_seed", "resolve_depth_sensor", "sensor_stream", "observation_space",
+__all__ = ["Capture", "ObservationModel", "DEPTH_SENSORS", "OBSERVATION_PROFILES", "pbr_seed", "resolve_depth_sensor",
+           "sensor_stream", "observation_space",
            "capture_images", "T_world_cam_matrix", "observation_dict"]
 
 #: Depth sensor names the env takes: the exact depth, or a stereo preset.

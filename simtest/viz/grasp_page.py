@@ -1,7 +1,8 @@
 """Pictures of a grasp run (``simtest grasp --out RUN``): one card per episode with its outcome and pose error.
 
 A grasp folder holds ``episodes.csv`` (one row per episode: ``success``, ``reason``, ``add_s`` / ``te`` /
-``mssd`` metres, ``re_sym_deg`` / ``re_raw_deg`` degrees (``re_deg`` in files of earlier releases), ``lift_height`` metres, ``error``), ``summary.json`` (success rate and its
+``mssd`` metres, ``re_sym_deg`` / ``re_raw_deg`` degrees (``re_deg`` in files of earlier releases),
+``lift_height`` metres, ``error``: why a failed episode failed), ``summary.json`` (success rate and its
 95 % interval) and, with ``--video``, ``videos/episode_NNNN_<object>_<reason>.gif`` (or ``.mp4``): frames of
 third-person view | wrist view. A card shows the clip's first and last frame when the episode has one, else
 its text only.
