@@ -132,6 +132,8 @@ class GraspTask:
         self._models: GraspModelCache | None = None  # of the current object set, made on the first reset
         self._renderer: Renderer | None = None  # GL resources are made on the first reset, never here
         self._tp_renderer: Renderer | None = None
+        self._pbr = None  # the path tracer of the current model (pbr profile), made at its first capture
+        self._pbr_captures = 0
         self._sensor_rng: np.random.Generator | None = None
         self.np_random: np.random.Generator | None = None
         self.grasp_scene = None
@@ -280,7 +282,7 @@ class GraspTask:
 
     def _release_model(self) -> None:
         """Close the renderers (their GL resources) and drop every reference to the current model."""
-        for r in (self._renderer, self._tp_renderer, getattr(self, "_pbr", None)):
+        for r in (self._renderer, self._tp_renderer, self._pbr):
             if r is not None:
                 r.close()
         self._pbr = None
