@@ -384,6 +384,7 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
     points = (observed_obstacles(u, obs, obj, T_world_obj) if planner.obstacles == "observed" else None)
     planned = planner.plan(u, obj, T_world_obj, obstacle_points=points)
     if planned.plan is None:
+        result.error = planned.explain()
         return finish(planned.reason)
     result.grasp_index = planned.plan.index
     result.approach_tilt_deg = float(np.degrees(planned.plan.approach_tilt))

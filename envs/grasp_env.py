@@ -106,7 +106,7 @@ def _task_of(task: GraspTask | None, observe_every_step: bool, model_pool: bool 
     unknown = sorted(set(episode) - set(RESET_OPTIONS))
     if unknown:
         raise ConfigError(f"unknown PandaGraspEnv keyword(s) {unknown}; the task's: width, height, observation, "
-                          f"ik, model_pool, object_units, object_scale, render_width, render_height, task; "
+                          f"ik, model_pool, object_units, object_scale, render_width, render_height, looks, task; "
                           f"episode defaults: "
                           f"{', '.join(o for o in RESET_OPTIONS if o not in OBSERVATION_KEYWORDS)}")
     if task is not None:
@@ -152,6 +152,8 @@ class PandaGraspEnv(gym.Env):
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
         render_width, render_height: Third-person view size (default: the wrist camera size).
+        looks: The generator's looks on every scene (default; a dressed scene is compiled each reset, so the
+            model pool is not used), or False for the plain look of earlier releases (:mod:`simtest.envs.looks`).
         **episode: Default reset options (:data:`~simtest.envs.options.RESET_OPTIONS`): ``objects``
             (``"builtin"``), ``target`` (None: a random graspable object), ``n_distractors`` (2), ``occlusion``
             (``"L0"``), ``placement`` (``"upright"``), ``start`` (``"home"`` or ``"observe"``).
@@ -164,7 +166,7 @@ class PandaGraspEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         task_keys = ("width", "height", "observation", "ik", "object_units", "object_scale", "render_width",
-                     "render_height")
+                     "render_height", "looks")
         options = {k: settings.pop(k) for k in task_keys if k in settings}
         self.task = _task_of(task, bool(observe_every_step), model_pool, settings, options)
         self.render_mode = render_mode

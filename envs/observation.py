@@ -10,8 +10,9 @@ nothing from any other stream of the episode.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from gymnasium import spaces
@@ -21,7 +22,8 @@ from simtest.envs.options import EpisodeConfig
 from simtest.errors import ConfigError
 from simtest.sensors.stereo import STEREO_PRESETS, StereoSensor
 
-__all__ = ["ObservationModel", "DEPTH_SENSORS", "resolve_depth_sensor", "sensor_stream", "observation_space",
+__all__ = ["Capture", "ObservationModel", "DEPTH_SENSORS", "OBSERVATION_PROFILES", "pbr_seed", "resolve_depth_sensor",
+           "sensor_stream", "observation_space",
            "capture_images", "T_world_cam_matrix", "observation_dict"]
 
 #: Depth sensor names the env takes: the exact depth, or a stereo preset.
@@ -29,6 +31,31 @@ DEPTH_SENSORS: tuple[str, ...] = ("none", *STEREO_PRESETS)
 
 #: Spawn-key entry of the sensor's stream below the episode's corruption stream.
 SENSOR_STREAM = 0x5E45
+#: Spawn-key entry of the path tracer's sampler seeds below the episode's corruption stream.
+PBR_STREAM = 0x9B12
+
+#: How captures are rendered: ``fast`` (the rasterizer, no shadows), ``quality`` (the rasterizer with shadows
+#: and 4x MSAA) or ``pbr`` (the path tracer for the observation's RGB; depth and masks from the rasterizer).
+OBSERVATION_PROFILES: tuple[str, ...] = ("fast", "quality", "pbr")
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One wrist-camera capture of an episode, kept for writing (:mod:`simtest.envs.observation_record`).
+
+    Attributes:
+        frame: The clean render (rgb, exact planar depth in metres, segmentation).
+        rgb: The observation's (H, W, 3) uint8 image, as the estimator saw it (corrupted if asked).
+        depth: The observation's (H, W) float32 depth, metres (sensed or exact; 0 = no measurement).
+        camera: The wrist camera at the capture (intrinsics and ``T_world_cam``, OpenCV).
+        state: The scene's instances at the capture (:meth:`simtest.generators.builder.SimScene.state`).
+    """
+
+    frame: Any
+    rgb: np.ndarray
+    depth: np.ndarray
+    camera: Any
+    state: Any
 
 
 def resolve_depth_sensor(name: str | None) -> StereoSensor | None:
@@ -57,17 +84,24 @@ class ObservationModel:
         corruption: Default corruption: a dict of :class:`~simtest.corrupt.CorruptionSpec` fields (e.g.
             ``{"weather": "fog", "severity": 4}``), or None.
         depth_noise: Default depth-noise preset of :data:`simtest.corrupt.DEPTH_PRESETS`, or None.
+        profile: How captures are rendered, one of :data:`OBSERVATION_PROFILES`. With ``pbr`` only the
+            captured observations are path-traced (one renderer per scene, reused across its captures; about
+            1-3 s per 320 x 240 observation on two CPU cores); videos and the third-person view stay rasterized.
 
     Raises:
-        ConfigError: An unknown sensor (listing :data:`DEPTH_SENSORS`); bad corruption values are named when
-            the task takes the model.
+        ConfigError: An unknown sensor (listing :data:`DEPTH_SENSORS`) or profile; bad corruption values are
+            named when the task takes the model.
     """
 
     depth_sensor: str = "none"
     corruption: Any = None
     depth_noise: str | None = None
+    profile: str = "fast"
 
     def __post_init__(self) -> None:
+        if self.profile not in OBSERVATION_PROFILES:
+            raise ConfigError(f"observation profile must be one of {', '.join(OBSERVATION_PROFILES)} (fast, "
+                              f"quality: rasterized; pbr: path-traced RGB), got {self.profile!r}")
         sensor = resolve_depth_sensor(self.depth_sensor)
         object.__setattr__(self, "depth_sensor", "none" if sensor is None else sensor.name)
 
@@ -89,6 +123,15 @@ def sensor_stream(episode_stream: np.random.Generator) -> np.random.Generator:
     ss = episode_stream.bit_generator.seed_seq
     child = np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, SENSOR_STREAM), pool_size=ss.pool_size)
     return np.random.default_rng(child)
+
+
+def pbr_seed(episode_stream: np.random.Generator, capture: int) -> int:
+    """The path tracer's sampler seed (uint32) of capture ``capture`` of an episode: the child at
+    ``(PBR_STREAM, capture)`` of ``episode_stream``'s ``SeedSequence`` (nothing is drawn from it)."""
+    ss = episode_stream.bit_generator.seed_seq
+    child = np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, PBR_STREAM, int(capture)),
+                                   pool_size=ss.pool_size)
+    return int(child.generate_state(1)[0])
 
 
 def observation_space(width: int, height: int) -> spaces.Dict:
@@ -117,15 +160,21 @@ def T_world_cam_matrix(data, camera_id: int) -> np.ndarray:
 
 
 def capture_images(renderer, data, ids, K: np.ndarray, corruption, corrupt_rng: np.random.Generator,
-                   sensor: StereoSensor | None = None, sensor_rng: np.random.Generator | None = None):
+                   sensor: StereoSensor | None = None, sensor_rng: np.random.Generator | None = None,
+                   rgb_source: Callable[[], np.ndarray] | None = None):
     """One wrist-camera capture: ``(frame, rgb, depth)``.
+
+    ``rgb_source`` (e.g. a path tracer's render of the same state) gives the RGB instead of the rasterizer;
+    depth and segmentation stay the rasterizer's.
 
     ``frame`` is the clean render (RGB, exact depth, segmentation: the ground truth behind the observation);
     ``depth`` is the sensed depth of ``sensor`` (float32 metres, 0 = invalid) or the exact depth without one;
     ``corruption`` (a :class:`~simtest.corrupt.CorruptionSpec` or None) is applied to that RGB and depth with
     ``corrupt_rng``. The sensor restores the camera and intrinsics it moves, so ``frame`` is unaffected.
     """
-    frame = renderer.render(data, ids.camera, rgb=True, depth=True, seg=True)
+    frame = renderer.render(data, ids.camera, rgb=rgb_source is None, depth=True, seg=True)
+    if rgb_source is not None:
+        frame = dataclasses.replace(frame, rgb=rgb_source())
     rgb, depth = frame.rgb, frame.depth
     if sensor is not None:
         depth = sensor.sense(renderer, data, ids.camera, robot.wrist_camera_model(data, ids), sensor_rng)

@@ -34,7 +34,7 @@ joint motion is taken. The first feasible candidate wins.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -50,7 +50,7 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 from simtest.objects.grasps import PANDA, gripper_boxes
 
-__all__ = ["GraspPlan", "PlanResult", "GraspPlanner", "OBSTACLE_SOURCES", "observed_obstacles",
+__all__ = ["GraspPlan", "PlanResult", "REJECTION_CAUSES", "GraspPlanner", "OBSTACLE_SOURCES", "observed_obstacles",
            "points_in_geoms"]
 
 #: Where the planner's collision check takes the obstacles from (see the module docstring).
@@ -98,7 +98,7 @@ class GraspPlan:
 
 @dataclass(frozen=True)
 class PlanResult:
-    """Outcome of :meth:`GraspPlanner.plan`.
+    """Outcome of :meth:`GraspPlanner.plan` (:meth:`explain` says it in words).
 
     Attributes:
         plan: The chosen grasp, or ``None``.
@@ -107,6 +107,9 @@ class PlanResult:
         n_candidates: Candidates of the object.
         n_geometric: Candidates passing the approach-direction and table checks.
         n_tried: Candidates whose IK was tried.
+        rejected: Candidates rejected, by cause (:data:`REJECTION_CAUSES`: approach tilted too far, table
+            clearance, unreachable, in collision, not tried beyond ``max_candidates``); without a plan the
+            counts add up to ``n_candidates``.
     """
 
     plan: GraspPlan | None
@@ -114,6 +117,24 @@ class PlanResult:
     n_candidates: int
     n_geometric: int
     n_tried: int
+    rejected: dict = field(default_factory=dict)
+
+    def explain(self) -> str:
+        """The outcome in words, e.g. ``"no_feasible_grasp: 12 candidates, 9 rejected for table clearance, 3
+        unreachable"`` (``"ok"`` for a plan)."""
+        if self.plan is not None:
+            return "ok"
+        parts = [f"{self.n_candidates} candidates"]
+        parts += [f"{k} {REJECTION_CAUSES[cause]}" for cause, k in self.rejected.items() if k]
+        return f"{self.reason}: " + ", ".join(parts)
+
+
+#: Causes a grasp candidate is rejected for (:attr:`PlanResult.rejected`), with their words.
+REJECTION_CAUSES = {"approach": "rejected for an approach tilted beyond max_tilt",
+                    "table": "rejected for table clearance",
+                    "unreachable": "unreachable",
+                    "collision": "in collision",
+                    "untried": "not tried (beyond max_candidates)"}
 
 
 def _box_corners(boxes: np.ndarray) -> np.ndarray:
@@ -340,11 +361,14 @@ class GraspPlanner:
         poses, widths, scores, contact_z = self.candidates_world(obj, T_world_obj)
         n = len(poses)
         ok, backoff = self.geometric_filter(poses, task.grasp_scene.table_height, contact_z)
+        steep = poses[:, 2, 2] > -np.cos(self.max_tilt) if n else np.zeros(0, bool)
+        rejected = {"approach": int(steep.sum()), "table": int((~ok & ~steep).sum()), "unreachable": 0,
+                    "collision": 0, "untried": 0}
         poses = poses.copy()
         poses[:, :3, 3] -= backoff[:, None] * poses[:, :3, 2]
         idx = np.flatnonzero(ok)
         if len(idx) == 0:
-            return PlanResult(None, "no_feasible_grasp", n, 0, 0)
+            return PlanResult(None, "no_feasible_grasp", n, 0, 0, rejected)
         rank = (self.top_down_weight * (-poses[idx, 2, 2]) + scores[idx]
                 - self.shift_weight * (contact_z[idx] + backoff[idx]) / 0.012)
         order = idx[np.argsort(-rank, kind="stable")]
@@ -352,9 +376,11 @@ class GraspPlanner:
         top_z = float((np.asarray(obj.vertices) @ T_world_obj.R.T + T_world_obj.t)[:, 2].max())
         n_tried = 0
         any_ik = False
+        rejected["untried"] = int(max(0, len(order) - self.max_candidates))
         for i in order[: self.max_candidates]:
             n_tried += 1
             best = None
+            hit = False
             for flipped in (False, True):
                 g = Pose.from_matrix(poses[i])
                 if flipped:
@@ -364,6 +390,7 @@ class GraspPlanner:
                     continue
                 any_ik = True
                 if res == "collision":
+                    hit = True
                     continue
                 cost = float(np.abs(res[0] - q_now).max())
                 if best is None or cost < best[0]:
@@ -374,8 +401,9 @@ class GraspPlanner:
                 open_w = float(min(GRIPPER_OPEN, widths[i] + self.open_margin))
                 plan = GraspPlan(g, pre, lift, above, q_above, q_pre, q_grasp, q_lift, float(widths[i]), open_w,
                                  int(i), flipped, tilt, float(scores[i]))
-                return PlanResult(plan, "ok", n, len(idx), n_tried)
-        return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried)
+                return PlanResult(plan, "ok", n, len(idx), n_tried, rejected)
+            rejected["collision" if hit else "unreachable"] += 1
+        return PlanResult(None, "no_feasible_grasp" if any_ik else "ik_failure", n, len(idx), n_tried, rejected)
 
     def _check(self, model, data, ids, task, g: Pose, q_now: np.ndarray, top_z: float,
                observed: _Obstacles | None = None):

@@ -27,9 +27,11 @@ from typing import Any, Sequence
 from tqdm import tqdm
 
 from simtest.backend import Backend, BackendError, RunStats, preflight, run_units
+from simtest.camera import CameraModel
 from simtest.envs import summary as run_summary
 from simtest.envs.episode import run_episode
 from simtest.envs.observation import ObservationModel, resolve_depth_sensor
+from simtest.envs.observation_record import OBSERVATIONS_FOLDER, write_observation_models, write_observation_scene
 from simtest.envs.options import CONTROL_DT, EpisodeConfig, load_objects
 from simtest.envs.planner import OBSTACLE_SOURCES, GraspPlanner
 from simtest.envs.reobserve import (FUSIONS, STAGE_COLUMNS, UPDATES, check_choice, parse_reobserve, stage_markdown,
@@ -116,6 +118,14 @@ class GraspRunConfig:
             :mod:`simtest.envs.declutter`; ``episodes`` counts rounds).
         scene: With ``task="declutter"``: ``"pile"`` or ``"packed"``.
         objects_per_scene: With ``task="declutter"``: objects on the table at the start of a round.
+        looks: Dress every scene in the generator's looks (materials, prints, environment, lights), as datasets
+            are drawn (default); False: the plain look of earlier releases. Poses and masks are the same either
+            way (:mod:`simtest.envs.looks`).
+        observation_profile: How the wrist camera's captures are rendered
+            (:data:`simtest.envs.observation.OBSERVATION_PROFILES`): ``fast``, ``quality`` (shadows, MSAA) or
+            ``pbr`` (path-traced RGB of the captures only; depth and masks from the rasterizer).
+        save_observations: Write every episode's wrist captures as a BOP dataset in ``OUT/observations``
+            (:mod:`simtest.envs.observation_record`), for ``simtest eval`` and ``simtest show``.
     """
 
     estimator: str = "oracle"
@@ -148,6 +158,10 @@ class GraspRunConfig:
     task: str = "single"
     scene: str = "pile"
     objects_per_scene: int = 5
+    # How the wrist camera's scenes look, and what is kept of its captures.
+    looks: bool = True
+    observation_profile: str = "fast"
+    save_observations: bool = False
 
     def reset_options(self, index: int, target_list: Sequence) -> dict:
         opts: dict[str, Any] = {"objects": self.objects, "n_distractors": self.n_distractors,
@@ -221,8 +235,12 @@ def _worker_init(cfg_dict: dict, out_dir: str | None) -> None:
 
 def _make_context(cfg: GraspRunConfig, out_dir: str | None) -> dict:
     task = GraspTask(width=cfg.width, height=cfg.height, episode={"objects": cfg.objects},
-                     observation=ObservationModel(depth_sensor=cfg.depth_sensor), object_units=cfg.units,
-                     object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240))
+                     observation=ObservationModel(depth_sensor=cfg.depth_sensor, profile=cfg.observation_profile),
+                     object_units=cfg.units,
+                     object_scale=cfg.scale, render_width=max(cfg.width, 320), render_height=max(cfg.height, 240),
+                     looks=cfg.looks)
+    if cfg.save_observations and out_dir is not None:
+        task.captures = []
     est = load_estimator(cfg.estimator, **cfg.estimator_options)
     return {"cfg": cfg, "task": task, "estimator": est, "targets": _resolve_targets(cfg), "out": out_dir,
             "planner": GraspPlanner(obstacles=cfg.planner_obstacles), "label": estimator_label(cfg.estimator, est)}
@@ -238,6 +256,11 @@ def _run_one(index: int, ctx: dict | None = None) -> dict:
                       timeout=cfg.timeout, reobserve=cfg.reobserve, reobserve_update=cfg.reobserve_update,
                       reobserve_fusion=cfg.reobserve_fusion)
     row = {"episode": index, **res.to_row(), "estimator_label": ctx["label"]}  # the label is not a CSV column
+    row["error"] = run_summary.failure_words(row)
+    if ctx["task"].captures is not None:
+        task = ctx["task"]
+        root = Path(ctx["out"]) / OBSERVATIONS_FOLDER
+        write_observation_scene(task.captures, task.objects, root, index, task.depth_sensor != "none")
     if res.stages:
         row["stages"] = res.stages
     if record and res.frames:
@@ -278,10 +301,14 @@ def run_grasp_episodes(cfg: GraspRunConfig, out_dir: str | Path | None = None, *
     check_choice("GraspRunConfig.reobserve_update", cfg.reobserve_update, UPDATES)
     check_choice("GraspRunConfig.reobserve_fusion", cfg.reobserve_fusion, FUSIONS)
     resolve_depth_sensor(cfg.depth_sensor)  # a bad name fails here, listing the sensors
+    ObservationModel(profile=cfg.observation_profile)  # so does a bad profile
     EpisodeConfig.build(EpisodeConfig(), {k: v for k, v in cfg.reset_options(0, []).items()})  # validate early
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+        if cfg.save_observations:
+            write_observation_models(load_objects(cfg.objects, cfg.units, cfg.scale),
+                                     CameraModel.default(cfg.width, cfg.height), out / OBSERVATIONS_FOLDER)
     t0 = time.perf_counter()
     rows: list[dict] = []
     bar = None

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import colorsys
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -85,11 +86,12 @@ _OCCLUDER_PARK_XY = (0.33, 0.24)
 SETTLE_MAX_TIME = 2.0
 
 
-def scene_config(width: int, height: int) -> BuildOptions:
+def scene_config(width: int, height: int, quality: str = "fast") -> BuildOptions:
     """The building options of grasp scenes: the default table and room, the Panda, a ``width`` x ``height``
-    wrist camera with D435-like intrinsics (fx = fy = 615 px at 640 px width)."""
+    wrist camera with D435-like intrinsics (fx = fy = 615 px at 640 px width), models made for render
+    ``quality`` (:data:`simtest.generators.build_options.QUALITIES`)."""
     return BuildOptions(camera=CameraModel(default_intrinsics(int(width), int(height)), int(width), int(height)),
-                        panda=True)
+                        panda=True, quality=quality)
 
 
 @dataclass
@@ -249,6 +251,7 @@ def build_grasp_scene(
     placement: str = "upright",
     scene_index: int = 0,
     models: "GraspModelCache | None" = None,
+    looks: "Callable[[SceneSpec], SceneSpec] | None" = None,
 ) -> GraspScene:
     """Sample, build and settle one grasp scene.
 
@@ -266,13 +269,18 @@ def build_grasp_scene(
         models: A :class:`GraspModelCache` of ``builder`` to reuse a compiled model (the object set's pool, or
             the previous scene's model when the structure is the same); None compiles a new model. Pass it
             ``pool_distractors=POOL_DISTRACTORS`` so episodes with an occluder use the pool too.
+        looks: Dresses the sampled spec before it is built (appearance only, e.g.
+            :func:`simtest.envs.looks.dress_grasp_spec` with the episode's appearance stream); it draws nothing
+            from ``rng``. A dressed scene is always compiled anew (``models`` is not used).
 
     Raises:
         ConfigError: On a bad ``placement`` or ``n_distractors``, or when the target falls off the table.
     """
     spec = sample_grasp_spec(builder, objects, target_id, rng, n_distractors=n_distractors, occlusion=occlusion,
                              placement=placement, scene_index=scene_index)
-    sim = builder.build(spec) if models is None else models.build(spec)
+    if looks is not None:
+        spec = looks(spec)
+    sim = builder.build(spec) if models is None or looks is not None else models.build(spec)
     settle(sim, SettleOptions(max_time=SETTLE_MAX_TIME, room=builder.options.room))
     if not sim.active[0]:
         raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")

@@ -18,7 +18,10 @@ One episode::
 Random streams: :meth:`reset` seeds the task's generator (``seed``) or continues it (``seed=None``) and spawns
 the episode's independent streams from it in a fixed order: scene layout, occluder, observation (corruption;
 the depth sensor draws from a child of the observation stream, :func:`~simtest.envs.observation.sensor_stream`).
-A stream added later is spawned after these, so the existing ones (and their bytes) stay as they are.
+A stream added later is spawned after these, so the existing ones (and their bytes) stay as they are. The
+episode's looks (``looks=True``) come from the scene stream's appearance stream
+(:func:`simtest.envs.looks.looks_stream`, derived without drawing from it), so they change no pose, mask or
+depth of the scene: the same seed gives the same scene with and without looks, in other colours.
 
 Every capture (:meth:`observe`) renders the wrist camera at the arm's current configuration, so an episode may
 observe again at any time (e.g. at the pre-grasp pose); the corruption and sensor noise continue their streams.
@@ -37,9 +40,10 @@ import mujoco
 
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
-from simtest.envs.model_cache import GraspModelCache
-from simtest.envs.observation import (ObservationModel, T_world_cam_matrix, capture_images, observation_dict,
-                                      sensor_stream)
+from simtest.envs.looks import dress_grasp_spec, looks_stream
+from simtest.envs.model_cache import TRIM_SLACK_MB, GraspModelCache, trim_heap
+from simtest.envs.observation import (Capture, ObservationModel, T_world_cam_matrix, capture_images,
+                                      observation_dict, pbr_seed, sensor_stream)
 from simtest.envs.options import (CONTROL_DT, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
                                   EpisodeConfig, load_objects, pick_target)
 from simtest.envs.scene import (OBSERVATION_DISTANCE, OBSERVATION_ELEVATION, POOL_DISTRACTORS, build_grasp_scene,
@@ -87,12 +91,15 @@ class GraspTask:
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
         render_width, render_height: Size of the third-person view, pixels (default: the wrist camera size).
+        looks: Dress every scene in the generator's looks (materials, prints, environment, lights;
+            :mod:`simtest.envs.looks`), as datasets are drawn; False: the plain look of earlier releases (flat
+            table, checker floor). A dressed scene is compiled anew each episode (no model reuse).
     """
 
     def __init__(self, *, width: int = 320, height: int = 240, episode: EpisodeConfig | dict | None = None,
                  observation: ObservationModel | None = None, ik: str = "fast", model_pool: bool = True,
                  object_units: str = "auto", object_scale: float = 1.0, render_width: int | None = None,
-                 render_height: int | None = None) -> None:
+                 render_height: int | None = None, looks: bool = True) -> None:
         for name, v in (("width", width), ("height", height)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
                 raise ConfigError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
@@ -101,6 +108,9 @@ class GraspTask:
                               f"(simtest.robot.ik_step), got {ik!r}")
         if not isinstance(model_pool, bool):
             raise ConfigError(f"model_pool must be True or False, got {model_pool!r}")
+        if not isinstance(looks, bool):
+            raise ConfigError(f"looks must be True (the generator's looks) or False (the plain look), got {looks!r}")
+        self.looks = looks
         self.observation = observation if observation is not None else ObservationModel()
         if not isinstance(self.observation, ObservationModel):
             raise ConfigError(f"observation must be an ObservationModel, got {type(observation).__name__!r}")
@@ -122,6 +132,8 @@ class GraspTask:
         self._models: GraspModelCache | None = None  # of the current object set, made on the first reset
         self._renderer: Renderer | None = None  # GL resources are made on the first reset, never here
         self._tp_renderer: Renderer | None = None
+        self._pbr = None  # the path tracer of the current model (pbr profile), made at its first capture
+        self._pbr_captures = 0
         self._sensor_rng: np.random.Generator | None = None
         self.np_random: np.random.Generator | None = None
         self.grasp_scene = None
@@ -131,11 +143,14 @@ class GraspTask:
         self.config = self.defaults
         self._frame: Frame | None = None
         self._obs: dict | None = None
+        #: With a list (``task.captures = []``), every capture of an episode is appended to it as a
+        #: :class:`Capture` (:mod:`simtest.envs.observation_record` writes them as a BOP scene); reset empties it.
+        self.captures: list[Capture] | None = None
 
     # --- episode setup -------------------------------------------------------------------------------------
     def _builder(self, objects_name: str) -> SceneBuilder:
         if objects_name not in self._builders:
-            cfg = scene_config(self.width, self.height)
+            cfg = scene_config(self.width, self.height, self.observation.profile)
             objects = load_objects(objects_name, self.object_units, self.object_scale)
             self._builders[objects_name] = SceneBuilder(objects, cfg, panda_physics=True)
         return self._builders[objects_name]
@@ -173,9 +188,11 @@ class GraspTask:
         objects = load_objects(cfg.objects, self.object_units, self.object_scale)
         self.objects = objects
         target_id = pick_target(objects, cfg.target, scene_rng)
-        self.grasp_scene = build_grasp_scene(self._builder(cfg.objects), objects, target_id, scene_rng,
+        builder = self._builder(cfg.objects)
+        self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng,
                                              n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
-                                             placement=cfg.placement, models=self._model_cache(cfg.objects))
+                                             placement=cfg.placement, models=self._model_cache(cfg.objects),
+                                             looks=self._looks(builder, objects, scene_rng))
         sim = self.grasp_scene.sim
         if sim.model is not self.model:
             self._bind_model(sim)
@@ -210,7 +227,23 @@ class GraspTask:
         self._q_cmd = self.ids.arm_q(self.data)
         self._frame = None
         self._obs = None
+        if self.captures is not None:
+            self.captures.clear()
+        self._pbr_captures = 0  # the episode's path-traced captures so far (their sampler seeds)
         return self.observe()
+
+    def _looks(self, builder: SceneBuilder, objects, scene_rng: np.random.Generator):
+        """The dresser of this episode's spec (None without looks); releases the cached model first (a dressed
+        scene is compiled anew) and returns freed heap to the system."""
+        if not self.looks:
+            return None
+        if self._models is not None:
+            self._models.clear()  # closes the renderers through _release_model
+        self._release_model()
+        trim_heap(TRIM_SLACK_MB)
+        look = looks_stream(scene_rng)
+        table_z = float(builder.options.room.table_height)
+        return lambda spec: dress_grasp_spec(spec, objects, look, table_z)
 
     def _model_cache(self, objects_name: str) -> GraspModelCache:
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
@@ -234,7 +267,9 @@ class GraspTask:
                 r.close()
         self._tp_renderer = None
         self.model, self.data, self.ids = sim.model, sim.data, sim.panda
-        self._renderer = Renderer(self.model, self.width, self.height)
+        self._renderer = Renderer(self.model, self.width, self.height,
+                                  profile="quality" if self.observation.profile == "quality" else "fast")
+        self._pbr = None  # the path tracer of this model, made at its first capture (pbr profile)
         self._scratch = mujoco.MjData(self.model)
         self._diffik = robot.DiffIK(self.model, self.ids)
         self._lead = self.model.dof_damping[self.ids.arm_dof] / np.maximum(
@@ -247,9 +282,10 @@ class GraspTask:
 
     def _release_model(self) -> None:
         """Close the renderers (their GL resources) and drop every reference to the current model."""
-        for r in (self._renderer, self._tp_renderer):
+        for r in (self._renderer, self._tp_renderer, self._pbr):
             if r is not None:
                 r.close()
+        self._pbr = None
         self._renderer = self._tp_renderer = None
         self.model = self.data = self.ids = None
         self.grasp_scene = None
@@ -359,11 +395,30 @@ class GraspTask:
         if render or self._obs is None:
             self._frame, *images = capture_images(self._renderer, self.data, self.ids, self._cam_K,
                                                   self.config.corruption, self._corrupt_rng, self._sensor,
-                                                  self._sensor_rng)
+                                                  self._sensor_rng, self._pbr_source())
             self._images = tuple(images)
             self._T_base_cam_at_capture = self._T_base_world @ self._T_world_cam()
+            if self.captures is not None:
+                self.captures.append(Capture(self._frame, *self._images, self.camera_model(),
+                                             self.grasp_scene.sim.state()))
         self._obs = observation_dict(self._images, self._cam_K, self._T_base_cam_at_capture, self.data, self.ids)
         return self._obs
+
+    def _pbr_source(self):
+        """With the pbr profile: the path-traced RGB of the current state (the model's renderer, made at its
+        first capture and reused; sampler seeds from the episode's stream, one per capture); else None."""
+        if self.observation.profile != "pbr":
+            return None
+        if self._pbr is None:
+            from simtest.generators.looks import environment_of  # the path tracer is an optional extra
+            from simtest.render.pbr import PbrRenderer
+
+            env = self.grasp_scene.sim.spec.environment
+            env = None if env is None else (environment_of(env).radiance, env.strength)
+            self._pbr = PbrRenderer(self.model, self.camera, spp="auto", environment=env)
+        k = self._pbr_captures
+        self._pbr_captures += 1
+        return lambda: self._pbr.render(self.data, self.ids.camera, seed=pbr_seed(self._corrupt_rng, k)).rgb
 
     def capture(self) -> dict:
         """Render a new (corrupted) observation at the current state and return it (:meth:`observe`)."""

@@ -71,6 +71,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", default="pile", choices=["pile", "packed"],
                    help="declutter scene: pile (dropped from a box) or packed (upright, side by side)")
     p.add_argument("--objects-per-scene", type=int, default=5, help="declutter: objects per round (default 5)")
+    p.add_argument("--plain-looks", action="store_true",
+                   help="draw scenes in the plain look of earlier releases (flat table, checker floor) instead of "
+                        "the generator's materials, prints, environments and lights (default: the looks datasets "
+                        "are drawn with; poses and masks are the same either way)")
+    p.add_argument("--observation-profile", default="fast", choices=["fast", "quality", "pbr"],
+                   help="how the wrist camera's captures are rendered: fast (rasterized, default), quality "
+                        "(rasterized with shadows and MSAA) or pbr (the path tracer for the captured observations "
+                        "only, about 1-3 s each; depth and masks from the rasterizer; needs the pbr extra)")
+    p.add_argument("--save-observations", action="store_true",
+                   help="write every episode's wrist captures as a BOP dataset in OUT/observations (scene = "
+                        "episode; readable by simtest eval and simtest show)")
     add_fault_options(p, "episode", "an episode over it ends as 'estimator_timeout' and the run goes on",
                       "exit code 1 if the estimator failed in every episode")
     p.set_defaults(func=run)
@@ -110,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
         video_episodes=args.video_episodes, timeout=args.timeout,
         fail_fast=args.fail_fast, planner_obstacles=args.planner_obstacles,
         reobserve=args.reobserve, reobserve_update=args.reobserve_update, reobserve_fusion=args.reobserve_fusion,
-        task=args.task, scene=args.scene, objects_per_scene=args.objects_per_scene)
+        task=args.task, scene=args.scene, objects_per_scene=args.objects_per_scene,
+        looks=not args.plain_looks, observation_profile=args.observation_profile,
+        save_observations=args.save_observations)
     if cfg.task == "declutter":
         from simtest.envs.declutter import run_declutter
 

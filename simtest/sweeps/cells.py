@@ -86,7 +86,7 @@ def _grasp_rows(base: dict, cdir: Path, cell: dict) -> tuple[list[dict], list[di
     if (cdir / "episodes.csv").exists():
         for r in read_csv(cdir / "episodes.csv"):
             results.append({**base, "kind": "grasp", "episode": r["episode"], "obj_id": r["target_obj_id"],
-                            "target_name": r["target_name"], "add_s_or_add_m": r["add_s"], "re_deg": r["re_deg"],
+                            "target_name": r["target_name"], "add_s_or_add_m": r["add_s"], "re_deg": r.get("re_raw_deg") or r.get("re_deg", ""),
                             "re_sym_deg": r.get("re_sym_deg", ""), "te_m": r["te"], "mssd_m": r["mssd"], "success": r["success"], "reason": r["reason"]})
     return results, summary
 

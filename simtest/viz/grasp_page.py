@@ -1,7 +1,8 @@
 """Pictures of a grasp run (``simtest grasp --out RUN``): one card per episode with its outcome and pose error.
 
 A grasp folder holds ``episodes.csv`` (one row per episode: ``success``, ``reason``, ``add_s`` / ``te`` /
-``mssd`` metres, ``re_deg`` degrees, ``lift_height`` metres, ``error``), ``summary.json`` (success rate and its
+``mssd`` metres, ``re_sym_deg`` / ``re_raw_deg`` degrees (``re_deg`` in files of earlier releases),
+``lift_height`` metres, ``error``: why a failed episode failed), ``summary.json`` (success rate and its
 95 % interval) and, with ``--video``, ``videos/episode_NNNN_<object>_<reason>.gif`` (or ``.mp4``): frames of
 third-person view | wrist view. A card shows the clip's first and last frame when the episode has one, else
 its text only.
@@ -61,10 +62,14 @@ def first_last_frames(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(frames[0])[..., :3], np.asarray(frames[-1])[..., :3]
 
 
-def _num(row: dict, key: str) -> float:
+def _num(row: dict, key: str, old: str | None = None) -> float:
+    """``row[key]`` as a number (NaN when empty or missing); ``old``: the column's name in earlier files."""
+    value = row.get(key, "")
+    if (value is None or value == "") and old is not None:
+        value = row.get(old, "")
     try:
-        return float(row.get(key, ""))
-    except ValueError:
+        return float(value)
+    except (TypeError, ValueError):
         return math.nan
 
 
@@ -76,7 +81,9 @@ def episode_lines(row: dict) -> list[tuple[str, tuple[int, int, int]]]:
     out = [(f"episode {row.get('episode')}  {row.get('target_name')} (obj {row.get('target_obj_id')}): "
             f"{outcome}, lifted {_num(row, 'lift_height') * 100:.1f} cm", col)]
     if math.isfinite(_num(row, "add_s")):
-        out.append((f"estimate: ADD-S {_num(row, 'add_s') * 100:.2f} cm  re {_num(row, 're_deg'):.1f} deg  "
+        re_sym, re_raw = _num(row, "re_sym_deg", "re_deg"), _num(row, "re_raw_deg", "re_deg")
+        out.append((f"estimate: ADD-S {_num(row, 'add_s') * 100:.2f} cm  re_sym {re_sym:.1f} deg "
+                    f"(raw {re_raw:.1f})  "
                     f"te {_num(row, 'te') * 100:.2f} cm  MSSD {_num(row, 'mssd') * 100:.2f} cm  "
                     f"({_num(row, 'estimate_s') * 1000:.0f} ms)", (235, 235, 235)))
     else:

@@ -70,9 +70,10 @@ def test_bad_action_is_rejected_and_changes_nothing():
 
 def test_resets_reuse_the_model_and_stay_deterministic():
     """One model (the object set's pool) serves every episode of an object set: other targets, distractors,
-    with and without the occluder. The same seed gives identical observations and steps on a fresh env."""
+    with and without the occluder. The same seed gives identical observations and steps on a fresh env. (The
+    plain look: a scene in the generator's looks is compiled each reset.)"""
     env = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
-                target=None, n_distractors=2)
+                target=None, n_distractors=2, looks=False)
     u = env.unwrapped
     env.reset(seed=1, options={"occlusion": "L1"})
     env.step(np.zeros(7, np.float32))
@@ -91,7 +92,7 @@ def test_resets_reuse_the_model_and_stay_deterministic():
     assert u.task.models.compiles == 1 and u.task.models.reuses == 8 and u.task.models.pool_misses == 0
 
     fresh = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
-                  target=None, n_distractors=2)
+                  target=None, n_distractors=2, looks=False)
     obs, info = fresh.reset(seed=2, options={"occlusion": "L1"})
     _assert_same(obs, reused)
     assert info["occlusion"] == info_reused["occlusion"]
@@ -114,14 +115,14 @@ def test_resets_reuse_the_model_and_stay_deterministic():
 
 def test_physics_only_envs_keep_one_model_per_structure():
     """Without images every step the env compiles per structure (parked objects would slow its physics),
-    unless the pool is asked for; a bad ``model_pool`` names the allowed values."""
-    env = _make(objects="builtin-small", target="box_0", observe_every_step=False)
+    unless the pool is asked for; a bad ``model_pool`` names the allowed values (plain look, as above)."""
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False, looks=False)
     env.reset(seed=0)
     env.reset(seed=1, options={"target": "can_0"})
     models = env.unwrapped.task.models
     assert not models.use_pool and models.compiles == 2 and models.reuses == 0
     env.close()
-    env = _make(objects="builtin-small", target="box_0", observe_every_step=False, model_pool=True)
+    env = _make(objects="builtin-small", target="box_0", observe_every_step=False, model_pool=True, looks=False)
     env.reset(seed=0)
     env.reset(seed=1, options={"target": "can_0"})
     assert env.unwrapped.task.models.compiles == 1 and env.unwrapped.task.models.reuses == 1
