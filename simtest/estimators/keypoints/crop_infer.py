@@ -78,8 +78,9 @@ REFINES = ("none", "silhouette")
 #: The pose stages: the crop network, or template matching on the same detections (:data:`POSE_STAGES`).
 POSES = ("network", "templates")
 #: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
-#: ``candidates`` is given (chosen on the real LM-O frames, docs/sim2real.md).
-TEMPLATE_CANDIDATES, TEMPLATE_SELECT = 3, "match"
+#: ``candidates`` is given, and no silhouette fit to the detector's coarse regions (chosen on the real LM-O
+#: frames, docs/sim2real.md).
+TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE = 3, "match", "none"
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -158,7 +159,8 @@ class CropKeypointEstimator:
             :data:`TEMPLATE_CANDIDATES` with ``pose=templates``.
         pose: ``network`` (the crop network, steps 2-6 of the module doc) or ``templates`` (the detections
             posed by :class:`~simtest.estimators.templates.estimator.TemplateEstimator`: templates rendered
-            from the models, no training; the best template match among the candidates is kept). None: what
+            from the models, no training; the best template match among the candidates is kept, and with
+            ``detect=rgb`` not fitted to the detector's coarse region). None: what
             the shipped set found for the objects prefers (:func:`simtest.estimators.shipped.pose_stage`:
             ``templates`` for LM-O), else ``network``.
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class
@@ -394,7 +396,8 @@ class CropKeypointEstimator:
             given = self._options["candidates"]
             self.templates = TemplateEstimator(
                 detect=self.detect, region_rank=self.region_rank, threads=self._options["threads"] or 1,
-                candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT)
+                candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
+                refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette")
             self.templates.segmenter = self.segmenter
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

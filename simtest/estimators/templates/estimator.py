@@ -12,6 +12,9 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
    (:mod:`.local`).
 4. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
    (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
+5. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
+   expected instance are all posed, and per object the best (``select``: template match by default) are kept;
+   every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
 
 On the 100 real LM-O frames (734 targets; docs/sim2real_templates.py) with ground-truth visible masks
 (``detect=gt``, a diagnostic) and the defaults: 50.5 % [46.9, 54.1] ADD(-S)-0.1d, median rotation error
