@@ -386,6 +386,7 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     est = load_estimator("keypoints", pose="templates", candidates=1)
     found = est.estimate(obs)
     assert est.templates.segmenter is est.segmenter and est.templates.candidates == 1
+    assert est.templates.refine == "none"  # the detector's regions are too coarse to fit a silhouette to
     assert found and all("match" in e.info for e in found)
     wanted = Counter(obs.target_obj_ids)
     assert all(n <= wanted[o] for o, n in Counter(e.obj_id for e in found).items())
