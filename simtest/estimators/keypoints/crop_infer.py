@@ -36,6 +36,10 @@ dense solver: 24.4 against 19.7 % ADD(-S)-0.1d on the validation set of docs/tra
 ``ransac_px`` full-image pixels) and LM on the inliers. Hundreds of correspondences average out the error of
 each one, which 8 keypoints cannot.
 
+With ``pose=templates`` steps 2-6 are replaced by template matching
+(:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, sharing the detector): the pose stage the
+shipped LM-O set takes by default (:func:`simtest.estimators.shipped.pose_stage`; docs/sim2real.md).
+
 The observation's depth is never read (``detect="segicp"`` excepted, for the detection). torch is imported only
 for a ``.pt`` checkpoint without its current ONNX file (or ``runtime=torch``).
 """
