@@ -10,7 +10,9 @@ rates. Run from the repository root::
     python docs/sim2real_templates.py --data LMO --variant rgb --out runs/templates
 
 ``--variant gt`` poses the ground-truth visible masks (``--opt detect=gt``, a diagnostic labelled
-``(GT masks)``); ``rgb`` the regions of the shipped LM-O detector (what the estimator sees at test time).
+``(GT masks)``); ``rgb`` the regions of the shipped LM-O detector (what the estimator sees at test time);
+``candidates`` its three most probable regions per object, the best template match kept (what
+``simtest eval --estimator keypoints`` runs on LM-O with no options).
 ``--opt KEY=VALUE`` passes more estimator options (e.g. ``views=1000``, ``stride=16``, ``refine=none``). The
 template banks are cached in simtest's cache folder (``$SIMTEST_CACHE``), built in about a minute per object
 set at first use.
@@ -34,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from envs.runner import wilson_interval  # noqa: E402
 
-VARIANTS = {"gt": ["detect=gt"], "rgb": ["detect=rgb"]}
+VARIANTS = {"gt": ["detect=gt"], "rgb": ["detect=rgb"], "candidates": ["detect=rgb", "candidates=3"]}
 
 
 def summary(run: Path) -> str:

@@ -21,7 +21,13 @@ from typing import Any
 from simtest.errors import ConfigError
 from simtest.estimators.checkpoint import check_objects
 
-__all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "matches"]
+__all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "matches", "POSE_STAGES", "pose_stage"]
+
+#: The pose stage of the ``keypoints`` estimator for a shipped object set where it is not the set's crop
+#: network (``network``): on LM-O's real photographs the template matcher
+#: (:mod:`simtest.estimators.templates`) on the shipped detector's regions poses far more objects correctly
+#: than the crop network trained on renders (docs/sim2real.md).
+POSE_STAGES = {"lmo": "templates"}
 
 _NAME = re.compile(r"^(?P<family>[a-z_]+?)_(?P<set>[A-Za-z0-9.-]+)_(?P<w>\d+)x(?P<h>\d+)\.onnx$")
 
@@ -85,6 +91,12 @@ def matches(record: dict[str, Any], objects: Any, subset: bool = False) -> str |
     except ConfigError as exc:
         return str(exc).strip().rstrip(".")
     return None
+
+
+def pose_stage(net: ShippedNet) -> str:
+    """``network`` (the crop network) or ``templates``: how the ``keypoints`` estimator poses the objects of
+    the shipped network ``net`` when no ``pose`` option is given (:data:`POSE_STAGES`)."""
+    return POSE_STAGES.get(net.object_set, "network")
 
 
 def choose(family: str, fmt: str, objects: Any, *, what: str, subset: bool = False,

@@ -36,6 +36,10 @@ dense solver: 24.4 against 19.7 % ADD(-S)-0.1d on the validation set of docs/tra
 ``ransac_px`` full-image pixels) and LM on the inliers. Hundreds of correspondences average out the error of
 each one, which 8 keypoints cannot.
 
+With ``pose=templates`` steps 2-6 are replaced by template matching
+(:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, sharing the detector): the pose stage the
+shipped LM-O set takes by default (:func:`simtest.estimators.shipped.pose_stage`; docs/sim2real.md).
+
 The observation's depth is never read (``detect="segicp"`` excepted, for the detection). torch is imported only
 for a ``.pt`` checkpoint without its current ONNX file (or ``runtime=torch``).
 """
@@ -44,7 +48,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -61,7 +65,10 @@ from simtest.estimators.silhouette import fit_translation
 from simtest.io.bop import mask_bbox
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
-from simtest.estimators.shipped import choose, matches
+from simtest.estimators.shipped import choose, matches, pose_stage
+
+if TYPE_CHECKING:
+    from simtest.estimators.templates.estimator import TemplateEstimator
 
 __all__ = ["CropKeypointEstimator", "CROP_FORMAT", "DETECTORS", "FUSIONS", "default_checkpoint",
            "default_detector", "crop_maps"]
@@ -72,6 +79,12 @@ DETECTORS = ("rgb", "segicp", "gt")
 FUSIONS = ("auto", "confidence", "uniform")
 SOLVERS = ("auto", "dense", "keypoints")
 REFINES = ("none", "silhouette")
+#: The pose stages: the crop network, or template matching on the same detections (:data:`POSE_STAGES`).
+POSES = ("network", "templates")
+#: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
+#: ``candidates`` is given, and no silhouette fit to the detector's coarse regions (chosen on the real LM-O
+#: frames, docs/sim2real.md).
+TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE = 3, "match", "none"
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -144,9 +157,16 @@ class CropKeypointEstimator:
             validation set of docs/training.md: 24.4, 26.4, 28.0, 26.4 % ADD(-S)-0.1d for 0-3 passes), 0 with
             ``detect=gt`` (the ground-truth visible box already frames the crop as in training).
         candidates: With a detector and the target ids given (localization): up to this many of the
-            detector's regions (largest first) per expected instance get a pose, and per object the
+            detector's regions (ranked by ``region_rank``) per expected instance get a pose, and per object the
             best-scored poses, as many as it has instances, are kept (1: the first region only). For
-            clutter a detector trained on renders mistakes for an object.
+            clutter a detector trained on renders mistakes for an object. None: 1, or
+            :data:`TEMPLATE_CANDIDATES` with ``pose=templates``.
+        pose: ``network`` (the crop network, steps 2-6 of the module doc) or ``templates`` (the detections
+            posed by :class:`~simtest.estimators.templates.estimator.TemplateEstimator`: templates rendered
+            from the models, no training; the best template match among the candidates is kept, and with
+            ``detect=rgb`` not fitted to the detector's coarse region). None: what
+            the shipped set found for the objects prefers (:func:`simtest.estimators.shipped.pose_stage`:
+            ``templates`` for LM-O), else ``network``.
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class
             probability first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md):
             the detector's region holds the object for 44.9 % of 761 real targets ranked by probability,
@@ -167,7 +187,8 @@ class CropKeypointEstimator:
                  threads: int | None = None, runtime: str = "auto", solver: str = "auto",
                  dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int | None = None,
                  refine: str | None = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.15,
-                 refine_coverage: float = 0.2, candidates: int = 1, region_rank: str = "prob", *, model: Any = None,
+                 refine_coverage: float = 0.2, candidates: int | None = None, region_rank: str = "prob",
+                 pose: str | None = None, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS)):
@@ -175,10 +196,17 @@ class CropKeypointEstimator:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
-        if not (isinstance(candidates, int) and not isinstance(candidates, bool) and 1 <= candidates <= 8):
+        if candidates is not None and not (isinstance(candidates, int) and not isinstance(candidates, bool)
+                                           and 1 <= candidates <= 8):
             raise ConfigError(f"keypoints: candidates must be an integer 1-8, got {candidates!r}")
         #: Detector regions tried per expected instance; the best-scored poses are kept (localization).
-        self.candidates = int(candidates)
+        self.candidates = 1 if candidates is None else int(candidates)
+        if pose is not None and (pose not in POSES or (pose == "templates" and detect == "segicp")):
+            raise ConfigError(f"keypoints: unknown pose {pose!r} for detect={detect!r}; valid: "
+                              f"{', '.join(POSES)} (templates with detect=rgb or gt)")
+        #: The pose stage (``network`` or ``templates``); without a ``pose`` option the shipped set decides.
+        self.pose = pose or "network"
+        self.templates: TemplateEstimator | None = None
         if region_rank not in REGION_RANKS:
             raise ConfigError(f"keypoints: region_rank must be one of {', '.join(REGION_RANKS)}, got {region_rank!r}")
         #: Which detector regions of a class are posed first: ``prob`` (most certain) or ``area`` (largest).
@@ -209,7 +237,8 @@ class CropKeypointEstimator:
         self.needs_depth = detect == "segicp"
         self.net = self.model = None
         self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
-                         "threads": threads, "min_region_pixels": int(min_region_pixels)}
+                         "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
+                         "candidates": candidates}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:
@@ -253,6 +282,8 @@ class CropKeypointEstimator:
         """Swap in the shipped crop network (and, unless one was named, the shipped detector) trained for
         ``objects``; a :class:`ConfigError` names the shipped sets when none was."""
         net = choose("keypoints", CROP_FORMAT, objects, what="keypoints")
+        if self._options["pose"] is None and self.detect != "segicp":
+            self.pose = pose_stage(net)
         self._load(net.path, self._options["runtime"], self._options["threads"])
         self._configure()
         if self.detect == "rgb" and self._options["detector"] is None:
@@ -332,6 +363,8 @@ class CropKeypointEstimator:
         obs = observation
         self.check_objects(obs.objects)
         self.last_failures = []
+        if self.pose == "templates":
+            return self._template_poses(obs)
         dets = [d for d in self.detections(obs) if self._known(d[1])]
         if not dets:
             return []
@@ -355,6 +388,24 @@ class CropKeypointEstimator:
             info["box"] = [float(v) for v in box]
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
         return self._best_per_target(out, obs)
+
+    def _template_poses(self, obs: Observation) -> list[PoseEstimate]:
+        """``pose=templates``: the detector's regions (or the ground-truth masks with ``detect=gt``) posed by
+        template matching (:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, made at first
+        use and sharing this estimator's detector)."""
+        if self.templates is None:
+            # local: the templates package imports this package's crop geometry
+            from simtest.estimators.templates.estimator import TemplateEstimator
+
+            given = self._options["candidates"]
+            self.templates = TemplateEstimator(
+                detect=self.detect, region_rank=self.region_rank, threads=self._options["threads"] or 1,
+                candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
+                refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette")
+            self.templates.segmenter = self.segmenter
+        out = self.templates.estimate(obs)
+        self.last_failures = list(self.templates.last_failures)
+        return out
 
     def _best_per_target(self, found: list[PoseEstimate], obs: Observation) -> list[PoseEstimate]:
         """With ``candidates > 1`` and the target ids known: per object the as many best-scored estimates as

@@ -12,6 +12,9 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
    (:mod:`.local`).
 4. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
    (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
+5. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
+   expected instance are all posed, and per object the best (``select``: template match by default) are kept;
+   every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
 
 On the 100 real LM-O frames (734 targets; docs/sim2real_templates.py) with ground-truth visible masks
 (``detect=gt``, a diagnostic) and the defaults: 50.5 % [46.9, 54.1] ADD(-S)-0.1d, median rotation error
@@ -39,10 +42,14 @@ from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
 from simtest.estimators.templates.render import ObjectRenderer
 
-__all__ = ["TemplateEstimator", "DETECTORS", "REFINES"]
+__all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
 
 DETECTORS = ("rgb", "gt")
 REFINES = ("none", "silhouette")
+#: How one of an object's candidate regions is kept (``candidates`` > 1): the best template match
+#: (``match``), the detector's region rank (``prob``: the first region, as with one candidate), or the match
+#: times the detector's mean class probability (``match_prob``).
+SELECTS = ("match", "prob", "match_prob")
 
 
 class TemplateEstimator:
@@ -60,6 +67,8 @@ class TemplateEstimator:
             refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
         local_deg: First step (degrees) of the local template search around the best bank match (0: none;
             :mod:`.local`).
+        candidates: With ``detect=rgb`` and known targets, the detector regions posed per expected instance
+            (ranked by ``region_rank``); ``select`` decides which pose is kept (:data:`SELECTS`).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -69,12 +78,16 @@ class TemplateEstimator:
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
-                 local_deg: float = 0.0) -> None:
+                 local_deg: float = 0.0, candidates: int = 1, select: str = "match") -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
         if refine not in REFINES:
             raise ConfigError(f"templates: unknown refine {refine!r}; valid: {', '.join(REFINES)}")
+        if select not in SELECTS:
+            raise ConfigError(f"templates: unknown select {select!r}; valid: {', '.join(SELECTS)}")
+        if int(candidates) < 1:
+            raise ConfigError(f"templates: need candidates >= 1, got {candidates!r}")
         if not float(inplane_deg) > 0 or not float(inplane_range_deg) >= 0:
             raise ConfigError(f"templates: need inplane_deg > 0 and inplane_range_deg >= 0, got {inplane_deg!r}, "
                               f"{inplane_range_deg!r}")
@@ -98,6 +111,10 @@ class TemplateEstimator:
         self.renderers: dict[int, ObjectRenderer] = {}
         self.segmenter = None
         self.last_failures: list[dict[str, Any]] = []
+        #: Candidate regions posed per expected instance, and the rule that keeps one (:data:`SELECTS`).
+        self.candidates, self.select = int(candidates), select
+        #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
+        self.last_candidates: list[dict[str, Any]] = []
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -119,8 +136,9 @@ class TemplateEstimator:
         if self.segmenter is None:
             self._load_detector(obs.objects)
         seen = replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
+        per = self.candidates if obs.target_obj_ids is not None else 1
         return [(None, int(o), np.asarray(m, bool), float(p)) for o, m, p in
-                self.segmenter.regions(seen, 1, self.region_rank)]
+                self.segmenter.regions(seen, per, self.region_rank)]
 
     def _load_detector(self, objects) -> None:
         from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT, Segmenter
@@ -135,15 +153,45 @@ class TemplateEstimator:
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """Pose estimates (metres, camera frame) of the regions found (see the module doc)."""
         obs = observation
-        self.last_failures = []
+        self.last_failures, self.last_candidates = [], []
         K = np.asarray(obs.K, np.float64)
         regions = self._regions(obs)
+        if self.candidates > 1 and self.detect == "rgb" and obs.target_obj_ids is not None:
+            return self._estimate_candidates(obs, regions, K)
         out = []
         for n, (k, oid, mask, dscore) in enumerate(regions):
             obj = obs.objects.get(oid)
             others = [r[2] for j, r in enumerate(regions) if j != n]
             R, t, score, info = self._pose(obj, np.asarray(obs.rgb), mask, K, others)
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
+        return out
+
+    def _estimate_candidates(self, obs: Observation, regions: list[tuple[int | None, int, np.ndarray, float]],
+                             K: np.ndarray) -> list[PoseEstimate]:
+        """Per object, every candidate region posed and as many kept as instances are expected (``select``).
+        A candidate's pixels are not counted against another object's first region, nor the reverse."""
+        wanted = [int(o) for o in obs.target_obj_ids]
+        by_obj: dict[int, list[tuple[np.ndarray, float]]] = {}
+        for _, oid, mask, dscore in regions:
+            by_obj.setdefault(oid, []).append((mask, dscore))
+        out = []
+        for oid, cands in by_obj.items():
+            obj = obs.objects.get(oid)
+            others = [c[0][0] for o, c in by_obj.items() if o != oid]
+            posed = []
+            for rank, (mask, dscore) in enumerate(cands):
+                R, t, score, info = self._pose(obj, np.asarray(obs.rgb), mask, K, others)
+                key = {"match": score, "prob": -rank, "match_prob": score * dscore}[self.select]
+                posed.append((key, rank, R, t, score, dscore, info))
+                self.last_candidates.append({"obj_id": oid, "rank": rank, "prob": dscore, "match": float(score),
+                                             "pixels": int(mask.sum()), "mask": mask, "R": R, "t": t,
+                                             "info": info, "kept": False})
+            posed.sort(key=lambda p: (-p[0], p[1]))
+            first = len(self.last_candidates) - len(cands)
+            for key, rank, R, t, score, dscore, info in posed[:wanted.count(oid)]:
+                self.last_candidates[first + rank]["kept"] = True
+                out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=None,
+                                        info={**info, "candidate": rank, "candidates": len(cands)}))
         return out
 
     def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
@@ -167,6 +215,7 @@ class TemplateEstimator:
             if found is not None:
                 bank, j, info["match_local"] = found, 0, best
         R, t = template_pose(bank, j, crop.K, crop.R_virt)
+        info["t_matched"] = t.tolist()
         if self.refine == "silhouette":
             R, t, info["silhouette"] = self._refine(obj, R, t, crop, K, rgb.shape[:2], others)
         return R, t, best, info

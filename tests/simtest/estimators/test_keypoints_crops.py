@@ -368,3 +368,27 @@ def test_estimator_options_are_checked():
     est = CropKeypointEstimator(model=plain, objects_record=object_record(load_object_set("builtin-small")),
                                 detect="gt")
     assert (est.solver, est.fusion, est.recrop) == ("keypoints", "confidence", 0)  # gt boxes: no recrop
+
+
+def test_pose_templates_poses_the_detections_by_template_matching(small_dataset, tmp_path, monkeypatch):
+    """``--opt pose=templates``: the same detector's regions, posed by the template estimator (which shares the
+    detector), ``TEMPLATE_CANDIDATES`` regions per expected instance unless ``candidates`` is given."""
+    from collections import Counter
+
+    from simtest.estimators import load_estimator
+    from simtest.estimators.keypoints.crop_infer import TEMPLATE_CANDIDATES
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=1)
+    obs, _ = _observation(ds, 0, objects)
+    obs = replace(obs, masks=None)
+    est = load_estimator("keypoints", pose="templates", candidates=1)
+    found = est.estimate(obs)
+    assert est.templates.segmenter is est.segmenter and est.templates.candidates == 1
+    assert est.templates.refine == "none"  # the detector's regions are too coarse to fit a silhouette to
+    assert found and all("match" in e.info for e in found)
+    wanted = Counter(obs.target_obj_ids)
+    assert all(n <= wanted[o] for o, n in Counter(e.obj_id for e in found).items())
+    assert load_estimator("keypoints", pose="templates").candidates == 1  # the network's, unchanged
+    assert TEMPLATE_CANDIDATES >= 1

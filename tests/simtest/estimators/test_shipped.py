@@ -60,3 +60,23 @@ def test_the_lmo_models_get_the_lmo_networks():
     assert Path(est.checkpoint).name.startswith("keypoints_lmo_")
     assert Path(est.segmenter.checkpoint).name.startswith("keypoints_detector_lmo_")
     assert est.class_ids == objects.ids
+
+
+def test_the_pose_stage_follows_the_shipped_set():
+    """``keypoints`` with no ``pose`` option: the crop network for builtin-small, template matching for LM-O's
+    shipped set; an explicit ``pose`` wins, and a bad one is refused naming it."""
+    from simtest.estimators import load_estimator
+    from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
+    from simtest.estimators.shipped import ShippedNet, pose_stage
+
+    small = choose("keypoints", CROP_FORMAT, load_object_set("builtin-small"), what="keypoints")
+    assert pose_stage(small) == "network"
+    assert pose_stage(ShippedNet(small.path, "keypoints", "lmo", (640, 480), small.record)) == "templates"
+    est = load_estimator("keypoints")
+    est.check_objects(load_object_set("builtin-small"))
+    assert est.pose == "network" and est.candidates == 1 and est.templates is None
+    assert load_estimator("keypoints", pose="templates").pose == "templates"
+    with pytest.raises(ConfigError, match="unknown pose 'mesh'"):
+        CropKeypointEstimator(pose="mesh")
+    with pytest.raises(ConfigError, match="unknown pose 'templates' for detect='segicp'"):
+        CropKeypointEstimator(pose="templates", detect="segicp")

@@ -119,3 +119,43 @@ def test_registered_by_name():
     est = load_estimator("templates", detect="gt", views=60)
     assert isinstance(est, TemplateEstimator) and est.needs_gt_masks and not est.needs_depth
     assert estimator_label("templates", est) == "templates (GT masks)"
+
+
+def test_detector_candidates_keep_the_best_match_per_expected_instance(small_dataset, cache, monkeypatch):
+    """``candidates=3`` with the shipped builtin-small detector on generated frames: every candidate region of
+    an object is posed, and as many as the image has instances of it are kept, the best template matches
+    (``select=match``) or the detector's first regions (``select=prob``)."""
+    from collections import Counter
+
+    from simtest.evaluation.images import observation
+    from simtest.io.dataset import image_size, select_images
+    from simtest.objects.loaders import load_dataset_objects
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    objects = load_dataset_objects(small_dataset)
+    width, height = image_size(small_dataset)
+    seen = 0
+    for select in ("match", "prob"):
+        est = TemplateEstimator(detect="rgb", views=60, min_elevation_deg=0.0, candidates=3, select=select)
+        for ref in select_images(small_dataset, None, None, 2, objects.ids):
+            obs, _ = observation(ref, objects, "gt-masks", width, height, False)
+            found = est.estimate(obs)
+            wanted = Counter(obs.target_obj_ids)
+            assert all(n <= wanted[o] for o, n in Counter(e.obj_id for e in found).items())
+            cands = est.last_candidates
+            assert sum(c["kept"] for c in cands) == len(found)
+            for oid in {c["obj_id"] for c in cands}:
+                mine = [c for c in cands if c["obj_id"] == oid]
+                kept = [c for c in mine if c["kept"]]
+                assert len(mine) <= 3 * wanted[oid] and len(kept) == min(len(mine), wanted[oid])
+                if select == "prob":
+                    assert sorted(c["rank"] for c in kept) == list(range(len(kept)))
+                else:
+                    dropped = [c["match"] for c in mine if not c["kept"]]
+                    assert min(c["match"] for c in kept) >= max(dropped, default=-1.0)
+            seen += len(cands)
+    assert seen > 0
+    with pytest.raises(ConfigError, match="unknown select 'area'"):
+        TemplateEstimator(select="area")
+    with pytest.raises(ConfigError, match="candidates >= 1, got 0"):
+        TemplateEstimator(candidates=0)
