@@ -55,7 +55,7 @@ class CheckRow:
 def bench_record(table: dict, command: str = "") -> dict:
     """``table`` (a :meth:`ProfileBench.to_dict` or :meth:`GenerateBench.to_dict`) with what the run saw: the
     command, cores, the load averages (1, 5 and 15 minutes) when it is written and the time (UTC)."""
-    from simtest.render.gl import available_cores
+    from simtest.backend.threads import available_cores
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     return {**table, "command": command, "machine": {

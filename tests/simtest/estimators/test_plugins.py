@@ -98,7 +98,7 @@ def test_example_estimator_runs_in_grasp_by_file_path(tmp_path):
                  "--out", str(out), "--quiet"]) == 0
     (row,) = _csv(out / "episodes.csv")
     assert row["reason"] not in ("estimator_error", "estimator_timeout", "no_estimate"), row
-    assert float(row["te"]) < 0.05 and float(row["re_sym_deg"]) <= float(row["re_deg"]) + 1e-9
+    assert float(row["te"]) < 0.05 and float(row["re_sym_deg"]) <= float(row["re_raw_deg"]) + 1e-9
 
 
 # --- loading --------------------------------------------------------------------------------------------------
