@@ -115,17 +115,25 @@ def score(out: Path, max_rank: int | None = None, key: str = "error") -> dict[st
     return {r: (h, n) for r, (h, n) in res.items()}
 
 
+def _value(text: str) -> float | str:
+    """An option's value: a number where it reads as one, else the text."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--out", type=Path, required=True, help="JSON-lines file of the candidates")
     ap.add_argument("--candidates", type=int, default=3)
     ap.add_argument("--max-images", type=int, default=None)
-    ap.add_argument("--opt", action="append", default=[], help="more estimator options KEY=VALUE (numbers)")
+    ap.add_argument("--opt", action="append", default=[], help="more estimator options KEY=VALUE")
     ap.add_argument("--score-only", action="store_true")
     args = ap.parse_args(argv)
     if not args.score_only:
-        opts = {k: float(v) for k, v in (o.split("=", 1) for o in args.opt)}
+        opts = {k: _value(v) for k, v in (o.split("=", 1) for o in args.opt)}
         dump(args.data, args.out, args.candidates, args.max_images, opts)
     for key, what in (("error", "silhouette-fitted"), ("error_matched", "matched template, no fit")):
         for k in range(1, args.candidates + 1):

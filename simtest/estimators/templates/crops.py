@@ -20,7 +20,7 @@ from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_
 from simtest.estimators.templates.views import inplane_rotation
 from simtest.errors import ConfigError
 
-__all__ = ["Crop", "ray_rotation", "region_crop", "MAX_BOX_POINTS"]
+__all__ = ["Crop", "ray_rotation", "region_crop", "window_crop", "aimed_crop", "window_centre", "MAX_BOX_POINTS"]
 
 #: Mask pixels used to find a region's box in the virtual camera (a deterministic subsample beyond this).
 MAX_BOX_POINTS = 4000
@@ -30,13 +30,15 @@ MAX_BOX_POINTS = 4000
 class Crop:
     """One crop: ``rgb`` (S, S, 3) uint8, ``mask`` (S, S) bool (the region in the crop), ``valid`` (S, S) bool
     (crop pixels that come from inside the image), ``K`` (3, 3) its intrinsics (pixels) and ``R_virt`` (3, 3)
-    the rotation from the real camera frame into the crop's camera frame."""
+    the rotation from the real camera frame into the crop's camera frame; ``window`` ``(x0, y0, side, side)`` is
+    the crop's square in the virtual camera's image (pixels at the real focal lengths)."""
 
     rgb: np.ndarray
     mask: np.ndarray
     valid: np.ndarray
     K: np.ndarray
     R_virt: np.ndarray
+    window: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 def ray_rotation(K: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -82,10 +84,38 @@ def region_crop(rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, size: int, mar
     q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2), H0).reshape(-1, 2)
     qlo, qhi = q.min(0), q.max(0)
     window = crop_window_for_box([qlo[0], qlo[1], qhi[0] - qlo[0], qhi[1] - qlo[1]], margin)
-    K_crop = crop_intrinsics(K, window, int(size))[0]
-    H = K_crop @ R_virt @ np.linalg.inv(K)
+    return window_crop(rgb, K, R_virt, window, size, mask)
+
+
+def window_crop(rgb: np.ndarray, K: np.ndarray, R_virt: np.ndarray, window, size: int,
+                mask: np.ndarray | None = None) -> Crop:
+    """The crop of ``rgb`` (H, W, 3) seen by the virtual camera ``R_virt`` (real to virtual camera) through the
+    square ``window`` ``(x0, y0, side, side)`` of its image (pixels at the real intrinsics ``K``), resampled to
+    ``size`` pixels; ``mask`` (H, W) bool is carried along (None: an empty crop mask)."""
+    K = np.asarray(K, np.float64)
     S = int(size)
+    K_crop = crop_intrinsics(K, window, S)[0]
+    H = K_crop @ R_virt @ np.linalg.inv(K)
     out = cv2.warpPerspective(rgb, H, (S, S), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    m = cv2.warpPerspective(mask.astype(np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0
-    valid = cv2.warpPerspective(np.ones(mask.shape, np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0
-    return Crop(rgb=out, mask=m, valid=valid, K=K_crop, R_virt=R_virt)
+    m = (np.zeros((S, S), bool) if mask is None else
+         cv2.warpPerspective(np.asarray(mask, np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0)
+    valid = cv2.warpPerspective(np.ones(rgb.shape[:2], np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0
+    return Crop(rgb=out, mask=m, valid=valid, K=K_crop, R_virt=R_virt, window=tuple(float(v) for v in window))
+
+
+def aimed_crop(rgb: np.ndarray, K: np.ndarray, uv, side: float, roll_rad: float, size: int) -> Crop:
+    """The crop of a virtual camera aimed at the real pixel ``uv`` and rolled by ``roll_rad``, whose window is
+    the square of ``side`` pixels (at the real focal lengths) around its principal point: the framing of
+    :func:`region_crop` given by a centre and a size instead of a region."""
+    K = np.asarray(K, np.float64)
+    R_virt = inplane_rotation(roll_rad) @ ray_rotation(K, np.asarray(uv, np.float64))
+    cx, cy, s = float(K[0, 2]), float(K[1, 2]), float(side)
+    return window_crop(rgb, K, R_virt, (cx - 0.5 * s, cy - 0.5 * s, s, s), size)
+
+
+def window_centre(crop: Crop, K: np.ndarray) -> np.ndarray:
+    """The real image pixel (2,) seen at the centre of ``crop``'s window."""
+    x0, y0, side, _ = crop.window
+    K = np.asarray(K, np.float64)
+    p = K @ crop.R_virt.T @ np.linalg.solve(K, np.array([x0 + 0.5 * side, y0 + 0.5 * side, 1.0]))
+    return p[:2] / p[2]

@@ -8,11 +8,13 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
 2. Each crop is encoded by the frozen EfficientNet-Lite0 (:mod:`.encoder`) and scored against every template
    (:mod:`.match`); the best (angle, template) gives the rotation, and the crop pixel and size of the template's
    object give the translation.
-3. With ``local_deg`` templates rendered on the fly around the best match replace it while they match better
+3. With ``framing`` the crop window is moved and scaled while the templates match it better (:mod:`.framing`):
+   the translation then comes from the best-matching window, not from the region's outline.
+4. With ``local_deg`` templates rendered on the fly around the best match replace it while they match better
    (:mod:`.local`).
-4. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
+5. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
    (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
-5. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
+6. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
    expected instance are all posed, and per object the best (``select``: template match by default) are kept;
    every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
 
@@ -35,9 +37,10 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.templates.bank import RENDER_SIZE, BankSettings, TemplateBank, load_or_build, render_intrinsics
-from simtest.estimators.templates.crops import region_crop
+from simtest.estimators.templates.crops import region_crop, window_centre
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
+from simtest.estimators.templates.framing import framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
 from simtest.estimators.templates.render import ObjectRenderer
@@ -65,6 +68,8 @@ class TemplateEstimator:
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
         refine: ``silhouette`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
             refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
+        framing: Move and scale the crop window until the templates match it best (:mod:`.framing`), so
+            the pose's depth and position no longer follow the region's outline.
         local_deg: First step (degrees) of the local template search around the best bank match (0: none;
             :mod:`.local`).
         candidates: With ``detect=rgb`` and known targets, the detector regions posed per expected instance
@@ -78,7 +83,7 @@ class TemplateEstimator:
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
-                 local_deg: float = 0.0, candidates: int = 1, select: str = "match") -> None:
+                 local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -111,6 +116,8 @@ class TemplateEstimator:
         self.renderers: dict[int, ObjectRenderer] = {}
         self.segmenter = None
         self.last_failures: list[dict[str, Any]] = []
+        #: Search the crop window's position and size for the best template match (:mod:`.framing`).
+        self.framing = bool(framing)
         #: Candidate regions posed per expected instance, and the rule that keeps one (:data:`SELECTS`).
         self.candidates, self.select = int(candidates), select
         #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
@@ -208,9 +215,16 @@ class TemplateEstimator:
         crop, best = crops[a], float(scores[a, j])
         info: dict[str, Any] = {"template": int(j), "inplane_deg": float(np.degrees(self.inplane[a])),
                                 "match": best}
+        query, query_mask = q[a], None if qm is None else qm[a]
+        if self.framing:
+            fr = framing_search(rgb, K, window_centre(crop, K), crop.window[2], float(self.inplane[a]),
+                                self.encoder, weights, self.settings.size)
+            info.update(framing_crops=fr.crops, match_region=best, match=fr.score,
+                        inplane_deg=float(np.degrees(fr.roll_rad)))
+            crop, j, best, query, query_mask = fr.crop, fr.template, fr.score, fr.query, None
         if self.local_deg > 0:
             found, best, info["local_renders"] = local_search(
-                self._renderer(obj), self.settings, self.encoder, q[a], None if qm is None else qm[a], bank.R[j],
+                self._renderer(obj), self.settings, self.encoder, query, query_mask, bank.R[j],
                 best, step_deg=self.local_deg)
             if found is not None:
                 bank, j, info["match_local"] = found, 0, best

@@ -159,3 +159,31 @@ def test_detector_candidates_keep_the_best_match_per_expected_instance(small_dat
         TemplateEstimator(select="area")
     with pytest.raises(ConfigError, match="candidates >= 1, got 0"):
         TemplateEstimator(candidates=0)
+
+
+def test_framing_search_frees_the_pose_from_a_loose_region(objects, cache, monkeypatch):
+    """A region far larger than the object and off its centre (a coarse detector's) puts the matched template's
+    pose off in depth; the framing search moves and scales the window onto the object: the depth within 8 %
+    and the centre within 6 pixels, closer than the region's own framing."""
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    obj = objects.by_name("mug_0")
+    est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none")
+    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    loose = cv2.dilate(np.roll(mask, (14, -10), axis=(0, 1)).astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
+    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                      target_obj_ids=(obj.obj_id,), masks=(loose,))
+    (plain,) = est.estimate(obs)
+    est.framing = True
+    (framed,) = est.estimate(obs)
+    assert framed.info["framing_crops"] > 7 and framed.info["match"] >= framed.info["match_region"]
+
+    def errors(e):
+        px = float(np.linalg.norm((K @ e.t)[:2] / e.t[2] - (K @ t)[:2] / t[2]))
+        return px, abs(e.t[2] / t[2] - 1.0)
+
+    (px_f, dz_f), (px_p, dz_p) = errors(framed), errors(plain)
+    assert dz_f < 0.08 and px_f < 6.0 and dz_f < dz_p, (px_f, dz_f, px_p, dz_p)
+    (again,) = est.estimate(obs)
+    assert np.array_equal(again.t, framed.t) and np.array_equal(again.R, framed.R)  # deterministic

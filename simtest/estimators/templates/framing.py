@@ -1,0 +1,78 @@
+"""Framing search: the crop's aim, size and roll changed until the templates match it best.
+
+A region's crop is framed by the region's box (:func:`~simtest.estimators.templates.crops.region_crop`), and
+the matched template's pose takes its depth from that framing (:func:`~simtest.estimators.templates.match.
+template_pose`): a region that is too large, too small or off the object moves the pose in depth and across the
+image. The search frees the pose from the region's outline. A framing is a virtual camera aimed at a real pixel
+``uv``, rolled by an angle, with a square window of some side around its principal point
+(:func:`~simtest.estimators.templates.crops.aimed_crop`). Starting from the region's framing, the search tries
+the aim moved by ``±shift`` times the side along each image axis, the side scaled by ``exp(±scale)`` and the
+roll turned by ``±roll_deg`` (eight neighbours), encodes the crops, scores each against every template, and
+moves to the best neighbour while its best template scores higher than the current framing's; when none does,
+every step halves, down to ``min_shift``. The query's cells are not weighted by the region's mask (the
+template's own coverage weights them), so the region's outline does not pull the framing back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simtest.estimators.templates.crops import Crop, aimed_crop
+from simtest.estimators.templates.encoder import FeatureEncoder
+from simtest.estimators.templates.match import match_scores
+
+__all__ = ["Framing", "framing_search"]
+
+_MOVES = np.concatenate([np.eye(4), -np.eye(4)])
+
+
+@dataclass(frozen=True)
+class Framing:
+    """The best framing found: its ``crop``, the best ``template`` index and its ``score``, the query's unit
+    features ``query`` (C, h, w), the roll ``roll_rad`` and the number of ``crops`` encoded by the search."""
+
+    crop: Crop
+    template: int
+    score: float
+    query: np.ndarray
+    roll_rad: float
+    crops: int
+
+
+def framing_search(rgb: np.ndarray, K: np.ndarray, uv, side: float, roll_rad: float, encoder: FeatureEncoder,
+                   weights: np.ndarray, size: int, shift: float = 0.08, scale: float = 0.12,
+                   roll_deg: float = 8.0, min_shift: float = 0.01, max_moves: int = 24) -> Framing:
+    """The framing near the aim ``uv`` (real pixels), window ``side`` (pixels) and roll ``roll_rad`` (see the
+    module doc) whose crop of ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` best matches the templates
+    ``weights`` (:func:`~simtest.estimators.templates.match.template_weights`); crops of ``size`` pixels;
+    ``shift`` and ``min_shift`` are fractions of the side, ``scale`` a step of its log, ``roll_deg`` degrees;
+    ``max_moves`` bounds the accepted moves."""
+    here = np.array([float(uv[0]), float(uv[1]), np.log(float(side)), float(roll_rad)])
+
+    def crops_at(params: np.ndarray) -> list[Crop]:
+        return [aimed_crop(rgb, K, p[:2], float(np.exp(p[2])), float(p[3]), size) for p in params]
+
+    def best_of(crops: list[Crop]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        q = encoder.features(np.stack([c.rgb for c in crops]))
+        scores = match_scores(q, weights)
+        return q, scores.max(axis=1), scores.argmax(axis=1)
+
+    (crop,) = crops_at(here[None])
+    q, s, j = best_of([crop])
+    best = (crop, int(j[0]), float(s[0]), q[0], float(here[3]))
+    n, moves = 1, 0
+    step = np.array([shift, shift, scale, np.radians(roll_deg)], np.float64)
+    while step[0] >= min_shift - 1e-12 and moves < max_moves:
+        side_now = float(np.exp(here[2]))
+        params = here + _MOVES * step * np.array([side_now, side_now, 1.0, 1.0])
+        crops = crops_at(params)
+        q, s, j = best_of(crops)
+        n += len(crops)
+        k = int(np.argmax(s))
+        if s[k] > best[2]:
+            here, best, moves = params[k], (crops[k], int(j[k]), float(s[k]), q[k], float(params[k][3])), moves + 1
+        else:
+            step = step / 2.0
+    return Framing(crop=best[0], template=best[1], score=best[2], query=best[3], roll_rad=best[4], crops=n)
