@@ -206,6 +206,8 @@ def _run_shard(shard: _Shard) -> _ShardResult:
                                     s.fail_fast)
         out.times.append(dt)
         out.failed_images += failed
+        if "on_image" in _WORKER:  # in this process only: the progress bar moves per image
+            _WORKER["on_image"](dt, len(out.failures))
     return out
 
 
@@ -257,15 +259,27 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
     if in_process:
         _WORKER.clear()
         _WORKER.update(est=est, objects=objects, known=set(objects.ids), setup=setup)
-    n_failures, seconds, images = 0, 0.0, 0  # running totals for the progress bar
+    totals = {"failures": 0, "seconds": 0.0, "images": 0, "shown": 0}  # running totals for the progress bar
+
+    def show(failures: int, seconds: float, images: int) -> None:
+        bar.update(images - totals["shown"])
+        totals["shown"] = images
+        if progress and images:
+            bar.set_postfix(fail=failures, s_per_img=f"{seconds / images:.3f}")
+
+    if in_process:  # a scene may be long (a real test set is often one scene): move per image
+        def on_image(dt: float, shard_failures: int) -> None:
+            totals["shard_s"] = totals.get("shard_s", 0.0) + dt
+            totals["shard_n"] = totals.get("shard_n", 0) + 1
+            show(totals["failures"] + shard_failures, totals["seconds"] + totals["shard_s"],
+                 totals["images"] + totals["shard_n"])
+        _WORKER["on_image"] = on_image
     try:
         for res in run_units(_run_shard, shards, backend, init=_init_worker, init_args=init_args, stats=stats):
             done[res.index] = res
-            bar.update(len(res.times))
-            n_failures, seconds, images = n_failures + len(res.failures), seconds + sum(res.times), \
-                images + len(res.times)
-            if progress and images:
-                bar.set_postfix(fail=n_failures, s_per_img=f"{seconds / images:.3f}")
+            totals.update(failures=totals["failures"] + len(res.failures), seconds=totals["seconds"] + sum(res.times),
+                          images=totals["images"] + len(res.times), shard_s=0.0, shard_n=0)
+            show(totals["failures"], totals["seconds"], totals["images"])
     finally:
         bar.close()
         if in_process:
