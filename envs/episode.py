@@ -70,7 +70,7 @@ _move_joints, _to_pregrasp = move_joints, to_pregrasp
 _Recorder = EpisodeRecorder
 
 __all__ = ["EpisodeResult", "FAILURE_REASONS", "COLLISION_FORCE", "run_episode", "execute_grasp",
-           "pose_errors"]
+           "pose_errors", "pick_estimate"]
 
 #: Every failure reason an episode can end with ("none" = success).
 FAILURE_REASONS = ("none", "no_estimate", "no_feasible_grasp", "ik_failure", "missed", "slipped", "collision",
@@ -226,7 +226,7 @@ def pose_errors(obj, R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.
             "mssd": pm.mssd(R_e, t_e, R_g, t_g, pts, syms)}
 
 
-def _pick_estimate(elements: list, obj_id: int, known: set[int]
+def pick_estimate(elements: list, obj_id: int, known: set[int]
                    ) -> tuple[PoseEstimate | None, InvalidEstimate | None, list[str]]:
     """The highest-scoring valid estimate of ``obj_id`` answering the first target (or no target); without one,
     the first invalid element for ``obj_id`` (or of unknown object) says why. The third item notes the
@@ -367,7 +367,7 @@ def run_episode(task: GraspTask, estimator, planner: GraspPlanner | None = None,
         result.error, result.traceback, result.trace = fault.message, fault.trace_tail, fault.trace
         log_fault(log, f"episode seed {seed}", fault, "episodes.csv")
         return finish("estimator_timeout" if fault.kind == "timeout" else "estimator_error")
-    chosen, why, notes = _pick_estimate(elements, tid, set(u.objects.ids))
+    chosen, why, notes = pick_estimate(elements, tid, set(u.objects.ids))
     result.warnings = "; ".join(notes)
     if chosen is None:
         result.error = why.message if why is not None else _no_estimate_reason(est, tid, notes)
@@ -496,7 +496,7 @@ class _Looks:
         T_world_cam = _T_world_cam(u, obs)
         chosen = None
         if fault is None:
-            chosen, _, notes = _pick_estimate(elements, int(obj.obj_id), set(u.objects.ids))
+            chosen, _, notes = pick_estimate(elements, int(obj.obj_id), set(u.objects.ids))
         else:
             notes = [f"{name}: {fault.message}"]
         look = None

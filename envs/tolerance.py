@@ -108,7 +108,7 @@ class ToleranceConfig:
         return sorted({float(m) for m in (self.trans_mm if axis.startswith("t_") else self.rot_deg)})
 
     def to_dict(self) -> dict:
-        return {**{k: v for k, v in self.__dict__.items() if k != "setup"}, "setup": dict(self.setup.__dict__)}
+        return {**{k: v for k, v in self.__dict__.items() if k != "setup"}, "setup": self.setup.record()}
 
 
 @dataclass

@@ -185,6 +185,16 @@ def _value(v: Any, digits: int = 3) -> str:
     return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{float(v):.{digits}g}"
 
 
+def _source_text(summary: dict) -> str:
+    """Where a calibration's estimates came from: the oracle's random errors, or the real estimators pooled."""
+    real = summary.get("estimators")
+    if not real:
+        return "Oracle estimates with random (not axis-aligned) errors of random size"
+    return ("Estimates of real estimators, pooled (" + ", ".join(
+        f"{html.escape(n)}: {e['successes']}/{e['episodes']} grasped" for n, e in real.items())
+        + "; an episode without an estimate counts as a failure with infinite error)")
+
+
 def write_calibration_report(summary: dict, rows: Sequence[dict], thresholds: Sequence[dict], out: str | Path,
                              command_line: Sequence[str] | None = None) -> dict[str, Path]:
     """Write ``calibration.png`` and ``calibration.html`` into ``out``; returns their paths."""
@@ -204,9 +214,8 @@ def write_calibration_report(summary: dict, rows: Sequence[dict], thresholds: Se
             f"<td>{_value(r['threshold_90'])}{html.escape(unit)}</td>"
             f"<td>{html.escape(_bop_text(r['metric'], thresholds))}</td></tr>")
     body = ["<h1>Which pose metric predicts grasp success</h1>",
-            "<p>Oracle estimates with random (not axis-aligned) errors of random size; per metric the ROC AUC "
-            "of its error as a predictor of grasp success (the Mann-Whitney statistic), its 95 % bootstrap "
-            "interval, the threshold that best separates successes from failures (Youden's J), the largest "
+            f"<p>{_source_text(summary)}; per metric the ROC AUC of its error as a predictor of grasp success "
+            "(the Mann-Whitney statistic), its 95 % bootstrap interval, the threshold that best separates successes from failures (Youden's J), the largest "
             "threshold whose correct episodes still succeed at least 90 % of the time, and the successes among "
             "the episodes the metric calls correct at BOP's thresholds (smallest, middle, largest).</p>",
             _run_note(summary, command_line),
