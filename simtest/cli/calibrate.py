@@ -8,6 +8,7 @@ import sys
 
 from simtest.cli.common import add_backend_options, common_parser, locks_output
 from simtest.cli.tolerance import split_list
+from simtest.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,8 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--units", default="auto", choices=["m", "cm", "mm", "auto"], help="units of mesh files")
     p.add_argument("--scale", type=float, default=1.0, help="factor on top of --units (default 1)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per object (default 50)")
-    p.add_argument("--max-trans-mm", type=float, default=40.0, help="largest translation error, mm (default 40)")
-    p.add_argument("--max-rot-deg", type=float, default=60.0, help="largest rotation error, degrees (default 60)")
+    p.add_argument("--max-trans-mm", type=float, default=None,
+                   help="the oracle's largest translation error, mm (default 40; not with --estimator)")
+    p.add_argument("--max-rot-deg", type=float, default=None,
+                   help="the oracle's largest rotation error, degrees (default 60; not with --estimator)")
     p.add_argument("--occlusions", default="L0,L1,L2", help="occlusion levels cycled (default L0,L1,L2)")
     p.add_argument("--resamples", type=int, default=1000, help="bootstrap resamples (default 1000)")
     p.add_argument("--width", type=int, default=None,
@@ -93,10 +96,15 @@ def run(args: argparse.Namespace) -> int:
     from simtest.io.files import prepare_out_dir
     from simtest.viz.tolerance_page import write_calibration_report
 
-    prepare_out_dir(args.out, overwrite=args.overwrite)
     names = tuple(dict.fromkeys(str(n) for item in args.estimator for n in split_list(item)))
     names = () if names == ("oracle",) else names  # the oracle with random errors, the default
     options = estimator_options(names, args.estimator_opt)
+    if names and (args.max_trans_mm is not None or args.max_rot_deg is not None):
+        raise ConfigError(f"--max-trans-mm and --max-rot-deg set the oracle's random errors; with --estimator "
+                          f"{','.join(names)} the errors are the estimators' own: drop them")
+    args.max_trans_mm = 40.0 if args.max_trans_mm is None else args.max_trans_mm
+    args.max_rot_deg = 60.0 if args.max_rot_deg is None else args.max_rot_deg
+    prepare_out_dir(args.out, overwrite=args.overwrite)
     width = args.width if args.width is not None else (320 if names else 64)
     setup = EpisodeSetup(objects=args.objects, units=args.units, scale=args.scale, width=width,
                          height=args.height if args.height is not None else width * 3 // 4,

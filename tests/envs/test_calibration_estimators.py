@@ -136,3 +136,11 @@ def test_bad_settings_are_named():
         estimator_options(("icp",), ["no_such_option=1"])
     assert estimator_options(("icp", "segicp"), ["seed=2", "icp:max_iterations=10"]) == {
         "icp": {"seed": 2, "max_iterations": 10}, "segicp": {"seed": 2}}
+
+
+def test_oracle_error_bounds_are_refused_with_estimators_before_any_output(tmp_path, capsys):
+    from simtest.cli import main
+
+    out = tmp_path / "never"
+    assert main(["calibrate", "--estimator", "icp", "--max-trans-mm", "20", "--episodes", "1", "--out", str(out)]) == 2
+    assert "drop them" in capsys.readouterr().err and not out.exists()
