@@ -50,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a tolerance.csv of simtest tolerance: also score grasp_tolerance, the targets whose "
                         "estimate lies within the object's measured grasp tolerance on every axis "
                         "(docs/grasp_tolerance.md)")
+    p.add_argument("--metrics", metavar="NAME,NAME", default=None,
+                   help="the metrics the terminal tables show, by registered name (e.g. add_s_or_add_01d,ar,"
+                        "grasp_tolerance; default: the standard set); every metric is still computed and written")
     p.add_argument("--tracking", action="store_true",
                    help="also score as tracking (tracking.md, tracking.csv, tracking.png); the default for a "
                         "dataset generated with --rig sequence")
@@ -64,6 +67,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     locks_output(p)
 
 
+def _shown_metrics(names: str | None, tolerance_csv: str | None) -> list[str]:
+    """``--metrics`` as registered metric keys (checked before anything runs).
+
+    Raises:
+        ConfigError: An unknown name (the registered ones listed), or ``grasp_tolerance`` without a map.
+    """
+    from simtest.metrics.registry import metric_keys
+
+    if names is None:
+        return []
+    keys = [n.strip() for n in names.split(",") if n.strip()]
+    known = metric_keys()
+    bad = [k for k in keys if k not in known]
+    if bad or not keys:
+        raise ConfigError(f"--metrics: unknown metric(s) {', '.join(map(repr, bad)) or repr(names)}; registered: "
+                          f"{', '.join(known)}")
+    if "grasp_tolerance" in keys and not tolerance_csv:
+        raise ConfigError("--metrics grasp_tolerance needs the tolerance map it scores against: --grasp-tolerance "
+                          "TOLERANCE_CSV (made by simtest tolerance, docs/grasp_tolerance.md)")
+    return keys
+
+
 def run(args: argparse.Namespace) -> int:
     from simtest.backend import RunStats
     from simtest.estimators.options import parse_options
@@ -75,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
             scenes = [int(s) for s in args.scenes.split(",") if s.strip()]
         except ValueError:
             raise ConfigError(f"--scenes must be comma-separated integers, got {args.scenes!r}") from None
+    shown = _shown_metrics(args.metrics, args.grasp_tolerance)
     if args.task == "detection" and args.targets is not None:
         raise ConfigError("--targets applies to --task localization; the detection task tells the estimator nothing")
     common = dict(split=args.split, scenes=scenes, max_images=args.max_images, vsd=not args.no_vsd,
@@ -98,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
             return 1
         if not args.quiet:
             print(f"simtest eval: {stats.summary()}", file=sys.stderr)
+    if shown:
+        report.settings["show_metrics"] = shown
     print(format_table(report))
     print(overall_table(report))
     if report.tracking is not None:

@@ -67,6 +67,7 @@ def format_table(report: Any) -> str:
     rows = [(f"{report.object_names.get(o, o)} ({o})", m) for o, m in sorted(report.per_object.items())]
     keys = DETECTION_TABLE_METRICS if _detection(report) else TABLE_METRICS
     keys = (*keys, "grasp_tolerance") if "grasp_tolerance" in report.overall else keys
+    keys = _chosen(report, keys, ("num_targets",))
     table = metric_table("Object", keys, rows + [("**All**", report.overall)], _vsd_on(report))
     s = report.settings
     o = report.overall
@@ -84,6 +85,15 @@ def format_table(report: Any) -> str:
     text = f"### {title} on {Path(s.get('dataset', '')).name} / {s.get('split', '')}\n\n" + table + footer
     per_category = getattr(report, "per_category", None)
     return text + ("\n" + category_table(report) if per_category else "")
+
+
+def _chosen(report: Any, keys: tuple[str, ...], always: tuple[str, ...]) -> tuple[str, ...]:
+    """``keys`` restricted to the metrics the run's settings name (``show_metrics``: ``simtest eval --metrics``),
+    in their order, with the counts ``always`` kept; all of ``keys`` when none are named."""
+    chosen = report.settings.get("show_metrics")
+    if not chosen:
+        return keys
+    return tuple(k for k in keys if k in always) + tuple(k for k in chosen if k not in always)
 
 
 def _interval_line(overall: dict[str, Any]) -> str:
@@ -126,7 +136,8 @@ def overall_table(report: Any) -> str:
     o = report.overall
     items = []
     keys = DETECTION_SUMMARY_METRICS if _detection(report) else SUMMARY_METRICS
-    for k in (*keys, "grasp_tolerance") if "grasp_tolerance" in o else keys:
+    keys = (*keys, "grasp_tolerance") if "grasp_tolerance" in o else keys
+    for k in _chosen(report, keys, ("num_targets", "num_estimates", "num_failures", "mean_time_per_image_s")):
         m = metric(k)
         digits = 2 if k in ("median_re_deg", "median_te_m") else None
         text = m.format(o.get(k), digits) if k in o else ""

@@ -80,5 +80,18 @@ def test_cli_scores_a_results_file_for_grasp_readiness(small_dataset, tmp_path, 
     metrics = json.loads((tmp_path / "score" / "metrics.json").read_text())
     assert metrics["overall"]["grasp_tolerance"] == 1.0
     assert "Grasp-ready" in capsys.readouterr().out
+    # --metrics picks the terminal's columns by registered name; the files keep every metric
+    assert main(["eval", "--results", str(run / "results.csv"), "--data", str(small_dataset), "--no-vsd",
+                 "--grasp-tolerance", str(path), "--metrics", "add_s_or_add_01d,grasp_tolerance",
+                 "--out", str(tmp_path / "score2"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "Grasp-ready" in out and "ADD(-S)-0.1d" in out and "AR_MSSD" not in out
+    assert "ar_mssd" in json.loads((tmp_path / "score2" / "metrics.json").read_text())["overall"]
+    assert main(["eval", "--results", str(run / "results.csv"), "--data", str(small_dataset), "--metrics",
+                 "grasp_tolerance", "--out", str(tmp_path / "never")]) == 2
+    assert "--grasp-tolerance" in capsys.readouterr().err and not (tmp_path / "never").exists()
+    assert main(["eval", "--results", str(run / "results.csv"), "--data", str(small_dataset), "--metrics",
+                 "add,no_such", "--out", str(tmp_path / "never")]) == 2
+    assert "'no_such'" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="not a readable tolerance.csv"):
         read_tolerance_map(tmp_path / "missing.csv")
