@@ -33,6 +33,7 @@ with symmetry-aware errors (ADD-S, MSSD, MSPD).
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import logging
 from typing import Any
@@ -138,10 +139,33 @@ class ModelCloud:
 _CLOUDS: dict[tuple[str, int], ModelCloud] = {}
 
 
+def _exact_mesh_key(obj: Any) -> str:
+    """SHA-1 of the mesh's exact vertex and face bytes (cached on the instance).
+
+    Not ``mesh_hash``: that rounds the vertices, so a model read back from a dataset's PLY (millimetres,
+    float32) shares it with the in-memory original while its samples differ in the last bits, and a cloud cached
+    for one would move the other's ICP result by ~1e-7 depending on which this process met first.
+    """
+    cached = getattr(obj, "__dict__", {}).get("_exact_mesh_key")
+    if cached is not None:
+        return cached
+    mesh = getattr(obj, "mesh", None)
+    if mesh is None:
+        return str(id(obj))
+    h = hashlib.sha1()
+    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    key = h.hexdigest()
+    if hasattr(obj, "__dict__"):
+        obj.__dict__["_exact_mesh_key"] = key
+    return key
+
+
 def model_cloud(obj: Any, count: int = 2000) -> ModelCloud:
     """Area-uniform surface samples with face normals of the model (:meth:`ObjectModel.surface_cloud`), with a
-    KD-tree (cached per mesh and count)."""
-    key = (getattr(obj, "mesh_hash", str(id(obj))), int(count))
+    KD-tree (cached per exact mesh and count, so the result never depends on which models this process met
+    before)."""
+    key = (_exact_mesh_key(obj), int(count))
     if key not in _CLOUDS:
         _CLOUDS[key] = ModelCloud(*obj.surface_cloud(int(count)), float(obj.diameter), float(obj.mesh.area))
     return _CLOUDS[key]

@@ -241,3 +241,23 @@ def test_names_moved_out_of_base_still_import_with_a_deprecation_warning():
         assert value is getattr(options if module.endswith("options") else registry, name)
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         base.nope
+
+
+def test_model_clouds_are_cached_by_the_exact_mesh_not_the_rounded_hash():
+    """A model read back from a dataset's PLY shares the rounded ``mesh_hash`` with its in-memory original while
+    its vertices differ in the last bits; each must get its own cloud, so an ICP result never depends on which
+    models the process met before (one worker vs two)."""
+    import dataclasses
+
+    import trimesh
+
+    from simtest.estimators.icp import model_cloud
+    from simtest.objects import load_object_set
+
+    obj = load_object_set("builtin-small").by_name("can_0")
+    nudged = trimesh.Trimesh(np.asarray(obj.vertices) * (1.0 + 1e-12), np.asarray(obj.faces), process=False)
+    twin = dataclasses.replace(obj, mesh=nudged)
+    assert twin.mesh_hash == obj.mesh_hash and not np.array_equal(twin.vertices, obj.vertices)
+    a, b = model_cloud(obj, 300), model_cloud(twin, 300)
+    assert a is not b and np.array_equal(b.points, twin.surface_cloud(300)[0])
+    assert model_cloud(twin, 300) is b  # and still cached
