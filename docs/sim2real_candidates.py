@@ -60,7 +60,7 @@ def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: d
                 metric = adi if obj.is_symmetric else add
                 errs = [metric(c["R"], c["t"], g.T_cam_obj.R, g.T_cam_obj.t, obj.vertices) for _, g in mine]
                 t0m = np.asarray(c["info"].get("t_matched", c["t"]))
-                sil = c["info"].get("silhouette", {})
+                sil = c["info"].get("silhouette") or c["info"].get("edges") or {}
                 cands.append({"obj_id": c["obj_id"], "rank": c["rank"], "prob": c["prob"], "match": c["match"],
                               "pixels": c["pixels"], "iou_before": sil.get("iou_before"),
                               "iou_after": sil.get("iou_after"), "scale": sil.get("scale"),

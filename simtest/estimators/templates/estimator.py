@@ -13,7 +13,9 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
 4. With ``local_deg`` templates rendered on the fly around the best match replace it while they match better
    (:mod:`.local`).
 5. With ``refine="silhouette"`` the pose is fitted to the region's mask in the crop
-   (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations).
+   (:func:`simtest.estimators.silhouette.fit_translation`: depth, image position and small rotations); with
+   ``refine="edges"`` the matched pose's outline is moved onto the image's edges (:mod:`.edges`: depth and
+   image position), so the depth follows the real outline, not the region's.
 6. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
    expected instance are all posed, and per object the best (``select``: template match by default) are kept;
    every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
@@ -38,6 +40,7 @@ from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.templates.bank import RENDER_SIZE, BankSettings, TemplateBank, load_or_build, render_intrinsics
 from simtest.estimators.templates.crops import region_crop, window_centre
+from simtest.estimators.templates.edges import edge_distance, fit_edges
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import framing_search
@@ -48,7 +51,7 @@ from simtest.estimators.templates.render import ObjectRenderer
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
 
 DETECTORS = ("rgb", "gt")
-REFINES = ("none", "silhouette")
+REFINES = ("none", "silhouette", "edges")
 #: How one of an object's candidate regions is kept (``candidates`` > 1): the best template match
 #: (``match``), the detector's region rank (``prob``: the first region, as with one candidate), or the match
 #: times the detector's mean class probability (``match_prob``).
@@ -66,7 +69,7 @@ class TemplateEstimator:
         inplane_deg, inplane_range_deg: Roll angles tried per region: from ``-range`` to ``+range`` in steps of
             ``inplane_deg`` (degrees).
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
-        refine: ``silhouette`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
+        refine: ``silhouette``, ``edges`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
             refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
         framing: Move and scale the crop window until the templates match it best (:mod:`.framing`), so
             the pose's depth and position no longer follow the region's outline.
@@ -122,6 +125,8 @@ class TemplateEstimator:
         self.candidates, self.select = int(candidates), select
         #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
         self.last_candidates: list[dict[str, Any]] = []
+        #: The distance transform of the current image's edges (``refine="edges"``), made at first use.
+        self._edges: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -160,7 +165,7 @@ class TemplateEstimator:
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """Pose estimates (metres, camera frame) of the regions found (see the module doc)."""
         obs = observation
-        self.last_failures, self.last_candidates = [], []
+        self.last_failures, self.last_candidates, self._edges = [], [], None
         K = np.asarray(obs.K, np.float64)
         regions = self._regions(obs)
         if self.candidates > 1 and self.detect == "rgb" and obs.target_obj_ids is not None:
@@ -232,6 +237,13 @@ class TemplateEstimator:
         info["t_matched"] = t.tolist()
         if self.refine == "silhouette":
             R, t, info["silhouette"] = self._refine(obj, R, t, crop, K, rgb.shape[:2], others)
+        elif self.refine == "edges":
+            if self._edges is None:  # one distance transform per image
+                self._edges = edge_distance(rgb)
+            fit = fit_edges(obj, R, t, K, self._edges)
+            t = fit.t
+            info["edges"] = {"applied": fit.applied, "cost_before": fit.cost_before, "cost_after": fit.cost_after,
+                             "scale": fit.scale, "shift_px": [fit.du, fit.dv]}
         return R, t, best, info
 
     def _renderer(self, obj) -> ObjectRenderer:
