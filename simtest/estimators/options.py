@@ -125,6 +125,7 @@ def check_options(spec: str, factory: Callable, options: dict[str, Any]) -> None
     for name, value in options.items():
         default = by_name[name].default
         if not _type_ok(value, by_name[name]):
+            spelled = " (write true or false)" if isinstance(default, bool) else ""
             raise ConfigError(f"estimator {spec!r}: bad options: {name} = {value!r} has the wrong type; expected "
-                              f"{type(default).__name__} (default {default!r}); valid options: "
+                              f"{type(default).__name__}{spelled} (default {default!r}); valid options: "
                               f"{option_signature(factory)}")
