@@ -82,9 +82,11 @@ REFINES = ("none", "silhouette")
 #: The pose stages: the crop network, or template matching on the same detections (:data:`POSE_STAGES`).
 POSES = ("network", "templates")
 #: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
-#: ``candidates`` is given, no silhouette fit to the detector's coarse regions, and the framing search that
-#: frees the pose from the region's outline (chosen on the real LM-O frames, docs/sim2real.md).
+#: ``candidates`` is given, no silhouette fit to the detector's coarse regions, the framing search that
+#: frees the pose from the region's outline, and the local template search around the best match (first step
+#: in degrees) on the searched framing (chosen on the real LM-O frames, docs/sim2real.md).
 TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
+TEMPLATE_LOCAL_DEG = 4.0
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -402,7 +404,8 @@ class CropKeypointEstimator:
                 detect=self.detect, region_rank=self.region_rank, threads=self._options["threads"] or 1,
                 candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
-                framing=TEMPLATE_FRAMING and self.detect == "rgb")
+                framing=TEMPLATE_FRAMING and self.detect == "rgb",
+                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0)
             self.templates.segmenter = self.segmenter
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

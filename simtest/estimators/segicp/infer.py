@@ -174,16 +174,21 @@ class Segmenter:
         inner = cv2.erode(mask.astype(np.uint8), k).astype(bool)
         return inner if np.count_nonzero(inner) >= max(self.min_region_pixels // 2, 1) else mask
 
-    def regions(self, obs: Observation, per_instance: int = 1, rank: str = "area"
+    def regions(self, obs: Observation, per_instance: int = 1, rank: str = "area", threshold: float = 0.0
                 ) -> list[tuple[int, np.ndarray, float]]:
         """``(obj_id, mask (H, W) bool, mean class probability)`` per found object (see the module doc).
 
         ``per_instance``: with target ids, up to this many regions per expected instance, as candidates for a
         caller that checks them (``keypoints --opt candidates=N``). ``rank``: which regions of a class come
         first, ``"area"`` (largest first) or ``"prob"`` (highest mean class probability first: on real
-        photographs clutter a network trained on renders takes for an object is large but less certain)."""
+        photographs clutter a network trained on renders takes for an object is large but less certain).
+        ``threshold``: 0 takes a class's regions from the class map (the pixels where the class is the most
+        probable); above 0, from the pixels where the class's probability exceeds it, so an object whose pixels
+        another class narrowly wins still gets a region (regions of different classes may then overlap)."""
         if rank not in REGION_RANKS:
             raise ConfigError(f"region rank must be one of {', '.join(REGION_RANKS)}, got {rank!r}")
+        if not 0.0 <= float(threshold) < 1.0:
+            raise ConfigError(f"region threshold must be a class probability in [0, 1), got {threshold!r}")
         prob = self.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64))
         label = prob.argmax(0)
         wanted = None if obs.target_obj_ids is None else [int(o) for o in obs.target_obj_ids]
@@ -192,7 +197,8 @@ class Segmenter:
             limit = None if wanted is None else wanted.count(oid) * int(per_instance)
             if limit == 0:
                 continue
-            n, comp, stats, _ = cv2.connectedComponentsWithStats((label == c).astype(np.uint8), connectivity=8)
+            member = label == c if threshold <= 0 else prob[c] > float(threshold)
+            n, comp, stats, _ = cv2.connectedComponentsWithStats(member.astype(np.uint8), connectivity=8)
             order = [i for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable") + 1
                      if stats[i, cv2.CC_STAT_AREA] >= self.min_region_pixels]
             masks = [comp == i for i in order]

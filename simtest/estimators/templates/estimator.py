@@ -77,6 +77,9 @@ class TemplateEstimator:
             :mod:`.local`).
         candidates: With ``detect=rgb`` and known targets, the detector regions posed per expected instance
             (ranked by ``region_rank``); ``select`` decides which pose is kept (:data:`SELECTS`).
+        region_threshold: With ``detect=rgb``, 0 takes regions from the detector's class map, above 0 from the
+            pixels where the class's probability exceeds it (:meth:`~simtest.estimators.segicp.infer.
+            Segmenter.regions`).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -86,7 +89,8 @@ class TemplateEstimator:
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
-                 local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False) -> None:
+                 local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
+                 region_threshold: float = 0.0) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -123,6 +127,11 @@ class TemplateEstimator:
         self.framing = bool(framing)
         #: Candidate regions posed per expected instance, and the rule that keeps one (:data:`SELECTS`).
         self.candidates, self.select = int(candidates), select
+        if not 0.0 <= float(region_threshold) < 1.0:
+            raise ConfigError(f"templates: region_threshold must be a class probability in [0, 1), got "
+                              f"{region_threshold!r}")
+        #: 0: regions from the class map; above 0: from the class probability above it.
+        self.region_threshold = float(region_threshold)
         #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
         self.last_candidates: list[dict[str, Any]] = []
         #: The distance transform of the current image's edges (``refine="edges"``), made at first use.
@@ -150,7 +159,7 @@ class TemplateEstimator:
         seen = replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
         per = self.candidates if obs.target_obj_ids is not None else 1
         return [(None, int(o), np.asarray(m, bool), float(p)) for o, m, p in
-                self.segmenter.regions(seen, per, self.region_rank)]
+                self.segmenter.regions(seen, per, self.region_rank, self.region_threshold)]
 
     def _load_detector(self, objects) -> None:
         from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT, Segmenter

@@ -342,6 +342,32 @@ def test_detector_regions_ranked_by_probability_or_area(small_dataset):
         CropKeypointEstimator(region_rank="size")
 
 
+def test_detector_regions_from_a_probability_threshold(small_dataset):
+    """``threshold`` > 0: a class's regions are the connected pixels where its probability exceeds it, so
+    each covers the class-map region it contains (the most probable class there is above any threshold <= 0.5)
+    and may reach pixels another class wins; a threshold outside [0, 1) is refused by value."""
+    from simtest.estimators import load_estimator
+
+    objects = load_dataset_objects(small_dataset)
+    ds = PoseDataset(small_dataset, objects=objects, max_images=1)
+    obs, _ = _observation(ds, 0, objects)
+    obs = replace(obs, masks=None, target_obj_ids=None)
+    seg = load_estimator("keypoints").segmenter
+    prob = seg.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64))
+    by_map, by_thr = seg.regions(obs, rank="prob"), seg.regions(obs, rank="prob", threshold=0.3)
+    assert by_map and by_thr
+    for oid, mask, p in by_thr:
+        c = seg.class_ids.index(oid) + 1
+        assert mask.any() and float(prob[c][mask].min()) > 0.3  # the region (eroded) is all above it
+        assert 0.3 < p <= 1.0
+    for oid, mask, _ in by_map:  # every class-map region lies within some threshold region of its class
+        mine = [m for o, m, _ in by_thr if o == oid]
+        assert mine and max((m & mask).sum() for m in mine) >= 0.9 * mask.sum()
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ConfigError, match=rf"region threshold must be a class probability in \[0, 1\), got {bad}"):
+            seg.regions(obs, threshold=bad)
+
+
 def test_estimator_options_are_checked():
     with pytest.raises(ConfigError, match="detect 'depth'"):
         CropKeypointEstimator(detect="depth")
@@ -387,7 +413,8 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     found = est.estimate(obs)
     assert est.templates.segmenter is est.segmenter and est.templates.candidates == 1
     assert est.templates.refine == "none"  # the detector's regions are too coarse to fit a silhouette to
-    assert found and all("match" in e.info for e in found)
+    assert est.templates.framing and est.templates.local_deg == 4.0  # the framing and local searches
+    assert found and all("match" in e.info and "local_renders" in e.info for e in found)
     wanted = Counter(obs.target_obj_ids)
     assert all(n <= wanted[o] for o, n in Counter(e.obj_id for e in found).items())
     assert load_estimator("keypoints", pose="templates").candidates == 1  # the network's, unchanged
