@@ -441,10 +441,13 @@ class _Looks:
         stands there). The result's pose errors and grasp become those of the final pose and plan."""
         res = self.result
         res.stages = [_stage_row("first", True, first, first, False, res.visible_pixels, res.estimate_s)]
-        plan, q = self._stages(spec, plan, monitor)
-        errs = self.used_errors
-        res.add_s, res.re_deg, res.re_sym_deg, res.te, res.mssd = (
-            errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
+        try:
+            plan, q = self._stages(spec, plan, monitor)
+        finally:  # a collision on the way still reports the errors of the pose the arm was moving by
+            errs = self.used_errors or first
+            if errs:
+                res.add_s, res.re_deg, res.re_sym_deg, res.te, res.mssd = (
+                    errs["add_s"], errs["re_deg"], errs["re_sym_deg"], errs["te"], errs["mssd"])
         res.grasp_index = plan.index
         res.approach_tilt_deg = float(np.degrees(plan.approach_tilt))
         return plan, q
