@@ -6,7 +6,8 @@ The protocol of grasp-detection papers (VGN, GIGA): a *round* starts with ``n`` 
   the table, each released 5 mm above the heap so far and given 0.6 s to fall (a box lifted away), then
   settled together;
 * ``"packed"``: standing upright (:func:`~simtest.envs.scene.rest_rotation`, random yaw) side by side in the
-  reachable part of the table, 5-25 mm apart;
+  reachable part of the table, 5-25 mm apart (an object that finds no room in the 0.26 m square is swapped
+  for another draw, up to 8 times; when none fits, the round starts with fewer, with a warning);
 
 objects that roll off the table while settling leave the round. Each *attempt*: the wrist camera observes the
 remaining objects from the observation pose (looking at the one nearest their centre), the estimator is asked
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import logging
 import math
 import sys
 import time
@@ -69,6 +71,7 @@ SCENES = ("pile", "packed")
 #: A round ends after this many failed attempts in a row.
 MAX_CONSECUTIVE_FAILURES = 2
 #: Half width of the column the pile is dropped from, m.
+_log = logging.getLogger(__name__)
 _PILE_HALF = 0.06
 #: Smallest visible pixels for an object to count as in view.
 _MIN_PIXELS = 20
@@ -163,28 +166,35 @@ def _placements(builder, objs, rng: np.random.Generator, scene: str, n: int) -> 
     placed: list[tuple[np.ndarray, float]] = []
     for k in range(n):
         choices = [i for i in ids if counts.get(i, 0) < 2] or ids  # at most 2 copies: the model pool holds them
-        oid = int(choices[int(rng.integers(len(choices)))])
+        xy = None
+        for _draw in range(1 if scene == "pile" else 8):  # packed: another object when this one finds no room
+            oid = int(choices[int(rng.integers(len(choices)))])
+            obj = objs.get(oid)
+            if scene == "pile":
+                break
+            R0 = rest_rotation(obj)
+            yaw = float(rng.uniform(-np.pi, np.pi))
+            R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]]) @ R0
+            v = np.asarray(obj.vertices) @ R.T
+            r = float(np.linalg.norm(v[:, :2], axis=1).max())
+            for _ in range(200):
+                cand = np.array([cx, cy]) + rng.uniform(-0.13, 0.13, 2)
+                if all(np.linalg.norm(cand - q) > r + rq + rng.uniform(0.005, 0.025) for q, rq in placed):
+                    xy = cand
+                    break
+            if xy is not None:
+                break
+        if scene != "pile" and xy is None:
+            _log.warning("packed round: no room for object %d of %d in the %.2f m square; the round starts with %d "
+                         "objects", k + 1, n, 0.26, len(out))
+            break
         counts[oid] = counts.get(oid, 0) + 1
-        obj = objs.get(oid)
         rgba = (*(float(c) for c in np.clip(np.asarray(obj.rgba[:3]) + rng.normal(0, 0.08, 3), 0.02, 0.98)), 1.0)
         if scene == "pile":
             xy = np.array([cx, cy]) + rng.uniform(-_PILE_HALF, _PILE_HALF, 2)
             pos = (float(xy[0]), float(xy[1]), z0 + 0.5 * float(obj.diameter) + 0.005)  # dropped later
             quat = random_quat_wxyz(rng)
         else:
-            R0 = rest_rotation(obj)
-            yaw = float(rng.uniform(-np.pi, np.pi))
-            R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]]) @ R0
-            v = np.asarray(obj.vertices) @ R.T
-            r = float(np.linalg.norm(v[:, :2], axis=1).max())
-            xy = None
-            for _ in range(200):
-                cand = np.array([cx, cy]) + rng.uniform(-0.13, 0.13, 2)
-                if all(np.linalg.norm(cand - q) > r + rq + rng.uniform(0.005, 0.025) for q, rq in placed):
-                    xy = cand
-                    break
-            if xy is None:
-                continue
             placed.append((xy, r))
             pos = (float(xy[0]), float(xy[1]), z0 - float(v[:, 2].min()) + 0.002)
             quat = tuple(float(x) for x in Pose(R, np.zeros(3)).quat_wxyz())
