@@ -17,7 +17,9 @@ noise is drawn anew per observation). The pose is updated (:data:`UPDATES`) by t
 started at the prior), and combined with the earlier looks (:data:`FUSIONS`): ``"mean"`` averages every look
 in the world frame (the object does not move before the gripper touches it; each look's rotation is first
 turned by the object symmetry nearest the running mean, so a symmetric object's equivalent answers do not
-cancel), ``"latest"`` keeps only the newest look. The grasp is planned again from the updated pose and the new
+cancel), ``"latest"`` keeps only the newest look, ``"gated"`` averages like ``"mean"`` but leaves out a look
+that disagrees with the pose so far by more than :data:`GATE_TRANSLATION` or :data:`GATE_ROTATION` (the
+first look, from farther away, sees the whole object; a close look can be ambiguous). The grasp is planned again from the updated pose and the new
 plan is taken when it moved (:data:`REPLAN_TRANSLATION`, :data:`REPLAN_ROTATION`).
 
 Every look is a *stage* (``first``, ``approach 1`` .. ``approach K``, ``pregrasp``): its pose errors against the
@@ -37,12 +39,16 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
 __all__ = ["ReobserveSpec", "parse_reobserve", "UPDATES", "FUSIONS", "REPLAN_TRANSLATION", "REPLAN_ROTATION",
-           "PoseFusion", "plan_moved", "waypoint", "stage_table", "stage_markdown", "STAGE_COLUMNS"]
+           "GATE_TRANSLATION", "GATE_ROTATION", "PoseFusion", "plan_moved", "waypoint", "stage_table", "stage_markdown", "STAGE_COLUMNS"]
 
 #: How a re-observation updates the pose (see the module docstring).
 UPDATES = ("estimate", "track")
 #: How the looks are combined (see the module docstring).
-FUSIONS = ("mean", "latest")
+FUSIONS = ("mean", "latest", "gated")
+#: ``"gated"`` fusion: a look farther than this from the pose so far (m, and radians after symmetry alignment)
+#: is left out of the mean.
+GATE_TRANSLATION = 0.025
+GATE_ROTATION = np.deg2rad(25.0)
 #: A re-planned grasp is taken when its grasp pose moved more than this (m) ...
 REPLAN_TRANSLATION = 0.003
 #: ... or turned more than this (rad).
@@ -122,6 +128,8 @@ class PoseFusion:
         self.syms = np.asarray(symmetries, dtype=np.float64).reshape(-1, 4, 4)
         self.looks: list[np.ndarray] = [first.matrix()]
         self.pose = first
+        #: Looks left out by the ``"gated"`` mode.
+        self.rejected = 0
 
     def add(self, look: Pose) -> Pose:
         """Take a new look (``T_world_obj``, m) and return the updated pose."""
@@ -133,7 +141,13 @@ class PoseFusion:
         cands = T[None] @ self.syms  # the same physical pose under every symmetry
         R_ref = self.pose.R
         cos = (np.einsum("nij,ij->n", cands[:, :3, :3], R_ref) - 1.0) / 2.0
-        self.looks.append(cands[int(np.argmax(cos))])
+        best = int(np.argmax(cos))
+        if self.mode == "gated":
+            far = float(np.linalg.norm(cands[best, :3, 3] - self.pose.t)) > GATE_TRANSLATION
+            if far or float(np.arccos(np.clip(cos[best], -1.0, 1.0))) > GATE_ROTATION:
+                self.rejected += 1
+                return self.pose
+        self.looks.append(cands[best])
         Ts = np.stack(self.looks)
         U, _, Vt = np.linalg.svd(Ts[:, :3, :3].sum(axis=0))  # chordal L2 mean of the rotations
         R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt

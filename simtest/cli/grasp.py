@@ -63,8 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reobserve-update", default="estimate", choices=["estimate", "track"],
                    help="how a new look updates the pose: the estimator again (default) or a tracker warm-started "
                         "from the pose so far (the estimator's own track() if it has one, else track-icp)")
-    p.add_argument("--reobserve-fusion", default="mean", choices=["mean", "latest"],
-                   help="how the looks are combined: mean of every look in the world frame (default) or the latest")
+    p.add_argument("--reobserve-fusion", default="mean", choices=["mean", "latest", "gated"],
+                   help="how the looks are combined: mean of every look in the world frame (default), the latest, "
+                        "or gated (the mean without looks more than 25 mm or 25 degrees from the pose so far)")
     p.add_argument("--task", default="single", choices=["single", "declutter"],
                    help="single: one target per episode (default); declutter: clutter removal rounds (objects "
                         "picked one after another until the table is clear; --episodes counts rounds)")
