@@ -8,9 +8,9 @@ set of the same objects (the sim-to-sim number), with the training CPU minutes. 
         --row "..." --out docs/sim2real_table.md
 
 A row is ``NAME|REAL_EVAL_DIR|SIM_EVAL_DIR|CPU_MINUTES`` (an empty field: not measured). ``--skip-images 25``
-scores the real runs without their first 25 images (by scene and image id): the frames no choice was tuned on. Every accuracy comes
-with its target count and a 95 % interval: Wilson for ADD(-S)-0.1d (a proportion of targets), a normal
-interval of the per-target recalls for AR_MSSD and AR_MSPD (each target's recall is the fraction of the ten BOP
+scores the real runs without their first 25 images (by scene and image id): the frames no choice was tuned on.
+Every accuracy comes with its target count and a 95 % interval: Wilson for ADD(-S)-0.1d (a proportion of
+targets), a normal interval of the per-target recalls for AR_MSSD and AR_MSPD (each target's recall is the fraction of the ten BOP
 thresholds its error is within; their mean over the targets is the AR). The frames of one real sequence are
 correlated, so the intervals are narrower than a second scene would show.
 """

@@ -70,9 +70,11 @@ __all__ = ["SCENES", "DeclutterTask", "RoundResult", "DeclutterReport", "run_rou
 SCENES = ("pile", "packed")
 #: A round ends after this many failed attempts in a row.
 MAX_CONSECUTIVE_FAILURES = 2
-#: Half width of the column the pile is dropped from, m.
 _log = logging.getLogger(__name__)
+#: Half width of the column the pile is dropped from, m.
 _PILE_HALF = 0.06
+#: Half width of the square packed objects stand in, m.
+_PACKED_HALF = 0.13
 #: Smallest visible pixels for an object to count as in view.
 _MIN_PIXELS = 20
 
@@ -178,7 +180,7 @@ def _placements(builder, objs, rng: np.random.Generator, scene: str, n: int) -> 
             v = np.asarray(obj.vertices) @ R.T
             r = float(np.linalg.norm(v[:, :2], axis=1).max())
             for _ in range(200):
-                cand = np.array([cx, cy]) + rng.uniform(-0.13, 0.13, 2)
+                cand = np.array([cx, cy]) + rng.uniform(-_PACKED_HALF, _PACKED_HALF, 2)
                 if all(np.linalg.norm(cand - q) > r + rq + rng.uniform(0.005, 0.025) for q, rq in placed):
                     xy = cand
                     break
@@ -186,7 +188,7 @@ def _placements(builder, objs, rng: np.random.Generator, scene: str, n: int) -> 
                 break
         if scene != "pile" and xy is None:
             _log.warning("packed round: no room for object %d of %d in the %.2f m square; the round starts with %d "
-                         "objects", k + 1, n, 0.26, len(out))
+                         "objects", k + 1, n, 2 * _PACKED_HALF, len(out))
             break
         counts[oid] = counts.get(oid, 0) + 1
         rgba = (*(float(c) for c in np.clip(np.asarray(obj.rgba[:3]) + rng.normal(0, 0.08, 3), 0.02, 0.98)), 1.0)

@@ -19,8 +19,9 @@ in the world frame (the object does not move before the gripper touches it; each
 turned by the object symmetry nearest the running mean, so a symmetric object's equivalent answers do not
 cancel), ``"latest"`` keeps only the newest look, ``"gated"`` averages like ``"mean"`` but leaves out a look
 that disagrees with the pose so far by more than :data:`GATE_TRANSLATION` or :data:`GATE_ROTATION` (the
-first look, from farther away, sees the whole object; a close look can be ambiguous). The grasp is planned again from the updated pose and the new
-plan is taken when it moved (:data:`REPLAN_TRANSLATION`, :data:`REPLAN_ROTATION`).
+first look, from farther away, sees the whole object; a close look can be ambiguous). The grasp is planned
+again from the updated pose and the new plan is taken when it moved (:data:`REPLAN_TRANSLATION`,
+:data:`REPLAN_ROTATION`).
 
 Every look is a *stage* (``first``, ``approach 1`` .. ``approach K``, ``pregrasp``): its pose errors against the
 ground truth at that moment (the look's own estimate and the pose used after it) make the per-stage error
@@ -39,7 +40,8 @@ from simtest.errors import ConfigError
 from simtest.geometry import Pose
 
 __all__ = ["ReobserveSpec", "parse_reobserve", "UPDATES", "FUSIONS", "REPLAN_TRANSLATION", "REPLAN_ROTATION",
-           "GATE_TRANSLATION", "GATE_ROTATION", "PoseFusion", "plan_moved", "waypoint", "stage_table", "stage_markdown", "STAGE_COLUMNS"]
+           "GATE_TRANSLATION", "GATE_ROTATION", "PoseFusion", "plan_moved", "waypoint", "stage_table",
+           "stage_markdown", "STAGE_COLUMNS"]
 
 #: How a re-observation updates the pose (see the module docstring).
 UPDATES = ("estimate", "track")
@@ -128,8 +130,6 @@ class PoseFusion:
         self.syms = np.asarray(symmetries, dtype=np.float64).reshape(-1, 4, 4)
         self.looks: list[np.ndarray] = [first.matrix()]
         self.pose = first
-        #: Looks left out by the ``"gated"`` mode.
-        self.rejected = 0
 
     def add(self, look: Pose) -> Pose:
         """Take a new look (``T_world_obj``, m) and return the updated pose."""
@@ -145,8 +145,7 @@ class PoseFusion:
         if self.mode == "gated":
             far = float(np.linalg.norm(cands[best, :3, 3] - self.pose.t)) > GATE_TRANSLATION
             if far or float(np.arccos(np.clip(cos[best], -1.0, 1.0))) > GATE_ROTATION:
-                self.rejected += 1
-                return self.pose
+                return self.pose  # left out: not in ``looks``
         self.looks.append(cands[best])
         Ts = np.stack(self.looks)
         U, _, Vt = np.linalg.svd(Ts[:, :3, :3].sum(axis=0))  # chordal L2 mean of the rotations

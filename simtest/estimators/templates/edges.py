@@ -11,6 +11,10 @@ something else or on a low-contrast side count a constant and do not pull (robus
 is exhaustive on a coarse grid, then on a finer one around the best, so it is deterministic and needs no
 gradients. The rotation is kept.
 
+Measured: on simtest renders over cluttered backgrounds it at least halves a 4-6 % depth error (tests); on the
+real LM-O frames it lowered ADD(-S)-0.1d (12.8 -> 9.1 % on the first 25 frames, docs/sim2real.md: real clutter
+has edges everywhere), so it is an option, not a default.
+
 Units: pixels of the image the edges come from, the depth factor is relative, translations in metres.
 """
 
@@ -75,7 +79,6 @@ def outline_points(silhouette: np.ndarray, spacing: float = 2.0, blur: int = 3) 
 def _costs(dist: np.ndarray, pts: np.ndarray, centre: np.ndarray, du: np.ndarray, dv: np.ndarray,
            scale: np.ndarray, clip: float) -> np.ndarray:
     """Mean clipped distance of the outline moved by every (du, dv, scale) triple (arrays of one length)."""
-    H, W = dist.shape
     rel = (pts - centre)[None]  # (1, N, 2)
     u = centre[0] + rel[..., 0] / scale[:, None] + du[:, None]
     v = centre[1] + rel[..., 1] / scale[:, None] + dv[:, None]

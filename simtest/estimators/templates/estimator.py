@@ -69,7 +69,8 @@ class TemplateEstimator:
         inplane_deg, inplane_range_deg: Roll angles tried per region: from ``-range`` to ``+range`` in steps of
             ``inplane_deg`` (degrees).
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
-        refine: ``silhouette``, ``edges`` or ``none``; refine_deg: its first rotation step (degrees, 0: translation only);
+        refine: ``silhouette``, ``edges`` or ``none``; refine_deg: its first rotation step (degrees, 0:
+            translation only);
             refine_max_scale: its largest relative depth change; refine_min_px: its smallest step (crop pixels).
         framing: Move and scale the crop window until the templates match it best (:mod:`.framing`), so
             the pose's depth and position no longer follow the region's outline.
