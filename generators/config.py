@@ -220,11 +220,19 @@ class RenderConfig:
     coco: bool = False  # also write scene_gt_coco.json (RLE masks, pycocotools)
     # box of each COCO annotation: whole object in the image (BOP toolkit default) or its visible part
     coco_bbox: Literal["amodal", "modal"] = field(default="amodal", metadata=_bounds(choices=("amodal", "modal")))
-    # path-traced samples per pixel (pbr profile): an integer in [1, 65536], or "auto": 16 at 320x240 and below,
-    # 8 at 640x480 and above, round(16 * sqrt(320 * 240 / pixels)) between (simtest.render.pbr.auto_spp).
+    # path-traced samples per pixel (pbr profile): an integer in [1, 65536], or "auto": 12 at 320x240 and below,
+    # 6 at 640x480 and above, round(12 * sqrt(320 * 240 / pixels)) between (simtest.render.pbr.auto_spp).
     # Typed `object` because the schema checks one type per field; __post_init__ checks int | "auto".
     pbr_spp: object = "auto"
     pbr_denoise: bool = True  # denoise pbr images with Open Image Denoise (albedo + normal guides)
+    # the path tracer's sampler: multijitter (default), independent (earlier releases), stratified (square counts)
+    pbr_sampler: Literal["multijitter", "independent", "stratified"] = field(
+        default="multijitter", metadata=_bounds(choices=("multijitter", "independent", "stratified")))
+    # samples per pixel of the albedo / normal guide pass (at most pbr_spp; 4 or more: handed over as noise-free)
+    pbr_guide_spp: int = field(default=4, metadata=_bounds(1, 1024))
+    # Open Image Denoise quality: fast (default; half the time of high at 640x480), balanced, high
+    pbr_denoise_quality: Literal["fast", "balanced", "high"] = field(
+        default="fast", metadata=_bounds(choices=("fast", "balanced", "high")))
     # Mitsuba variant of the pbr profile: "auto" = cuda (a CUDA device), else llvm (a libLLVM >= 16), else
     # scalar; an explicit "cuda" / "llvm" that cannot run is an error (simtest.render.llvm.choose_variant)
     pbr_variant: Literal["auto", "cuda", "llvm", "scalar"] = field(

@@ -63,7 +63,8 @@ def pbr_renderer(cfg: GenerateConfig, scene: SimScene):
         env = (environment_of(env).radiance, env.strength)
     return PbrRenderer(scene.model, scene.camera, spp=cfg.render.pbr_spp, denoise=cfg.render.pbr_denoise,
                        threads=worker_threads(cfg.workers, cfg.ray_address).cores, variant=cfg.render.pbr_variant,
-                       environment=env)
+                       environment=env, sampler=cfg.render.pbr_sampler, guide_spp=cfg.render.pbr_guide_spp,
+                       denoise_quality=cfg.render.pbr_denoise_quality)
 
 
 class SceneRecorder:

@@ -1,4 +1,4 @@
-"""``simtest bench generate|check|grasp|metrics|corruptions|panda|objects|backend|channels|stereo|appearance``: speed figures measured in the same run (ratios
+"""``simtest bench generate|pbr-quality|check|grasp|metrics|corruptions|panda|objects|backend|channels|stereo|appearance``: speed figures measured in the same run (ratios
 against raw MuJoCo)."""
 
 from __future__ import annotations
@@ -44,6 +44,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also the milliseconds per frame of each dense ground-truth channel (generate --channels) "
                         "at --width x --height, as `simtest bench channels`")
     g.set_defaults(func=_generate)
+    pq = bsub.add_parser("pbr-quality", parents=[common_parser()],
+                         help="pbr settings: seconds per frame and PSNR against a high-sample reference of the same "
+                              "views (looks on)",
+                         description="Seconds per frame and PSNR (dB) against a reference of the same views for "
+                                     "each pbr setting, views interleaved so that load drift weighs on all alike. "
+                                     "A setting: before, default, or NAME:key=value,... with keys spp (integer, "
+                                     "auto, previous), sampler, guide_spp, denoise_quality.")
+    pq.add_argument("--sizes", default="320x240,640x480", help="image sizes (default 320x240,640x480)")
+    pq.add_argument("--settings", default="before;default",
+                    help="settings separated by ';' (default 'before;default': the earlier and this release's "
+                         "defaults), e.g. 'default;hq:denoise_quality=high'")
+    pq.add_argument("--scenes", type=int, default=2, help="scenes per size (default 2)")
+    pq.add_argument("--views", type=int, default=3, help="views per scene (default 3)")
+    pq.add_argument("--reference-spp", type=int, default=512,
+                    help="samples per pixel of the reference (default 512; denoised)")
+    pq.add_argument("--cache", default=None, metavar="DIR",
+                    help="keep the references here and reuse them in later runs (default: not kept)")
+    pq.add_argument("--seed", type=int, default=0, help="seed of the scenes (default 0)")
+    pq.add_argument("--json", metavar="FILE", dest="json_out", help="also write the table as JSON to FILE")
+    pq.set_defaults(func=_pbr_quality)
     ck = bsub.add_parser("check", parents=[common_parser()],
                          help="a fresh `bench generate --profiles` run against the figures recorded in the "
                               "repository: fresh / recorded seconds per frame")
@@ -168,6 +188,44 @@ def _generate(args: argparse.Namespace) -> int:
     return code
 
 
+def _sizes(text: str) -> list[tuple[int, int]]:
+    """``WxH,WxH`` -> sizes; ConfigError naming the value."""
+    from simtest.errors import ConfigError
+
+    try:
+        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in text.split(",")]
+    except ValueError:
+        sizes = [()]
+    if any(len(s) != 2 or min(s) < 1 for s in sizes):
+        raise ConfigError(f"--sizes: expected WIDTHxHEIGHT[,WIDTHxHEIGHT...], got {text!r}")
+    return sizes
+
+
+def _pbr_quality(args: argparse.Namespace) -> int:
+    from simtest.benchmarks.pbr_quality import bench_pbr_quality, parse_setting
+    from simtest.errors import ConfigError
+
+    settings = [parse_setting(t.strip()) for t in args.settings.split(";") if t.strip()]
+    names = [s.name for s in settings]
+    if not settings or len(set(names)) != len(names):
+        raise ConfigError(f"--settings: expected distinct setting names, got {names}")
+    if args.reference_spp < 1 or args.scenes < 1 or args.views < 1:
+        raise ConfigError(f"--reference-spp, --scenes and --views must be >= 1, got {args.reference_spp}, "
+                          f"{args.scenes}, {args.views}")
+    res = bench_pbr_quality(settings, _sizes(args.sizes), args.scenes, args.views, args.reference_spp,
+                            cache=args.cache, seed=args.seed)
+    print(res.table())
+    if args.json_out:
+        from simtest.benchmarks.check import bench_record
+        from simtest.io.files import atomic_write_json
+
+        cmd = (f"simtest bench pbr-quality --sizes {args.sizes} --settings '{args.settings}' --scenes {args.scenes} "
+               f"--views {args.views} --reference-spp {args.reference_spp} --seed {args.seed}")
+        atomic_write_json(args.json_out, bench_record(res.to_dict(), cmd))
+        print(f"\nwrote {args.json_out}")
+    return 0
+
+
 def _profiles(args: argparse.Namespace) -> int:
     from simtest.benchmarks.generate import bench_profiles
     from simtest.errors import ConfigError
@@ -176,13 +234,7 @@ def _profiles(args: argparse.Namespace) -> int:
     bad = [p for p in profiles if p not in ("fast", "quality", "pbr")]
     if bad or not profiles:
         raise ConfigError(f"--profiles: unknown profile(s) {bad}; choose from fast, quality, pbr")
-    try:
-        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes.split(",")] if args.sizes \
-            else [(args.width, args.height)]
-    except ValueError:
-        sizes = [()]
-    if any(len(s) != 2 for s in sizes):
-        raise ConfigError(f"--sizes: expected WIDTHxHEIGHT[,WIDTHxHEIGHT...], got {args.sizes!r}")
+    sizes = _sizes(args.sizes) if args.sizes else [(args.width, args.height)]
     spp = args.pbr_spp
     if spp != "auto":
         if not spp.isdigit() or not 1 <= int(spp) <= 65536:

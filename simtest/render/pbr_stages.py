@@ -66,6 +66,13 @@ class StageTimes:
         return StageTimes({k: v - earlier.seconds.get(k, 0.0) for k, v in self.seconds.items()},
                           self.frames - earlier.frames, self.loads - earlier.loads)
 
+    def add(self, other: "StageTimes") -> None:
+        """Add ``other``'s seconds, frames and loads to this one."""
+        for k, v in other.seconds.items():
+            self.seconds[k] = self.seconds.get(k, 0.0) + v
+        self.frames += other.frames
+        self.loads += other.loads
+
     def per_frame(self) -> dict[str, float]:
         """Stage name -> wall seconds per frame (zeros before the first frame)."""
         n = max(1, self.frames)

@@ -311,7 +311,7 @@ def test_bench_profiles_reports_each_profile_and_size():
     assert "pbr path tracer: scalar_rgb; 2 scenes x 1 views" in table
     one = bench_profiles(["pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,
                          objects="builtin-small", pbr_spp="auto", two_workers=False)
-    assert one.rows[0].spp == 16 and one.rows[0].wall_2workers is None and "| - | - |" in one.table()
+    assert one.rows[0].spp == 12 and one.rows[0].wall_2workers is None and "| - | - |" in one.table()
 
 
 def test_pbr_same_bytes_with_1_or_2_workers(tmp_path, small_config):

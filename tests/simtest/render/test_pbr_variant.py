@@ -97,7 +97,7 @@ def test_old_library_is_refused_by_path_and_by_search():
 
 def test_auto_spp_follows_the_measured_knees():
     assert [auto_spp(w, h) for w, h in ((48, 36), (320, 240), (424, 240), (640, 480), (1280, 960))] == \
-        [16, 16, 14, 8, 8]
+        [12, 12, 10, 6, 6]
 
 
 # --- variant choice, in fresh processes -------------------------------------------------------------------
@@ -153,19 +153,21 @@ def test_llvm_same_bytes_across_runs_and_worker_counts_and_the_fast_ground_truth
 
 
 # --- one renderer, many views -----------------------------------------------------------------------------
-def _views_rendered(variant: str, fresh: bool, threads: int | None = None) -> list[str]:
+def _views_rendered(variant: str, fresh: bool, threads: int | None = None, views: int = 3,
+                    freeze: bool = True) -> list[str]:
     from simtest.camera import CameraModel
     from simtest.generators.config import GenerateConfig
     from simtest.generators.pipeline import load_objects, prepare_scene
     from simtest.generators.recorder import scene_cameras
     from simtest.render.pbr import PbrRenderer
 
-    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": 3,
+    cfg = GenerateConfig().replace(**{"objects": "builtin-small", "scenes": 1, "frames_per_scene": views,
                                       "camera.width": W, "camera.height": H, "scene.objects_per_scene": [3, 3],
                                       "seed": 3})
     scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
     camera = CameraModel(cfg.camera.K(), W, H)
     renderer = PbrRenderer(scene.model, camera, spp=2, variant=variant, threads=threads)
+    renderer.freeze = freeze
     out = []
     for im_id, (cam, _) in enumerate(scene_cameras(cfg, scene)):
         scene.set_camera(cam)
@@ -180,6 +182,24 @@ def _views_rendered(variant: str, fresh: bool, threads: int | None = None) -> li
 def test_views_of_one_scene_reuse_the_loaded_scene_with_the_same_bytes():
     reused = _views_rendered("scalar", fresh=False)
     assert reused == _views_rendered("scalar", fresh=True) and len(set(reused)) == 3
+
+
+@needs_pbr
+def test_frozen_replays_give_the_bytes_of_renderers_made_anew():
+    """On the LLVM variant the views of a loaded scene replay recorded kernels (Dr.Jit frozen functions) after
+    the first recordings: five views give the bytes of a renderer made anew for each view (which records) and
+    of one with freezing off."""
+    from simtest.errors import RenderError
+    from simtest.render.pbr import resolved_variant
+
+    try:
+        resolved_variant("llvm")
+    except RenderError as exc:
+        pytest.skip(f"no LLVM variant here: {exc}")
+    reused = _views_rendered("llvm", fresh=False, views=5)
+    assert len(set(reused)) == 5
+    assert reused == _views_rendered("llvm", fresh=True, views=5)
+    assert reused == _views_rendered("llvm", fresh=False, views=5, freeze=False)
 
 
 @needs_pbr
