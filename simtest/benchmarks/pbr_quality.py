@@ -38,6 +38,7 @@ class PbrSetting:
         spp: Samples per pixel: an integer, ``"auto"`` (this release's rule) or ``"previous"``
             (:func:`previous_auto_spp`).
         sampler, guide_spp, denoise_quality: As the renderer's arguments.
+        freeze: Replay recorded kernels for the views of a scene (:attr:`PbrRenderer.freeze`).
     """
 
     name: str
@@ -45,6 +46,7 @@ class PbrSetting:
     sampler: str = "multijitter"
     guide_spp: int = 4
     denoise_quality: str = "fast"
+    freeze: bool = True
 
     def samples(self, width: int, height: int) -> int:
         from simtest.render.pbr import auto_spp
@@ -56,15 +58,17 @@ class PbrSetting:
         return int(self.spp)
 
 
-#: The earlier default: independent samples, the previous spp rule, one-sample guides, OIDN ``high``.
-BEFORE = PbrSetting("before", spp="previous", sampler="independent", guide_spp=1, denoise_quality="high")
+#: The earlier default: independent samples, the previous spp rule, one-sample guides, OIDN ``high``, every view
+#: traced anew.
+BEFORE = PbrSetting("before", spp="previous", sampler="independent", guide_spp=1, denoise_quality="high",
+                    freeze=False)
 #: This release's default.
 DEFAULT = PbrSetting("default")
 
 
 def parse_setting(text: str) -> PbrSetting:
     """``NAME`` (``before`` / ``default``) or ``NAME:key=value,key=value`` with keys ``spp``, ``sampler``,
-    ``guide_spp``, ``denoise_quality`` (unnamed keys keep :data:`DEFAULT`'s values).
+    ``guide_spp``, ``denoise_quality``, ``freeze`` (``0`` / ``1``); keys not given keep :data:`DEFAULT`'s values.
 
     Raises:
         ConfigError: Naming the bad key or value.
@@ -86,6 +90,10 @@ def parse_setting(text: str) -> PbrSetting:
             if not (value.isdigit() and int(value) >= 1):
                 raise ConfigError(f"setting {text!r}: guide_spp={value!r}; allowed: an integer >= 1")
             out[key] = int(value)
+        elif key == "freeze":
+            if value not in ("0", "1"):
+                raise ConfigError(f"setting {text!r}: freeze={value!r}; allowed: 0 or 1")
+            out[key] = value == "1"
         elif key in ("sampler", "denoise_quality"):
             allowed = SAMPLERS if key == "sampler" else DENOISE_QUALITIES
             if value not in allowed:
@@ -93,7 +101,7 @@ def parse_setting(text: str) -> PbrSetting:
             out[key] = value
         else:
             raise ConfigError(f"setting {text!r}: unknown key {key!r}; allowed: spp, sampler, guide_spp, "
-                              f"denoise_quality")
+                              f"denoise_quality, freeze")
     if not name:
         raise ConfigError(f"setting {text!r} has no name (NAME:key=value,...)")
     return PbrSetting(name, **out)
@@ -131,13 +139,13 @@ class QualityBench:
     def table(self) -> str:
         lines = [f"pbr settings against a {self.reference_spp}-spp reference of the same views ({self.scenes} scenes "
                  f"x {self.views} views; looks on; load average {self.load_average[0]:.2f} at the start)", "",
-                 "| setting | image size | spp | sampler | guide spp | denoiser | s/frame (wall) | CPU s/frame | "
-                 "trace | guides | denoise | PSNR dB (mean) | PSNR dB (min - max) |",
-                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                 "| setting | image size | spp | sampler | guide spp | denoiser | frozen | s/frame (wall) | "
+                 "CPU s/frame | trace | guides | denoise | PSNR dB (mean) | PSNR dB (min - max) |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in self.rows:
             s = r.setting
             lines.append(f"| {s.name} | {r.width}x{r.height} | {r.spp} | {s.sampler} | {min(s.guide_spp, r.spp)} | "
-                         f"{s.denoise_quality} | {r.wall:.3f} | {r.cpu:.3f} | {r.stages.get('trace', 0):.3f} | "
+                         f"{s.denoise_quality} | {'yes' if s.freeze else 'no'} | {r.wall:.3f} | {r.cpu:.3f} | {r.stages.get('trace', 0):.3f} | "
                          f"{r.stages.get('guides', 0):.3f} | {r.stages.get('denoise', 0):.3f} | "
                          f"{np.mean(r.psnr):.2f} | {min(r.psnr):.2f} - {max(r.psnr):.2f} |")
         return "\n".join(lines)
@@ -158,9 +166,11 @@ def _renderer(cfg, scene, setting: PbrSetting | None, spp: int):
     from simtest.generators.recorder import pbr_renderer
 
     s = setting or DEFAULT
-    return pbr_renderer(cfg.replace(**{"render.pbr_spp": int(spp), "render.pbr_sampler": s.sampler,
-                                       "render.pbr_guide_spp": int(s.guide_spp),
-                                       "render.pbr_denoise_quality": s.denoise_quality}), scene)
+    r = pbr_renderer(cfg.replace(**{"render.pbr_spp": int(spp), "render.pbr_sampler": s.sampler,
+                                    "render.pbr_guide_spp": int(s.guide_spp),
+                                    "render.pbr_denoise_quality": s.denoise_quality}), scene)
+    r.freeze = s.freeze
+    return r
 
 
 def bench_pbr_quality(settings: list[PbrSetting], sizes: list[tuple[int, int]], scenes: int = 2, views: int = 3,

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          description="Seconds per frame and PSNR (dB) against a reference of the same views for "
                                      "each pbr setting, views interleaved so that load drift weighs on all alike. "
                                      "A setting: before, default, or NAME:key=value,... with keys spp (integer, "
-                                     "auto, previous), sampler, guide_spp, denoise_quality.")
+                                     "auto, previous), sampler, guide_spp, denoise_quality, freeze (0 or 1).")
     pq.add_argument("--sizes", default="320x240,640x480", help="image sizes (default 320x240,640x480)")
     pq.add_argument("--settings", default="before;default",
                     help="settings separated by ';' (default 'before;default': the earlier and this release's "

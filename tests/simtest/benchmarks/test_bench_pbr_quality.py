@@ -20,11 +20,12 @@ def test_settings_parse_and_bad_keys_and_values_are_named():
     from simtest.benchmarks.pbr_quality import BEFORE, DEFAULT, parse_setting, previous_auto_spp
 
     assert parse_setting("before") == BEFORE and parse_setting("default") == DEFAULT
-    s = parse_setting("hq:spp=16,sampler=independent,guide_spp=1,denoise_quality=high")
-    assert (s.name, s.spp, s.sampler, s.guide_spp, s.denoise_quality) == ("hq", 16, "independent", 1, "high")
+    s = parse_setting("hq:spp=16,sampler=independent,guide_spp=1,denoise_quality=high,freeze=0")
+    assert (s.name, s.spp, s.sampler, s.guide_spp, s.denoise_quality, s.freeze) == \
+        ("hq", 16, "independent", 1, "high", False)
     assert BEFORE.samples(640, 480) == previous_auto_spp(640, 480) == 8 and BEFORE.samples(320, 240) == 16
     for bad, word in (("x:foo=1", "'foo'"), ("x:spp=0", "spp='0'"), ("x:sampler=sobol", "sobol"),
-                      ("x:denoise_quality=ultra", "ultra"), (":spp=4", "no name")):
+                      ("x:denoise_quality=ultra", "ultra"), ("x:freeze=yes", "freeze='yes'"), (":spp=4", "no name")):
         with pytest.raises(ConfigError, match=word):
             parse_setting(bad)
 
@@ -55,7 +56,7 @@ def test_a_tiny_run_scores_settings_against_a_cached_reference(tmp_path):
            "--cache", str(tmp_path / "refs"), "--json", str(out)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
-    assert "| same | 32x24 | 4 | multijitter | 4 | fast |" in res.stdout
+    assert "| same | 32x24 | 4 | multijitter | 4 | fast | yes |" in res.stdout
     rows = {r["setting"]["name"]: r for r in json.loads(out.read_text())["rows"]}
     # the reference is the default setting at 4 spp with seed 7, "same" renders other seeds: not equal, but close
     assert rows["same"]["psnr_mean"] > rows["low"]["psnr_mean"] > 10.0
