@@ -416,6 +416,8 @@ class GraspTask:
             env = self.grasp_scene.sim.spec.environment
             env = None if env is None else (environment_of(env).radiance, env.strength)
             self._pbr = PbrRenderer(self.model, self.camera, spp="auto", environment=env)
+            # every capture sees the arm elsewhere, i.e. another scene: recorded kernels would never replay
+            self._pbr.freeze = False
         k = self._pbr_captures
         self._pbr_captures += 1
         return lambda: self._pbr.render(self.data, self.ids.camera, seed=pbr_seed(self._corrupt_rng, k)).rgb

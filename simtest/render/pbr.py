@@ -215,7 +215,10 @@ class PbrRenderer:
 
     Views of one scene whose geometry, materials and lights are unchanged reuse the loaded Mitsuba scene with
     only the sensor changed (the same bytes as loading it again); its compiled kernel is the same for every
-    view and scene (Dr.Jit's kernel cache answers it). Geoms with one material and colour share one BSDF.
+    view and scene (Dr.Jit's kernel cache answers it). Geoms with one material and colour share one BSDF. On the
+    JIT variants the views of a loaded scene move one sensor and replay the kernels recorded at its first views
+    (:attr:`freeze`; same bytes); a caller whose scene changes at every frame (the grasp env: the arm moves)
+    sets ``freeze = False``, since recordings that never replay only cost.
     :attr:`stages` keeps the wall seconds of each stage of its frames (:mod:`simtest.render.pbr_stages`).
 
     Any pinhole K renders, ``fx != fy`` included (:class:`FilmGrid`: the path tracer's square-pixel film is
