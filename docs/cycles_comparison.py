@@ -238,10 +238,12 @@ def _emitter_records(mi, scene_dict: dict) -> tuple[list[dict], dict[str, Any]]:
     return lights, env
 
 
-def export(out: Path, scenes: int, views: int, width: int, height: int, spp: int, seed: int) -> dict:
+def export(out: Path, scenes: int, views: int, width: int, height: int, spp: int, seed: int,
+           overrides: dict[str, Any] | None = None) -> dict:
     """Build ``scenes`` settled scenes as ``simtest generate --profile pbr`` does, render ``views`` views of each
     with the pbr renderer (``spp`` samples per pixel, denoised; view 0 of each scene is the untimed warm-up) and
-    write everything :func:`render` needs to ``out``. Returns the run's record (also ``out/export.json``)."""
+    write everything :func:`render` needs to ``out``. ``overrides``: further config values (dotted keys, e.g.
+    ``{"lights.environment": "constant"}``). Returns the run's record (also ``out/export.json``)."""
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root))
     import simtest
@@ -262,11 +264,11 @@ def export(out: Path, scenes: int, views: int, width: int, height: int, spp: int
     cfg = GenerateConfig().replace(**{
         "objects": "builtin", "scenes": scenes, "frames_per_scene": views, "camera.width": width,
         "camera.height": height, "scene.objects_per_scene": [10, 10], "render.profile": "pbr",
-        "render.pbr_spp": spp, "seed": seed})
+        "render.pbr_spp": spp, "seed": seed, **(overrides or {})})
     out.mkdir(parents=True, exist_ok=True)
     record: dict[str, Any] = {
         "width": width, "height": height, "spp": spp, "views_per_scene": views, "seed": seed,
-        "max_depth": MAX_DEPTH, "threads": worker_threads(cfg.workers, cfg.ray_address).cores,
+        "config_overrides": overrides or {}, "max_depth": MAX_DEPTH, "threads": worker_threads(cfg.workers, cfg.ray_address).cores,
         "versions": {**renderer_versions(cfg.render.pbr_variant), "python": platform.python_version()},
         "loadavg_start": _loadavg(), "scenes": []}
     objects = load_objects(cfg)
@@ -803,6 +805,8 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--height", type=int, default=480)
     e.add_argument("--spp", type=int, default=8)
     e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--set", action="append", default=[], metavar="KEY=JSON",
+                   help="another config value, e.g. --set lights.environment='\"constant\"' (repeatable)")
     r = sub.add_parser("render", help="the bpy venv: render the exported folder with Cycles, write the summary")
     r.add_argument("folder", type=Path)
     r.add_argument("--threads", type=int, default=2)
@@ -812,7 +816,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip the extra frame per scene without denoising that estimates Cycles' denoising time")
     args = ap.parse_args(argv)
     if args.cmd == "export":
-        export(args.out, args.scenes, args.views, args.width, args.height, args.spp, args.seed)
+        overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
+        export(args.out, args.scenes, args.views, args.width, args.height, args.spp, args.seed, overrides)
     else:
         render(args.folder, args.threads, args.figure, [s for s in args.settings.split(",") if s],
                not args.no_denoise_split)
