@@ -64,6 +64,20 @@ def _linear(srgb8: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+def _commit(root: Path) -> str:
+    """The checkout's git commit (with ``+dirty`` when it has changes), or ``unknown``."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+        return head + ("+dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def _loadavg() -> list[float]:
     """The 1, 5 and 15 minute load averages (runnable processes)."""
     return [round(v, 2) for v in os.getloadavg()]
@@ -269,7 +283,8 @@ def export(out: Path, scenes: int, views: int, width: int, height: int, spp: int
     record: dict[str, Any] = {
         "width": width, "height": height, "spp": spp, "views_per_scene": views, "seed": seed,
         "config_overrides": overrides or {}, "max_depth": MAX_DEPTH, "threads": worker_threads(cfg.workers, cfg.ray_address).cores,
-        "versions": {**renderer_versions(cfg.render.pbr_variant), "python": platform.python_version()},
+        "versions": {**renderer_versions(cfg.render.pbr_variant), "python": platform.python_version(),
+                     "simtest_commit": _commit(root)},
         "loadavg_start": _loadavg(), "scenes": []}
     objects = load_objects(cfg)
     for sid in range(scenes):
