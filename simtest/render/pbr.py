@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import logging
 import os
 from typing import Any
 
@@ -83,6 +84,8 @@ _R_CV_MI = np.diag([-1.0, -1.0, 1.0])
 _SEED_STREAM = 0x50425200
 _G = mujoco.mjtGeom
 _MITSUBA: dict[str, Any] = {}
+_WARNED: dict[str, bool] = {}
+log = logging.getLogger(__name__)
 _CHOSEN: dict[str, Variant] = {}
 
 
@@ -265,6 +268,7 @@ class PbrRenderer:
         self._loaded: tuple[bytes, Any] | None = None  # (scene key, loaded Mitsuba scene)
         self._sensor = self._sensor_params = None  # the loaded scene's sensor, moved view by view
         self._calls = None  # (trace, guides) of the loaded scene (:meth:`_render_calls`)
+        self._frozen_ok = True  # False once Dr.Jit refused to record the loaded scene
         #: Replay recorded kernels for the views of a loaded scene (Dr.Jit's frozen functions; JIT variants).
         self.freeze = True
         self._environment: tuple[np.ndarray, float] | None = None
@@ -314,6 +318,7 @@ class PbrRenderer:
             key = self._scene_key(data)
             if self._loaded is None or self._loaded[0] != key:
                 self._loaded = self._sensor = self._calls = None  # free the previous scene first
+                self._frozen_ok = True
                 self._bsdfs.clear()
                 self._loaded = (key, mi.load_dict(self._scene_dict(data, cam)))
                 self.stages.loads += 1
@@ -375,12 +380,31 @@ class PbrRenderer:
         if self._variant.name.startswith(("llvm", "cuda")) and self.freeze:
             import drjit
 
-            ft, fg = drjit.freeze(trace), drjit.freeze(guides)
-            self._calls = (lambda sc, se, sd: ft(sc, se, mi.UInt32(sd)),
-                           lambda sc, se, sd: fg(sc, se, mi.UInt32(sd)))
+            frozen = (drjit.freeze(trace), drjit.freeze(guides))
+            self._calls = tuple(self._or_traced(f, plain) for f, plain in zip(frozen, (trace, guides)))
         else:
             self._calls = (trace, guides)
         return self._calls
+
+    def _or_traced(self, frozen, plain):
+        """``frozen`` called with the seed as a Dr.Jit array; if Dr.Jit cannot record this scene (it refuses some
+        nested virtual calls), this scene's views are traced as without freezing (the same bytes), said once in
+        the log."""
+        mi = self._mi
+
+        def call(scene, sensor, seed):
+            if not self._frozen_ok:
+                return plain(scene, sensor, seed)
+            try:
+                return frozen(scene, sensor, mi.UInt32(seed))
+            except RuntimeError as exc:
+                self._frozen_ok = False
+                if not _WARNED.get("freeze"):
+                    _WARNED["freeze"] = True
+                    log.info("pbr: Dr.Jit could not record this scene's kernels (%s); its views are traced one "
+                             "by one", str(exc).splitlines()[0][:200])
+                return plain(scene, sensor, seed)
+        return call
 
     def _scene_key(self, data: mujoco.MjData) -> bytes:
         """A digest of everything :meth:`_scene_dict` reads apart from the camera: equal keys, equal scenes."""
