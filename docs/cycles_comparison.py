@@ -282,7 +282,9 @@ def export(out: Path, scenes: int, views: int, width: int, height: int, spp: int
     out.mkdir(parents=True, exist_ok=True)
     record: dict[str, Any] = {
         "width": width, "height": height, "spp": spp, "views_per_scene": views, "seed": seed,
-        "config_overrides": overrides or {}, "max_depth": MAX_DEPTH, "threads": worker_threads(cfg.workers, cfg.ray_address).cores,
+        "config_overrides": overrides or {}, "max_depth": MAX_DEPTH, "sampler": cfg.render.pbr_sampler,
+        "guide_spp": min(spp, cfg.render.pbr_guide_spp), "denoise_quality": cfg.render.pbr_denoise_quality,
+        "threads": worker_threads(cfg.workers, cfg.ray_address).cores,
         "versions": {**renderer_versions(cfg.render.pbr_variant), "python": platform.python_version(),
                      "simtest_commit": _commit(root)},
         "loadavg_start": _loadavg(), "scenes": []}
@@ -727,7 +729,8 @@ def render(folder: Path, threads: int, figure: Path | None, settings: list[str],
                 sim = _read_png(bpy, sdir / view["simtest_png"])
                 bright = float(_linear(srgb).mean() / max(_linear(sim).mean(), 1e-9))
                 frames.append({"scene": meta["scene"], "view": view["view"], "warmup": view["warmup"],
-                               "cycles_seconds": round(seconds, 3), "simtest_seconds": round(view["simtest_seconds"], 3),
+                               "cycles_seconds": round(seconds, 3),
+                               "simtest_seconds": round(view["simtest_seconds"], 3),
                                "simtest_stages": view["simtest_stages"],
                                "brightness_cycles_over_simtest": round(bright, 3)})
                 if view["warmup"]:
@@ -755,7 +758,9 @@ def render(folder: Path, threads: int, figure: Path | None, settings: list[str],
                                                            "transparent", "volume")},
                        "denoiser": "OIDN (albedo + normal, prefilter accurate)"},
             "simtest": {"spp": exp["spp"], "max_depth": exp["max_depth"],
-                        "denoiser": "OIDN (albedo + normal from a 1-spp guide pass)"},
+                        "sampler": exp.get("sampler", "independent"),
+                        "denoiser": f"OIDN {exp.get('denoise_quality', 'high')} (albedo + normal from a "
+                                    f"{exp.get('guide_spp', 1)}-spp guide pass)"},
             "timed_frames": len(timed), "cycles_s_per_frame": cyc, "simtest_s_per_frame": sim,
             "ratio_cycles_over_simtest": round(cyc / sim, 2),
             "cycles_denoise_s_estimate": _mean(splits), "simtest_stages_s_per_frame": stage,

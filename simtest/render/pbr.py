@@ -218,9 +218,9 @@ class PbrRenderer:
 
     Views of one scene whose geometry, materials and lights are unchanged reuse the loaded Mitsuba scene with
     only the sensor changed (the same bytes as loading it again); its compiled kernel is the same for every
-    view and scene (Dr.Jit's kernel cache answers it). Geoms with one material and colour share one BSDF. On the
-    JIT variants the views of a loaded scene move one sensor and replay the kernels recorded at its first views
-    (:attr:`freeze`; same bytes); a caller whose scene changes at every frame (the grasp env: the arm moves)
+    view and scene (Dr.Jit's kernel cache answers it). Geoms with one material and colour share one BSDF. The views
+    of a loaded scene move one sensor and, with :attr:`freeze` (JIT variants), replay the kernels recorded at the
+    scene's first view (same bytes); a caller whose scene changes at every frame (the grasp env: the arm moves)
     sets ``freeze = False``, since recordings that never replay only cost.
     :attr:`stages` keeps the wall seconds of each stage of its frames (:mod:`simtest.render.pbr_stages`).
 
@@ -269,7 +269,9 @@ class PbrRenderer:
         self._sensor = self._sensor_params = None  # the loaded scene's sensor, moved view by view
         self._calls = None  # (trace, guides) of the loaded scene (:meth:`_render_calls`)
         self._frozen_ok = True  # False once Dr.Jit refused to record the loaded scene
-        #: Replay recorded kernels for the views of a loaded scene (Dr.Jit's frozen functions; JIT variants).
+        #: Replay recorded kernels for the views of a loaded scene (Dr.Jit's frozen functions; JIT variants): a
+        #: replay saves about 0.06 s per view at 320x240, a recording costs about 0.1 s more than a traced view,
+        #: so a caller whose scene changes at every frame turns it off (docs/generate.md).
         self.freeze = True
         self._environment: tuple[np.ndarray, float] | None = None
         self._env_bitmap = None
@@ -363,10 +365,9 @@ class PbrRenderer:
 
     def _render_calls(self):
         """``(trace, guides)``: functions ``(scene, sensor, seed) -> image`` of the path tracer and of the guide
-        pass. On the JIT variants they are Dr.Jit frozen functions made once per loaded scene: the first views
-        record the kernels (up to three recordings, until the seed and the camera pose are seen to change),
-        later views replay them without tracing Mitsuba's integrator again in Python (about 0.1 s per call,
-        most of a small image's frame); the images are the same bytes either way."""
+        pass. With :attr:`freeze` on a JIT variant they are Dr.Jit frozen functions made once per loaded scene:
+        the first view records the kernels, later views replay them without tracing Mitsuba's integrator again
+        (0.06-0.1 s per call); the images are the same bytes either way."""
         if self._calls is not None:
             return self._calls
         mi, spp, gspp, aux = self._mi, self.spp, self.guide_spp, self._aux
@@ -380,7 +381,8 @@ class PbrRenderer:
         if self._variant.name.startswith(("llvm", "cuda")) and self.freeze:
             import drjit
 
-            frozen = (drjit.freeze(trace), drjit.freeze(guides))
+            # every input opaque from the first call: one recording per scene, not one per literal seen to change
+            frozen = (drjit.freeze(trace, auto_opaque=False), drjit.freeze(guides, auto_opaque=False))
             self._calls = tuple(self._or_traced(f, plain) for f, plain in zip(frozen, (trace, guides)))
         else:
             self._calls = (trace, guides)
