@@ -44,26 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also the milliseconds per frame of each dense ground-truth channel (generate --channels) "
                         "at --width x --height, as `simtest bench channels`")
     g.set_defaults(func=_generate)
-    pq = bsub.add_parser("pbr-quality", parents=[common_parser()],
-                         help="pbr settings: seconds per frame and PSNR against a high-sample reference of the same "
-                              "views (looks on)",
-                         description="Seconds per frame and PSNR (dB) against a reference of the same views for "
-                                     "each pbr setting, views interleaved so that load drift weighs on all alike. "
-                                     "A setting: before, default, or NAME:key=value,... with keys spp (integer, "
-                                     "auto, previous), sampler, guide_spp, denoise_quality, freeze (0 or 1).")
-    pq.add_argument("--sizes", default="320x240,640x480", help="image sizes (default 320x240,640x480)")
-    pq.add_argument("--settings", default="before;default",
-                    help="settings separated by ';' (default 'before;default': the earlier and this release's "
-                         "defaults), e.g. 'default;hq:denoise_quality=high'")
-    pq.add_argument("--scenes", type=int, default=2, help="scenes per size (default 2)")
-    pq.add_argument("--views", type=int, default=3, help="views per scene (default 3)")
-    pq.add_argument("--reference-spp", type=int, default=512,
-                    help="samples per pixel of the reference (default 512; denoised)")
-    pq.add_argument("--cache", default=None, metavar="DIR",
-                    help="keep the references here and reuse them in later runs (default: not kept)")
-    pq.add_argument("--seed", type=int, default=0, help="seed of the scenes (default 0)")
-    pq.add_argument("--json", metavar="FILE", dest="json_out", help="also write the table as JSON to FILE")
-    pq.set_defaults(func=_pbr_quality)
+    _register_pbr_quality(bsub)
     ck = bsub.add_parser("check", parents=[common_parser()],
                          help="a fresh `bench generate --profiles` run against the figures recorded in the "
                               "repository: fresh / recorded seconds per frame")
@@ -140,6 +121,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--split", default=None, help="split folder (default: the dataset's only split)")
     ap.set_defaults(func=_appearance)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _register_pbr_quality(bsub) -> None:
+    """``simtest bench pbr-quality`` (:mod:`simtest.benchmarks.pbr_quality`)."""
+    pq = bsub.add_parser("pbr-quality", parents=[common_parser()],
+                         help="pbr settings: seconds per frame and PSNR against a high-sample reference of the same "
+                              "views (looks on)",
+                         description="Seconds per frame and PSNR (dB) against a reference of the same views for "
+                                     "each pbr setting, views interleaved so that load drift weighs on all alike. "
+                                     "A setting: before, default, or NAME:key=value,... with keys spp (integer, "
+                                     "auto, previous), sampler, guide_spp, denoise_quality, freeze (0 or 1).")
+    pq.add_argument("--sizes", default="320x240,640x480", help="image sizes (default 320x240,640x480)")
+    pq.add_argument("--settings", default="before;default",
+                    help="settings separated by ';' (default 'before;default': the earlier and this release's "
+                         "defaults), e.g. 'default;hq:denoise_quality=high'")
+    pq.add_argument("--scenes", type=int, default=2, help="scenes per size (default 2)")
+    pq.add_argument("--views", type=int, default=3, help="views per scene (default 3)")
+    pq.add_argument("--reference-spp", type=int, default=512,
+                    help="samples per pixel of the reference (default 512; denoised)")
+    pq.add_argument("--cache", default=None, metavar="DIR",
+                    help="keep the references here and reuse them in later runs (default: not kept)")
+    pq.add_argument("--seed", type=int, default=0, help="seed of the scenes (default 0)")
+    pq.add_argument("--json", metavar="FILE", dest="json_out", help="also write the table as JSON to FILE")
+    pq.set_defaults(func=_pbr_quality)
 
 
 def _appearance(args: argparse.Namespace) -> int:

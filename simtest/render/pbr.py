@@ -45,9 +45,9 @@ from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
 from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
 from simtest.render.pbr_film import FilmGrid, film_grid, resample_to_image
-from simtest.render.pbr_lights import emitters
+from simtest.render.pbr_lights import emitters, panel
 from simtest.render.pbr_stages import StageTimes, process_stages
-from simtest.render.pbr_shapes import box_arrays, mesh_from_arrays, sphere_arrays, transform
+from simtest.render.pbr_shapes import INFINITE_PLANE, geom_shapes, transform
 from simtest.render.rasterizer import Frame, camera_id
 from simtest.rng import child_sequence
 
@@ -56,8 +56,6 @@ __all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "rend
            "DENOISE_QUALITIES", "GUIDE_SPP"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
-#: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
-INFINITE_PLANE = 50.0
 #: Longest light path of the path tracer (3: direct light plus one indirect bounce, which carries most of the
 #: interreflection in these rooms at a fraction of the cost of more bounces).
 MAX_DEPTH = 3
@@ -439,34 +437,16 @@ class PbrRenderer:
                 continue
             mat = int(m.geom_matid[g])
             if mat >= 0 and m.mat_emission[mat] > 0 and int(m.geom_type[g]) == _G.mjGEOM_BOX:
-                scene[f"geom_{g}_panel"] = self._panel(data, g, rgba[:3] * float(m.mat_emission[mat]))
+                scene[f"geom_{g}_panel"] = panel(mi, m, data, g, rgba[:3] * float(m.mat_emission[mat]))
                 continue
             bsdf = self._shared_bsdf(g, rgba)
-            for k, shape in enumerate(self._geom_shapes(data, g, bsdf)):
+            for k, shape in enumerate(geom_shapes(mi, m, data, g, bsdf)):
                 scene[f"geom_{g}_{k}"] = shape
         scene.update(emitters(mi, self.model, data))
         if self._env_bitmap is not None:
             scene["environment"] = {"type": "envmap", "bitmap": self._env_bitmap,
                                     "to_world": transform(mi, _R_ENV_MI, np.zeros(3))}
         return scene
-
-    def _panel(self, data: mujoco.MjData, g: int, display: np.ndarray) -> dict:
-        """An emissive box geom (a ceiling panel) as a one-sided area light facing down from its bottom face,
-        calibrated like the lights: at ``model.stat.center`` its irradiance is ``pi`` times the linearized
-        ``rgba x emission`` (a white Lambertian floor there shows that display value)."""
-        m = self.model
-        R, t = data.geom_xmat[g].reshape(3, 3).astype(np.float64), data.geom_xpos[g].astype(np.float64)
-        half = m.geom_size[g].astype(np.float64)
-        bottom = t - R[:, 2] * half[2]
-        offset = bottom - np.asarray(m.stat.center, dtype=np.float64)
-        d2 = max(float(offset @ offset), 1e-6)
-        cos = abs(float(offset[2])) / np.sqrt(d2)
-        solid = 4.0 * half[0] * half[1] * cos * cos / d2  # projected solid angle, small-source approximation
-        radiance = np.pi * srgb_to_linear(np.clip(display, 0.0, 1.0)) / max(solid, 1e-9)
-        return {"type": "rectangle", "to_world": transform(self._mi, R @ np.diag([1.0, -1.0, -1.0]), bottom,
-                                                           np.array([half[0], half[1], 1.0])),
-                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": radiance.tolist()}},
-                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
 
     # --- materials ----------------------------------------------------------------------------------------
     def _shared_bsdf(self, g: int, rgba: np.ndarray):
@@ -556,69 +536,6 @@ class PbrRenderer:
         if key not in self._textures:
             self._textures[key] = self._mi.Bitmap((self._texels(tex) * colour).astype(np.float32))
         return self._textures[key]
-
-    # --- geometry -----------------------------------------------------------------------------------------
-    def _geom_shapes(self, data: mujoco.MjData, g: int, bsdf) -> list:
-        """Mitsuba shapes (dicts or meshes) of geom ``g`` at its world pose in ``data``."""
-        m, mi = self.model, self._mi
-        R, t = data.geom_xmat[g].reshape(3, 3).astype(np.float64), data.geom_xpos[g].astype(np.float64)
-        size, gtype = m.geom_size[g].astype(np.float64), int(m.geom_type[g])
-        name = f"geom_{g}"
-        if gtype == _G.mjGEOM_MESH:
-            return [self._mesh_geom(int(m.geom_dataid[g]), R, t, name, bsdf)]
-        if gtype in (_G.mjGEOM_BOX, _G.mjGEOM_PLANE):
-            mat = int(m.geom_matid[g])
-            repeat = m.mat_texrepeat[mat].astype(np.float64) if mat >= 0 else np.ones(2)
-            half = size.copy()
-            if gtype == _G.mjGEOM_PLANE:  # its surface is z = 0 of its frame; size[2] is the grid spacing
-                half[:2] = np.where(half[:2] > 0, half[:2], INFINITE_PLANE)
-                half[2] = 0.0
-            v, f, n, uv = box_arrays(half, repeat, top_only=gtype == _G.mjGEOM_PLANE)
-            return [self._with_bsdf(mesh_from_arrays(mi, name, v @ R.T + t, f, n @ R.T, uv), bsdf)]
-        if gtype == _G.mjGEOM_SPHERE:
-            return [{"type": "sphere", "center": t.tolist(), "radius": float(size[0]), "bsdf": bsdf}]
-        if gtype == _G.mjGEOM_ELLIPSOID:
-            v, f = sphere_arrays()
-            n = v / size
-            n /= np.linalg.norm(n, axis=1, keepdims=True)
-            return [self._with_bsdf(mesh_from_arrays(mi, name, (v * size) @ R.T + t, f, n @ R.T), bsdf)]
-        if gtype in (_G.mjGEOM_CYLINDER, _G.mjGEOM_CAPSULE):
-            r, hh = float(size[0]), float(size[1])
-            shapes = [{"type": "cylinder", "p0": [0.0, 0.0, -hh], "p1": [0.0, 0.0, hh], "radius": r,
-                       "to_world": transform(mi, R, t), "bsdf": bsdf}]
-            for s in (1.0, -1.0):
-                end = t + s * hh * R[:, 2]
-                if gtype == _G.mjGEOM_CAPSULE:
-                    shapes.append({"type": "sphere", "center": end.tolist(), "radius": r, "bsdf": bsdf})
-                else:  # a cap disk facing outward
-                    Rc = R if s > 0 else R @ np.diag([1.0, -1.0, -1.0])
-                    shapes.append({"type": "disk", "to_world": transform(mi, Rc, end, np.array([r, r, 1.0])),
-                                   "bsdf": bsdf})
-            return shapes
-        return []  # heightfields, SDFs, lines: not drawn by the path tracer
-
-    def _with_bsdf(self, mesh, bsdf):
-        mesh.set_bsdf(bsdf)
-        return mesh
-
-    def _mesh_geom(self, mesh_id: int, R: np.ndarray, t: np.ndarray, name: str, bsdf):
-        """Mesh ``mesh_id`` in the world, with MuJoCo's per-corner normals and texture coordinates (unshared
-        corners)."""
-        m = self.model
-        va, fa, na = int(m.mesh_vertadr[mesh_id]), int(m.mesh_faceadr[mesh_id]), int(m.mesh_normaladr[mesh_id])
-        fn = int(m.mesh_facenum[mesh_id])
-        verts = m.mesh_vert[va:va + int(m.mesh_vertnum[mesh_id])].astype(np.float64)
-        normals = m.mesh_normal[na:na + int(m.mesh_normalnum[mesh_id])].astype(np.float64)
-        faces = m.mesh_face[fa:fa + fn]
-        corner_v = verts[faces].reshape(-1, 3) @ R.T + t
-        corner_n = normals[m.mesh_facenormal[fa:fa + fn]].reshape(-1, 3) @ R.T
-        tris = np.arange(3 * fn, dtype=np.uint32).reshape(-1, 3)
-        uv = None
-        if int(m.mesh_texcoordnum[mesh_id]) > 0:
-            ta = int(m.mesh_texcoordadr[mesh_id])
-            texcoords = m.mesh_texcoord[ta:ta + int(m.mesh_texcoordnum[mesh_id])].astype(np.float64)
-            uv = texcoords[m.mesh_facetexcoord[fa:fa + fn]].reshape(-1, 2)  # same (u, v) convention as Mitsuba
-        return self._with_bsdf(mesh_from_arrays(self._mi, name, corner_v, tris, corner_n, uv), bsdf)
 
     def close(self) -> None:
         self._textures.clear()

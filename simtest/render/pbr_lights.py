@@ -11,8 +11,9 @@ import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
 from simtest.render.colour import srgb_to_linear
+from simtest.render.pbr_shapes import transform
 
-__all__ = ["emitters", "spot", "LIGHT_RADIUS", "SPOT_SAMPLES"]
+__all__ = ["emitters", "spot", "panel", "LIGHT_RADIUS", "SPOT_SAMPLES"]
 
 #: Radius of the light source that stands in for each MuJoCo spot / point light (metres).
 LIGHT_RADIUS = 0.08
@@ -78,3 +79,21 @@ def spot(mi, m: mujoco.MjModel, i: int, pos: np.ndarray, axis: np.ndarray, inten
                                                              up=u.tolist()),
             "intensity": {"type": "rgb", "value": (intensity / SPOT_SAMPLES).tolist()}}
     return out
+
+
+def panel(mi, m: mujoco.MjModel, data: mujoco.MjData, g: int, display: np.ndarray) -> dict:
+    """An emissive box geom ``g`` (a ceiling panel) as a one-sided area light facing down from its bottom face,
+    calibrated like the lights: at ``model.stat.center`` its irradiance is ``pi`` times the linearized
+    ``rgba x emission`` (a white Lambertian floor there shows that display value)."""
+    R, t = data.geom_xmat[g].reshape(3, 3).astype(np.float64), data.geom_xpos[g].astype(np.float64)
+    half = m.geom_size[g].astype(np.float64)
+    bottom = t - R[:, 2] * half[2]
+    offset = bottom - np.asarray(m.stat.center, dtype=np.float64)
+    d2 = max(float(offset @ offset), 1e-6)
+    cos = abs(float(offset[2])) / np.sqrt(d2)
+    solid = 4.0 * half[0] * half[1] * cos * cos / d2  # projected solid angle, small-source approximation
+    radiance = np.pi * srgb_to_linear(np.clip(display, 0.0, 1.0)) / max(solid, 1e-9)
+    return {"type": "rectangle", "to_world": transform(mi, R @ np.diag([1.0, -1.0, -1.0]), bottom,
+                                                       np.array([half[0], half[1], 1.0])),
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": radiance.tolist()}},
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}

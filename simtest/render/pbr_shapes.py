@@ -6,7 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["transform", "mesh_from_arrays", "box_arrays", "sphere_arrays"]
+import simtest  # noqa: F401  (GL backend before mujoco)
+import mujoco
+
+__all__ = ["transform", "mesh_from_arrays", "box_arrays", "sphere_arrays", "geom_shapes", "mesh_geom",
+           "INFINITE_PLANE"]
+
+#: Half size of a MuJoCo plane whose size is 0 ("infinite"), metres.
+INFINITE_PLANE = 50.0
+_G = mujoco.mjtGeom
 
 
 def transform(mi, R: np.ndarray, t: np.ndarray, scale: np.ndarray | None = None):
@@ -63,3 +71,65 @@ def sphere_arrays(n_lat: int = 24, n_lon: int = 48) -> tuple[np.ndarray, np.ndar
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
     faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
     return verts, faces
+
+
+def geom_shapes(mi, m: mujoco.MjModel, data: mujoco.MjData, g: int, bsdf) -> list:
+    """Mitsuba shapes (dicts or meshes with ``bsdf``) of geom ``g`` of model ``m`` at its world pose in ``data``;
+    heightfields, SDFs and lines give none."""
+    R, t = data.geom_xmat[g].reshape(3, 3).astype(np.float64), data.geom_xpos[g].astype(np.float64)
+    size, gtype = m.geom_size[g].astype(np.float64), int(m.geom_type[g])
+    name = f"geom_{g}"
+    if gtype == _G.mjGEOM_MESH:
+        return [mesh_geom(mi, m, int(m.geom_dataid[g]), R, t, name, bsdf)]
+    if gtype in (_G.mjGEOM_BOX, _G.mjGEOM_PLANE):
+        mat = int(m.geom_matid[g])
+        repeat = m.mat_texrepeat[mat].astype(np.float64) if mat >= 0 else np.ones(2)
+        half = size.copy()
+        if gtype == _G.mjGEOM_PLANE:  # its surface is z = 0 of its frame; size[2] is the grid spacing
+            half[:2] = np.where(half[:2] > 0, half[:2], INFINITE_PLANE)
+            half[2] = 0.0
+        v, f, n, uv = box_arrays(half, repeat, top_only=gtype == _G.mjGEOM_PLANE)
+        return [_with_bsdf(mesh_from_arrays(mi, name, v @ R.T + t, f, n @ R.T, uv), bsdf)]
+    if gtype == _G.mjGEOM_SPHERE:
+        return [{"type": "sphere", "center": t.tolist(), "radius": float(size[0]), "bsdf": bsdf}]
+    if gtype == _G.mjGEOM_ELLIPSOID:
+        v, f = sphere_arrays()
+        n = v / size
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return [_with_bsdf(mesh_from_arrays(mi, name, (v * size) @ R.T + t, f, n @ R.T), bsdf)]
+    if gtype in (_G.mjGEOM_CYLINDER, _G.mjGEOM_CAPSULE):
+        r, hh = float(size[0]), float(size[1])
+        shapes = [{"type": "cylinder", "p0": [0.0, 0.0, -hh], "p1": [0.0, 0.0, hh], "radius": r,
+                   "to_world": transform(mi, R, t), "bsdf": bsdf}]
+        for s in (1.0, -1.0):
+            end = t + s * hh * R[:, 2]
+            if gtype == _G.mjGEOM_CAPSULE:
+                shapes.append({"type": "sphere", "center": end.tolist(), "radius": r, "bsdf": bsdf})
+            else:  # a cap disk facing outward
+                Rc = R if s > 0 else R @ np.diag([1.0, -1.0, -1.0])
+                shapes.append({"type": "disk", "to_world": transform(mi, Rc, end, np.array([r, r, 1.0])),
+                               "bsdf": bsdf})
+        return shapes
+    return []  # heightfields, SDFs, lines: not drawn by the path tracer
+
+def _with_bsdf(mesh, bsdf):
+    mesh.set_bsdf(bsdf)
+    return mesh
+
+def mesh_geom(mi, m: mujoco.MjModel, mesh_id: int, R: np.ndarray, t: np.ndarray, name: str, bsdf):
+    """Mesh ``mesh_id`` of model ``m`` in the world (rotation ``R``, translation ``t``, metres), with MuJoCo's
+    per-corner normals and texture coordinates (unshared corners)."""
+    va, fa, na = int(m.mesh_vertadr[mesh_id]), int(m.mesh_faceadr[mesh_id]), int(m.mesh_normaladr[mesh_id])
+    fn = int(m.mesh_facenum[mesh_id])
+    verts = m.mesh_vert[va:va + int(m.mesh_vertnum[mesh_id])].astype(np.float64)
+    normals = m.mesh_normal[na:na + int(m.mesh_normalnum[mesh_id])].astype(np.float64)
+    faces = m.mesh_face[fa:fa + fn]
+    corner_v = verts[faces].reshape(-1, 3) @ R.T + t
+    corner_n = normals[m.mesh_facenormal[fa:fa + fn]].reshape(-1, 3) @ R.T
+    tris = np.arange(3 * fn, dtype=np.uint32).reshape(-1, 3)
+    uv = None
+    if int(m.mesh_texcoordnum[mesh_id]) > 0:
+        ta = int(m.mesh_texcoordadr[mesh_id])
+        texcoords = m.mesh_texcoord[ta:ta + int(m.mesh_texcoordnum[mesh_id])].astype(np.float64)
+        uv = texcoords[m.mesh_facetexcoord[fa:fa + fn]].reshape(-1, 2)  # same (u, v) convention as Mitsuba
+    return _with_bsdf(mesh_from_arrays(mi, name, corner_v, tris, corner_n, uv), bsdf)
