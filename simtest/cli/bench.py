@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "e.g. fast,quality,pbr")
     g.add_argument("--sizes", help="image sizes for --profiles, e.g. 320x240,640x480 (default --width x --height)")
     g.add_argument("--pbr-spp", default="auto",
-                   help="samples per pixel of the pbr profile (--profiles): an integer, or auto (default: 16 at "
-                        "320x240, 8 at 640x480, as render.pbr_spp)")
+                   help="samples per pixel of the pbr profile (--profiles): an integer, or auto (default: 12 at "
+                        "320x240, 6 at 640x480, as render.pbr_spp)")
     g.add_argument("--pbr-variant", default="auto", choices=["auto", "cuda", "llvm", "scalar"],
                    help="Mitsuba variant of the pbr profile (--profiles; default auto, as render.pbr_variant)")
     g.add_argument("--json", metavar="FILE", dest="json_out",
