@@ -61,17 +61,17 @@ INSTALL_HINT = "pip install 'simtest[pbr]'"
 MAX_DEPTH = 3
 #: Samples per pixel of the albedo / normal guide pass (at most the image's): four stratified samples give guides
 #: clean enough to hand to the denoiser as noise-free (OIDN's ``clean_aux``), which keeps more texture detail
-#: than one jittered sample with the denoiser's noisy-guide weights (+0.4-0.5 dB PSNR against a 512-1024 spp
-#: reference, for 0.03-0.06 s per frame; docs/generate.md).
+#: than one jittered sample with the denoiser's noisy-guide weights (+0.3-0.5 dB PSNR against a 512-spp
+#: reference, for 0.02-0.03 s per frame; docs/generate.md).
 GUIDE_SPP = 4
 #: Guides of at least this many samples are passed to the denoiser as noise-free (``clean_aux``).
 CLEAN_GUIDE_SPP = 4
 #: Mitsuba samplers the profile can use (``render.pbr_sampler``): ``multijitter`` (correlated multi-jittered,
-#: any sample count; the default: +0.7-0.9 dB over ``independent`` at the same samples and cost),
+#: any sample count; the default: +0.7-1.5 dB over ``independent`` at the same samples and cost),
 #: ``independent`` (uniform random; earlier releases), ``stratified`` (rounds the count to a square).
 SAMPLERS = ("multijitter", "independent", "stratified")
 #: Open Image Denoise quality levels (``render.pbr_denoise_quality``); ``fast`` halves the denoiser's time at
-#: 640x480 for about 0.3 dB, which the default sampler and guides more than pay back.
+#: 640x480 for 0.2-0.65 dB, which the default sampler and guides more than pay back.
 DENOISE_QUALITIES = ("fast", "balanced", "high")
 #: World from Mitsuba's envmap frame (y up, u = atan2(x, -z) / 2 pi): maps the simtest convention (z up, azimuth
 #: from +x toward +y, row 0 the zenith) onto Mitsuba's latitude-longitude lookup.

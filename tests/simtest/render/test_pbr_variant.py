@@ -154,7 +154,7 @@ def test_llvm_same_bytes_across_runs_and_worker_counts_and_the_fast_ground_truth
 
 # --- one renderer, many views -----------------------------------------------------------------------------
 def _views_rendered(variant: str, fresh: bool, threads: int | None = None, views: int = 3,
-                    freeze: bool = True) -> list[str]:
+                    freeze: bool = True, spp: int = 2) -> list[str]:
     from simtest.camera import CameraModel
     from simtest.generators.config import GenerateConfig
     from simtest.generators.pipeline import load_objects, prepare_scene
@@ -166,13 +166,14 @@ def _views_rendered(variant: str, fresh: bool, threads: int | None = None, views
                                       "seed": 3})
     scene, *_ = prepare_scene(cfg, load_objects(cfg), 0)
     camera = CameraModel(cfg.camera.K(), W, H)
-    renderer = PbrRenderer(scene.model, camera, spp=2, variant=variant, threads=threads)
+    renderer = PbrRenderer(scene.model, camera, spp=spp, variant=variant, threads=threads)
     renderer.freeze = freeze
     out = []
     for im_id, (cam, _) in enumerate(scene_cameras(cfg, scene)):
         scene.set_camera(cam)
         if fresh:
-            renderer = PbrRenderer(scene.model, camera, spp=2, variant=variant, threads=threads)
+            renderer = PbrRenderer(scene.model, camera, spp=spp, variant=variant, threads=threads)
+            renderer.freeze = freeze
         rgb = renderer.render(scene.data, scene.camera_id, seed=11 + im_id).rgb
         out.append(hashlib.sha1(rgb.tobytes()).hexdigest())
     return out
@@ -193,9 +194,9 @@ except RenderError as exc:
     print("SKIP", exc)
     raise SystemExit(0)
 from tests.simtest.render.test_pbr_variant import _views_rendered
-reused = _views_rendered("llvm", fresh=False, views=5)
-fresh = _views_rendered("llvm", fresh=True, views=5)
-traced = _views_rendered("llvm", fresh=False, views=5, freeze=False)
+reused = _views_rendered("llvm", fresh=False, views=5, spp=8)  # 8 samples, 4-sample guides
+fresh = _views_rendered("llvm", fresh=True, views=5, spp=8)
+traced = _views_rendered("llvm", fresh=False, views=5, freeze=False, spp=8)
 print("DISTINCT", len(set(reused)), "FRESH", reused == fresh, "TRACED", reused == traced)
 """
 
