@@ -26,7 +26,7 @@ def test_profiles_json_and_the_check_against_it(tmp_path, capsys):
     assert "pbr frame by stage" in text and "| trace |" in text
     rec = read_record(out)
     (row,) = rec["rows"]
-    assert row["profile"] == "pbr" and (row["width"], row["height"]) == (64, 48) and row["spp"] == 16
+    assert row["profile"] == "pbr" and (row["width"], row["height"]) == (64, 48) and row["spp"] == 12
     assert set(row["stages"]) == {"scene", "sensor", "trace", "guides", "denoise", "image", "rest"}
     assert row["stages"]["trace"] > 0 and row["scene_loads"] == 1
     assert sum(row["stages"].values()) == pytest.approx(row["wall"], rel=0.02, abs=2e-3)
