@@ -28,6 +28,7 @@ is not counted; every other view is one timed frame.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -52,16 +53,17 @@ SETTINGS: dict[str, dict[str, Any]] = {
 RING = 64
 
 
-def _srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB -> sRGB uint8, as :func:`simtest.render.colour.linear_to_srgb8` (values clipped to [0, 1])."""
-    c = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
-    return np.round(np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055) * 255.0).astype(np.uint8)
+@functools.lru_cache(maxsize=1)
+def _colour():
+    """simtest's sRGB transfer function (``simtest/render/colour.py``, numpy only), loaded by its path: the bpy
+    venv has no simtest installed, and the conversion must be the one the renderer uses."""
+    import importlib.util
 
-
-def _linear(srgb8: np.ndarray) -> np.ndarray:
-    """sRGB uint8 -> linear float."""
-    c = np.asarray(srgb8, dtype=np.float64) / 255.0
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    path = Path(__file__).resolve().parents[1] / "simtest" / "render" / "colour.py"
+    spec = importlib.util.spec_from_file_location("simtest_colour", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _commit(root: Path) -> str:
@@ -724,10 +726,11 @@ def render(folder: Path, threads: int, figure: Path | None, settings: list[str],
             for view in meta["views"]:
                 _place_camera(cam, view, width, height)
                 rgb, seconds = _render_view(bpy, sdir, f"cycles_{name}_{view['view']}")
-                srgb = _srgb8(rgb)
+                srgb = _colour().linear_to_srgb8(rgb)
                 _write_png(bpy, srgb, sdir / f"cycles_{name}_{view['view']}.png")
                 sim = _read_png(bpy, sdir / view["simtest_png"])
-                bright = float(_linear(srgb).mean() / max(_linear(sim).mean(), 1e-9))
+                to_linear = _colour().srgb_to_linear
+                bright = float(to_linear(srgb / 255.0).mean() / max(to_linear(sim / 255.0).mean(), 1e-9))
                 frames.append({"scene": meta["scene"], "view": view["view"], "warmup": view["warmup"],
                                "cycles_seconds": round(seconds, 3),
                                "simtest_seconds": round(view["simtest_seconds"], 3),

@@ -29,7 +29,7 @@ import zlib
 from dataclasses import dataclass
 
 __all__ = ["LibLLVM", "MIN_MAJOR", "ENV", "SEARCH_DIRS", "INSTALL_LLVM", "llvm_major", "find_libllvm",
-           "point_drjit_at", "PBR_VARIANTS", "Variant", "choose_variant"]
+           "point_drjit_at", "PBR_VARIANTS", "Variant", "choose_variant", "note_once"]
 
 #: Oldest LLVM major Mitsuba's LLVM variant runs with (15 aborts the process at the first render).
 MIN_MAJOR = 16
@@ -253,7 +253,7 @@ def _llvm(mi) -> tuple[Variant | None, str]:
     return Variant("llvm_ad_rgb", str(lib.path), version), ""
 
 
-def _note_once(level: int, message: str) -> None:
+def note_once(level: int, message: str) -> None:
     """Log ``message`` unless this process (or the one that spawned it) already did."""
     noted = os.environ.get(_NOTED_ENV, "")
     key = f"{zlib.crc32(message.encode()):08x}"
@@ -291,7 +291,7 @@ def choose_variant(mi, requested: str) -> Variant:
             return Variant("cuda_ad_rgb")
         if requested == "cuda":
             raise RenderError(f"render.pbr_variant = 'cuda' cannot run: {why}; use 'auto', 'llvm' or 'scalar'")
-        _note_once(logging.INFO, f"pbr: {why}; path tracing on the CPU")
+        note_once(logging.INFO, f"pbr: {why}; path tracing on the CPU")
     if requested in ("auto", "llvm"):
         chosen, why = _llvm(mi)
         if chosen is not None:
@@ -299,7 +299,7 @@ def choose_variant(mi, requested: str) -> Variant:
         if requested == "llvm":
             raise RenderError(f"render.pbr_variant = 'llvm' cannot run: {why}; {INSTALL_LLVM} (or use 'auto' "
                               f"or 'scalar')")
-        _note_once(logging.WARNING, f"pbr: path tracing on Mitsuba's scalar_rgb variant, about 3x slower than "
+        note_once(logging.WARNING, f"pbr: path tracing on Mitsuba's scalar_rgb variant, about 3x slower than "
                                     f"llvm_ad_rgb: {why}; to use it, {INSTALL_LLVM}")
     if "scalar_rgb" not in mi.variants():
         raise RenderError(f"this Mitsuba build has no 'scalar_rgb' variant (it has {mi.variants()}); reinstall "

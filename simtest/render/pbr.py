@@ -43,7 +43,7 @@ import mujoco
 from simtest.camera import CameraModel
 from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
-from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, point_drjit_at
+from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, note_once, point_drjit_at
 from simtest.render.pbr_film import FilmGrid, film_grid, resample_to_image
 from simtest.render.pbr_lights import emitters, panel
 from simtest.render.pbr_stages import StageTimes, process_stages
@@ -82,8 +82,6 @@ _R_CV_MI = np.diag([-1.0, -1.0, 1.0])
 _SEED_STREAM = 0x50425200
 _G = mujoco.mjtGeom
 _MITSUBA: dict[str, Any] = {}
-_WARNED: dict[str, bool] = {}
-log = logging.getLogger(__name__)
 _CHOSEN: dict[str, Variant] = {}
 
 
@@ -172,6 +170,12 @@ def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
     return own
 
 
+def sensor_to_world(mi, camera: CameraModel):
+    """The Mitsuba sensor's ``to_world`` for ``camera``'s pose (OpenCV camera frame flipped to Mitsuba's)."""
+    T = camera.T_world_cam
+    return transform(mi, T.R @ _R_CV_MI, T.t)
+
+
 def camera_sensor(mi, camera: CameraModel, spp: int, sampler: str = "multijitter") -> dict:
     """A Mitsuba ``perspective`` sensor with ``camera``'s exact intrinsics and pose, on the film of
     :func:`film_grid` (the image's own grid when ``fx == fy``).
@@ -182,13 +186,12 @@ def camera_sensor(mi, camera: CameraModel, spp: int, sampler: str = "multijitter
     """
     g = film_grid(camera)
     w, h = g.width, g.height
-    T = camera.T_world_cam
     return {
         "type": "perspective", "fov_axis": "x", "fov": float(np.degrees(2.0 * np.arctan(w / (2.0 * g.focal)))),
         "principal_point_offset_x": float(-(g.cx + 0.5 - w / 2.0) / w),
         "principal_point_offset_y": float(-(g.cy + 0.5 - h / 2.0) / h),
         "near_clip": 0.001, "far_clip": 100.0,
-        "to_world": transform(mi, T.R @ _R_CV_MI, T.t),
+        "to_world": sensor_to_world(mi, camera),
         "film": {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "rgb", "rfilter": {"type": "box"}},
         "sampler": {"type": sampler, "sample_count": int(spp)},
     }
@@ -357,7 +360,7 @@ class PbrRenderer:
             self._sensor = mi.load_dict(camera_sensor(mi, cam, self.spp, self.sampler))
             self._sensor_params = mi.traverse(self._sensor)
         else:
-            self._sensor_params["to_world"] = camera_sensor(mi, cam, self.spp, self.sampler)["to_world"]
+            self._sensor_params["to_world"] = sensor_to_world(mi, cam)
             self._sensor_params.update()
         return self._sensor
 
@@ -399,10 +402,8 @@ class PbrRenderer:
                 return frozen(scene, sensor, mi.UInt32(seed))
             except RuntimeError as exc:
                 self._frozen_ok = False
-                if not _WARNED.get("freeze"):
-                    _WARNED["freeze"] = True
-                    log.info("pbr: Dr.Jit could not record this scene's kernels (%s); its views are traced one "
-                             "by one", str(exc).splitlines()[0][:200])
+                note_once(logging.INFO, f"pbr: Dr.Jit could not record a scene's kernels "
+                                        f"({str(exc).splitlines()[0][:200]}); such scenes are traced view by view")
                 return plain(scene, sensor, seed)
         return call
 

@@ -49,6 +49,18 @@ def test_renderer_refuses_unknown_sampler_and_denoiser_by_name():
         PbrRenderer(model, cam, guide_spp=0)
 
 
+def test_the_config_offers_exactly_the_renderers_samplers_and_denoiser_levels():
+    import dataclasses
+
+    from simtest.generators.config import RenderConfig
+    from simtest.render.pbr import DENOISE_QUALITIES, SAMPLERS
+
+    fields = {f.name: f for f in dataclasses.fields(RenderConfig)}
+    assert tuple(fields["pbr_sampler"].metadata["choices"]) == SAMPLERS
+    assert tuple(fields["pbr_denoise_quality"].metadata["choices"]) == DENOISE_QUALITIES
+    assert RenderConfig().pbr_sampler == SAMPLERS[0] and RenderConfig().pbr_denoise_quality == "fast"
+
+
 def test_a_tiny_run_scores_settings_against_a_cached_reference(tmp_path):
     out = tmp_path / "q.json"
     cmd = [sys.executable, "-m", "simtest", "bench", "pbr-quality", "--sizes", "32x24", "--scenes", "1",
