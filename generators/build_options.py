@@ -66,6 +66,8 @@ class BuildOptions:
         occluder_slots: Mocap occluder boxes kept out of sight for physical occlusion (0: none).
         material_folder: Where ``"folder:NAME"`` material keys of a spec are found (``None``: no folder).
         texture_size: Pixels per side of a library material's maps.
+        distractor_objects: The object set a spec's distractor objects come from (``scene.distractor_objects``;
+            ``None``: none).
     """
 
     camera: CameraModel
@@ -76,6 +78,7 @@ class BuildOptions:
     occluder_slots: int = 0
     material_folder: str | None = None
     texture_size: int = 256
+    distractor_objects: str | None = None
 
     def __post_init__(self) -> None:
         if self.quality not in QUALITIES:

@@ -216,6 +216,8 @@ class SceneBuilder:
             b.add_geom(name=f"distractor_{j}_geom", type=gtype, size=list(d.size), rgba=rgba, density=400,
                        friction=list(OBJECT_FRICTION), condim=6, group=0, **textured)
 
+        self._distractor_objects(ms, spec)
+
         for k in range(opt.occluder_slots):
             body = ms.worldbody.add_body(name=f"occluder_{k}", mocap=True, pos=[500.0, 600.0 + k, -500.0])
             mat = self._texture_material(ms, f"occluder_{k}", spec.walls, 4.0)
@@ -332,13 +334,47 @@ class SceneBuilder:
         mat.roughness = float(skin.roughness.mean() / 255.0)
         mat.metallic = float(skin.metallic.mean() / 255.0)
 
+    def _distractor_objects(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
+        """The scene's distractor objects (:mod:`simtest.generators.distractor_objects`): free bodies whose
+        visual mesh is drawn in group 0 (never annotated, an occluder to the masks) and whose convex parts
+        collide like a target's."""
+        if not spec.distractor_objects:
+            return
+        from simtest.generators.distractor_objects import distractor_object_set
+
+        objects = distractor_object_set(self.options.distractor_objects)
+        textures = {oid: self._mesh_assets(ms, objects.get(oid), "dmesh")
+                    for oid in sorted({d.obj_id for d in spec.distractor_objects})}
+        for j, d in enumerate(spec.distractor_objects):
+            obj, name = objects.get(d.obj_id), f"dobj_{j}"
+            body = ms.worldbody.add_body(name=name, pos=list(d.position), quat=list(d.quat_wxyz))
+            body.add_freejoint()
+            body.explicitinertial = True
+            body.mass = obj.mass
+            body.ipos = obj.center_of_mass.tolist()
+            body.fullinertia = _full_inertia(obj.inertia)
+            mat = ms.add_material(name=f"{name}_mat", rgba=list(d.rgba), specular=d.specular, shininess=d.shininess)
+            skinned = skin_of(obj, d.skin_seed) if textures[d.obj_id] is not None else None
+            if skinned is not None:
+                self._skin_material(ms, mat, name, skinned)
+            elif textures[d.obj_id] is not None:
+                mat.textures = texture_roles(textures[d.obj_id])
+            body.add_geom(name=f"{name}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"dmesh_{d.obj_id}",
+                          material=f"{name}_mat", group=0, contype=0, conaffinity=0, density=0, mass=0)
+            for k in range(len(obj.collision_parts)):
+                body.add_geom(name=f"{name}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH,
+                              meshname=f"dmesh_{d.obj_id}_col{k}", group=COLLISION_GROUP, density=0, mass=0,
+                              friction=list(OBJECT_FRICTION), condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
+                              solref=[0.004, 1.0])
+
     # ------------------------------------------------------------------------------------------------------
-    def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel) -> str | None:
-        """Add the object's visual and collision meshes; returns the name of its texture (None if untextured)."""
-        mesh, texture = add_object_visual(ms, obj, f"mesh_{obj.obj_id}")
+    def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel, prefix: str = "mesh") -> str | None:
+        """Add the object's visual and collision meshes (``{prefix}_{obj_id}``, ``..._col{k}``); returns the
+        name of its texture (None if untextured)."""
+        mesh, texture = add_object_visual(ms, obj, f"{prefix}_{obj.obj_id}")
         mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # robust for open meshes; mass: obj
         for k, part in enumerate(obj.collision_parts):
-            m = ms.add_mesh(name=f"mesh_{obj.obj_id}_col{k}")
+            m = ms.add_mesh(name=f"{prefix}_{obj.obj_id}_col{k}")
             m.uservert = np.asarray(part.vertices, dtype=np.float64).reshape(-1).tolist()
             m.userface = np.asarray(part.faces, dtype=np.int32).reshape(-1).tolist()
             m.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL

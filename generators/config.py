@@ -98,6 +98,11 @@ class SceneConfig:
     objects_per_scene: tuple[int, int] = field(default=(3, 6), metadata=_rng_pair(1, 200))
     distractors: tuple[int, int] = field(default=(0, 2), metadata=_rng_pair(0, 100))
     allow_repeats: bool = True  # the same object may appear more than once in a scene
+    # unannotated distractor *objects*: an object set ("builtin", "builtin-small", a folder of meshes or a BOP
+    # models folder, read in its own units) whose meshes are dropped among the targets with their prints; they
+    # occlude and clutter like the primitive distractors and are never annotated (unset: none)
+    distractor_objects: str | None = None
+    distractor_object_count: tuple[int, int] = field(default=(2, 6), metadata=_rng_pair(0, 100))
     container: Literal["table", "bin"] = field(default="table", metadata=_bounds(choices=("table", "bin")))
     table_size: tuple[float, float] = field(default=(0.8, 0.6), metadata={"each": (0.1, 10.0)})  # x, y metres
     table_height: float = field(default=0.4, metadata=_bounds(0.0, 2.0))
@@ -350,7 +355,7 @@ class GenerateConfig:
     def build_options(self) -> BuildOptions:
         """What :class:`~simtest.generators.builder.SceneBuilder` needs of this config: the camera, the room,
         the timestep, the render profile, the Panda (asked for, or the wrist rig), occluder slots (physical
-        occlusion on) and where library materials come from."""
+        occlusion on), where library materials come from and the distractor objects' set."""
         from simtest.camera import CameraModel
 
         sc = self.scene
@@ -358,7 +363,8 @@ class GenerateConfig:
             camera=CameraModel(self.camera.K(), self.camera.width, self.camera.height), room=self.room(),
             timestep=sc.timestep, quality=self.render.profile, panda=bool(sc.panda or self.rig == "wrist"),
             occluder_slots=N_OCCLUDERS if self.occlusion.physical else 0,
-            material_folder=self.materials.textures, texture_size=self.materials.texture_size)
+            material_folder=self.materials.textures, texture_size=self.materials.texture_size,
+            distractor_objects=sc.distractor_objects)
 
     def room(self) -> Room:
         """The table and room of ``scene.*``."""

@@ -275,6 +275,10 @@ def generate(cfg: GenerateConfig, out_dir: str | Path, *, resume: bool = False, 
     objects = load_objects(cfg)
     if not getattr(objects, "lazy", False):  # collision parts decomposed here, under a bar, not in each worker
         prepare_set(objects, progress=None if progress else False)
+    if cfg.scene.distractor_objects:  # a bad set stops here, before the output exists; parts decomposed once
+        from simtest.generators.distractor_objects import distractor_object_set
+
+        prepare_set(distractor_object_set(cfg.scene.distractor_objects), progress=None if progress else False)
     if cfg.captions:
         from simtest.generators.captions import check_caption_objects
 

@@ -30,7 +30,8 @@ renderer                   Cycles, <= 50 samples, OIDN denoiser        choose ``
 =========================  ==========================================  ==============================================
 
 Not reproduced: BlenderProc's camera check that no obstacle lies within 0.3 m of the camera (the shell here
-starts at 0.61 m and the room is empty above the objects), and distractor *objects* from other datasets.
+starts at 0.61 m and the room is empty above the objects). Distractor *objects* of another set are an option
+of every recipe (``scene.distractor_objects``, :mod:`simtest.generators.distractor_objects`).
 """
 
 from __future__ import annotations

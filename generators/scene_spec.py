@@ -15,6 +15,7 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.generators.aiming import object_probabilities, weighted_uniform
 from simtest.generators.config import GenerateConfig
+from simtest.generators.distractor_objects import DistractorObjectSpec, sample_distractor_objects
 from simtest.generators.looks import EnvironmentSpec, appearance_rng, sample_environment, sample_material, surface_maps
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import tint_rgba
@@ -103,6 +104,7 @@ class SceneSpec:
     views: tuple[ViewSpec, ...]
     environment: EnvironmentSpec | None = None  # pbr environment lighting (None: the constant ambient term)
     ceiling: tuple[float, float, float] | None = None  # the ceiling panel's display-referred brightness (RGB)
+    distractor_objects: tuple[DistractorObjectSpec, ...] = ()  # unannotated objects of another set
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -237,6 +239,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         pos = place(radius)
         distractors.append(DistractorSpec(shape, size, tuple(float(v) for v in pos), random_quat_wxyz(rng),
                                           (*_colour(look), 1.0), material=sample_material(cfg, look)))
+    distractor_objects = sample_distractor_objects(cfg, rng, look, place, _colour)
 
     lc = cfg.lights
     lights = []
@@ -267,7 +270,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
 
     views = tuple(_sample_views(cfg, rng))
     return SceneSpec(scene_index, attempt, tuple(placements), tuple(distractors), tuple(lights), ambient,
-                     table, floor, walls, views, environment, ceiling)
+                     table, floor, walls, views, environment, ceiling, distractor_objects)
 
 
 def _sample_views(cfg: GenerateConfig, rng: np.random.Generator) -> list[ViewSpec]:

@@ -49,6 +49,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--materials", metavar="FAMILY,FAMILY",
                    help="procedural material families of the table, floor, walls and distractors (default: all; "
                         "none: MuJoCo's checker and gradient patterns)")
+    p.add_argument("--distractor-objects", metavar="SET",
+                   help="also drop unannotated objects of another set among the targets (builtin, builtin-small, a "
+                        "mesh folder or BOP models folder; scene.distractor_objects; count: "
+                        "scene.distractor_object_count, default 2-6)")
     p.add_argument("--coco", action="store_true", default=None, help="also write COCO RLE annotations")
     p.add_argument("--channels", metavar="NAME,NAME",
                    help="dense ground truth per image: instances, coords, normals, flow, keypoints (comma-separated; "
@@ -91,6 +95,7 @@ def config_from_args(args: argparse.Namespace):
         "materials.families": None if args.materials is None else [c.strip() for c in args.materials.split(",")
                                                                    if c.strip() and c.strip() != "none"],
         "scene.objects_per_scene": list(args.objects_per_scene) if args.objects_per_scene else None,
+        "scene.distractor_objects": args.distractor_objects,
         "annotation.channels": None if args.channels is None else [c.strip() for c in args.channels.split(",")
                                                                     if c.strip() and c.strip() != "none"],
     }
