@@ -342,6 +342,9 @@ class SceneBuilder:
             return
         from simtest.generators.distractor_objects import distractor_object_set
 
+        if not self.options.distractor_objects:
+            raise ConfigError(f"scene {spec.scene_index}: the spec holds {len(spec.distractor_objects)} distractor "
+                              "objects but the build options name no set (BuildOptions.distractor_objects)")
         objects = distractor_object_set(self.options.distractor_objects)
         textures = {oid: self._mesh_assets(ms, objects.get(oid), "dmesh")
                     for oid in sorted({d.obj_id for d in spec.distractor_objects})}

@@ -29,6 +29,7 @@ variant give the same image on one machine (on ``llvm_ad_rgb`` also with any thr
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import importlib
 import logging
@@ -53,7 +54,7 @@ from simtest.rng import child_sequence
 
 __all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "renderer_versions", "auto_spp",
            "FilmGrid", "film_grid", "resample_to_image", "INSTALL_HINT", "PBR_VARIANTS", "SAMPLERS",
-           "DENOISE_QUALITIES", "GUIDE_SPP"]
+           "DENOISE_QUALITIES", "GUIDE_SPP", "without_gc"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Longest light path of the path tracer (3: direct light plus one indirect bounce, which carries most of the
@@ -168,6 +169,20 @@ def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
     if m.geom_matid[g] >= 0 and np.allclose(own, (0.5, 0.5, 0.5, 1.0)):
         return m.mat_rgba[m.geom_matid[g]]
     return own
+
+
+def without_gc(fn, *args):
+    """``fn(*args)`` with Python's cyclic garbage collector paused. A Dr.Jit frozen function must not free an
+    array that wraps numpy memory while it records (Dr.Jit's LLVM backend releases such memory through a host
+    callback, which a recording refuses by terminating the process); a collection that starts inside a recording
+    can free exactly that: an earlier scene's meshes, whose buffers come from numpy, held in a reference cycle."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        return fn(*args)
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def sensor_to_world(mi, camera: CameraModel):
@@ -399,7 +414,7 @@ class PbrRenderer:
             if not self._frozen_ok:
                 return plain(scene, sensor, seed)
             try:
-                return frozen(scene, sensor, mi.UInt32(seed))
+                return without_gc(frozen, scene, sensor, mi.UInt32(seed))
             except RuntimeError as exc:
                 self._frozen_ok = False
                 note_once(logging.INFO, f"pbr: Dr.Jit could not record a scene's kernels "
