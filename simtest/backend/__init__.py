@@ -8,8 +8,11 @@ and yields their results as they finish; the caller accounts them (progress bar,
 Back ends:
 
 ``local``
-    Today's behaviour: ``workers`` processes on this machine (``multiprocessing`` *spawn*: GL contexts do not
-    survive fork), or this process when ``workers`` is 1.
+    ``workers`` processes on this machine (``multiprocessing`` *spawn*: GL contexts do not survive fork; one
+    unit in flight per worker), or this process when ``workers`` is 1. A worker process that dies without an
+    exception (killed, out of memory, a native library aborting) breaks the pool: the units in flight are
+    submitted again on a new pool, up to ``retries`` times each, as on Ray; the run never waits on a dead
+    worker.
 ``ray``
     Ray tasks (the ``ray`` extra, imported lazily). Without an address a local Ray instance is started with
     ``workers`` CPUs and stopped at the end; with ``address`` (``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``)

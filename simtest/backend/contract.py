@@ -36,7 +36,8 @@ class Backend:
             cluster: its CPUs are used).
         address: Ray only: ``None`` starts a local instance; ``auto`` / ``HOST:PORT`` / ``ray://HOST:PORT`` joins
             a running cluster.
-        retries: Ray only: times a unit whose worker died is submitted again.
+        retries: Times a unit whose worker died (a lost Ray node or worker; locally a process killed or
+            aborted by a native library) is submitted again.
     """
 
     name: str = "local"

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -46,15 +47,64 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], backend: Backend, 
             yield fn(unit)
             stats.finished += 1
     else:
-        ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-        with ctx.Pool(min(backend.workers, len(units)), initializer=init, initargs=init_args) as pool:
-            for result in pool.imap_unordered(fn, units):
-                stats.finished += 1
-                yield result
+        yield from _run_local_pool(fn, list(units), backend, init, init_args, stats)
     if stats.failures:
         lost = ", ".join(repr(f.unit) for f in stats.failures[:10])
         raise BackendError(f"{len(stats.failures)} unit(s) were lost with their workers more than "
                            f"{backend.retries} time(s): {lost}; first error: {stats.failures[0].message}")
+
+
+def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend, init, init_args: tuple,
+                    stats: RunStats) -> Iterator[Any]:
+    """The units on ``backend.workers`` spawned processes, at most one unit in flight per worker. A worker that
+    dies without an exception (killed, out of memory, a native library aborting) breaks the pool: the units it
+    and the other workers held are charged one loss each and submitted again on a new pool, up to
+    ``backend.retries`` losses per unit (then a :class:`UnitFailure`); the finished ones are kept."""
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = mp.get_context("spawn")  # GL contexts do not survive fork
+    todo = list(range(len(units)))
+    losses: dict[int, int] = {}
+    while todo:
+        with ProcessPoolExecutor(min(backend.workers, len(todo)), mp_context=ctx, initializer=init,
+                                 initargs=init_args) as pool:
+            queue, todo = todo, []
+            in_flight: dict[Any, int] = {}
+            while queue or in_flight:
+                while queue and len(in_flight) < backend.workers:
+                    i = queue.pop(0)
+                    in_flight[pool.submit(fn, units[i])] = i
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                broken = None
+                for future in done:
+                    i = in_flight.pop(future)
+                    try:
+                        result = future.result()
+                    except BrokenProcessPool as exc:
+                        broken = exc
+                        _lost(units, i, exc, losses, backend.retries, todo, stats)
+                        continue
+                    stats.finished += 1
+                    yield result
+                if broken is not None:  # the pool is gone: what it held and what was left go to a new one
+                    for future, i in in_flight.items():
+                        _lost(units, i, broken, losses, backend.retries, todo, stats)
+                    todo += queue
+                    break
+
+
+def _lost(units: list[Any], i: int, exc: BaseException, losses: dict[int, int], retries: int, todo: list[int],
+          stats: RunStats) -> None:
+    """Charge unit ``i`` a loss: submit it again (``todo``) or, past ``retries``, record its failure."""
+    losses[i] = losses.get(i, 0) + 1
+    if losses[i] > retries:
+        stats.failures.append(UnitFailure(units[i], f"a worker process died while running it ({exc})"))
+    else:
+        stats.retried += 1
+        todo.append(i)
+        logging.getLogger(__name__).warning(f"unit {units[i]!r} lost its worker process (it died without an "
+                                            f"exception); submitted again ({losses[i]} of {retries} retries)")
 
 
 def preflight(backend: Backend) -> None:

@@ -92,6 +92,33 @@ def test_local_in_process_and_pool_agree():
     assert stats.finished == 6 and stats.retried == 0
 
 
+def test_local_pool_retries_a_unit_whose_worker_died(tmp_path, caplog):
+    """A worker process that dies without an exception (here os._exit; in life a native abort or the OOM killer)
+    does not hang the run: its unit runs again on a new pool, the finished ones are kept."""
+    stats = RunStats()
+    units = [(i, str(tmp_path / "marker")) for i in range(4)]
+    with caplog.at_level("WARNING"):
+        out = sorted(run_units(_die_once, units, Backend("local", 2), stats=stats))
+    assert out == [0, 10, 20, 30]
+    assert stats.finished == 4 and 1 <= stats.retried <= 2 and not stats.failures  # unit 1 and its neighbour
+    assert "lost its worker process" in caplog.text
+
+
+def test_local_pool_gives_up_after_the_retries(tmp_path):
+    stats = RunStats()
+    got = []
+    with pytest.raises(BackendError, match=r"1 unit\(s\) were lost with their workers more than 1 time"):
+        for r in run_units(_die_once_always, [(0, ""), (1, ""), (2, "")], Backend("local", 2, retries=1),
+                           stats=stats):
+            got.append(r)
+    assert sorted(got) == [0, 2] and len(stats.failures) == 1 and stats.failures[0].unit == (1, "")
+
+
+def test_local_pool_passes_the_units_exception_through():
+    with pytest.raises(ConfigError, match="bad unit"):
+        list(run_units(_raise, [1, 2, 3], Backend("local", 2)))
+
+
 @pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray")
