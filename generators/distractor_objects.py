@@ -1,11 +1,11 @@
 """Unannotated distractor *objects*: the meshes of another object set dropped among the targets
 (``scene.distractor_objects``), as BlenderProc's BOP recipe drops objects of other datasets.
 
-A detector trained among primitive distractors learns that anything with the detail of a real object is a
-target; among other objects it has to learn which ones. They occlude, collide and cast shadows like the
-targets, wear their prints (built-in sets) or their own colour (mesh files), and are never annotated: their
-geoms are drawn in group 0 with the room and the primitive distractors, so the visibility masks count them as
-occluders and nothing else sees them.
+Real test scenes hold objects other than the targets; primitive distractors (boxes, cylinders, spheres) do not
+look like them. Distractor objects occlude, collide and cast shadows like the targets, wear their prints
+(built-in sets) or their own colour (mesh files), and are never annotated: their geoms are drawn in group 0
+with the room and the primitive distractors, so the visibility masks count them as occluders and no
+annotation names them. (What they did for a detector on real LM-O frames is measured in docs/sim2real.md.)
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def sample_distractor_objects(cfg, rng: np.random.Generator, look: np.random.Gen
     """Draw the scene's distractor objects: their count, models and drop poses from the geometry stream
     ``rng``, their looks from the appearance stream ``look``; ``place(radius)`` returns a free drop position
     (metres) and ``sample_look(look)`` a random ``(r, g, b)`` for objects without a print. Draws nothing when
-    ``scene.distractor_objects`` is empty, so scenes without them keep their bytes."""
+    ``scene.distractor_objects`` is unset, so scenes without them keep their bytes."""
     from simtest.generators.scene_spec import random_quat_wxyz
 
     sc, mat = cfg.scene, cfg.materials
