@@ -67,14 +67,14 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
     todo = list(range(len(units)))
     losses: dict[int, int] = {}
     while todo:
-        with ProcessPoolExecutor(min(backend.workers, len(todo)), mp_context=ctx, initializer=init,
-                                 initargs=init_args) as pool:
+        with ProcessPoolExecutor(min(backend.workers, len(todo)), mp_context=ctx, initializer=_init_worker,
+                                 initargs=(init, init_args)) as pool:
             queue, todo = todo, []
             in_flight: dict[Any, int] = {}
             while queue or in_flight:
                 while queue and len(in_flight) < backend.workers:
                     i = queue.pop(0)
-                    in_flight[pool.submit(fn, units[i])] = i
+                    in_flight[pool.submit(_run_unit, fn, units[i])] = i
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 broken = None
                 for future in done:
@@ -92,6 +92,25 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
                         _lost(units, i, broken, losses, backend.retries, todo, stats)
                     todo += queue
                     break
+
+
+#: An exception the worker's initialiser raised, re-raised by its first unit (so the driver gets it as it is,
+#: rather than a pool broken by a worker that exited during start-up).
+_INIT_ERROR: list[BaseException] = []
+
+
+def _init_worker(init: Callable[..., None] | None, init_args: tuple) -> None:
+    if init is not None:
+        try:
+            init(*init_args)
+        except Exception as exc:  # noqa: BLE001 (handed to the first unit, raised in the driver)
+            _INIT_ERROR.append(exc)
+
+
+def _run_unit(fn: Callable[[Any], Any], unit: Any) -> Any:
+    if _INIT_ERROR:
+        raise _INIT_ERROR[0]
+    return fn(unit)
 
 
 def _lost(units: list[Any], i: int, exc: BaseException, losses: dict[int, int], retries: int, todo: list[int],

@@ -114,6 +114,15 @@ def test_local_pool_gives_up_after_the_retries(tmp_path):
     assert sorted(got) == [0, 2] and len(stats.failures) == 1 and stats.failures[0].unit == (1, "")
 
 
+def _bad_init(offset: int) -> None:
+    raise ConfigError(f"bad initialiser argument {offset}")
+
+
+def test_local_pool_raises_the_initialisers_exception_as_it_is():
+    with pytest.raises(ConfigError, match="bad initialiser argument 7"):
+        list(run_units(_square_plus, [1, 2, 3], Backend("local", 2), init=_bad_init, init_args=(7,)))
+
+
 def test_local_pool_passes_the_units_exception_through():
     with pytest.raises(ConfigError, match="bad unit"):
         list(run_units(_raise, [1, 2, 3], Backend("local", 2)))
