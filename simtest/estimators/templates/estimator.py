@@ -56,6 +56,12 @@ REFINES = ("none", "silhouette", "edges")
 #: (``match``), the detector's region rank (``prob``: the first region, as with one candidate), or the match
 #: times the detector's mean class probability (``match_prob``).
 SELECTS = ("match", "prob", "match_prob")
+#: Two candidate regions of one object overlapping more than this (IoU) are one region (posed once).
+SAME_REGION_IOU = 0.8
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(int((a | b).sum()), 1))
 
 
 class TemplateEstimator:
@@ -64,7 +70,9 @@ class TemplateEstimator:
     Args:
         detect: ``rgb`` (the shipped RGB detector for the dataset's objects, or ``detector``) or ``gt``
             (ground-truth visible masks; runs are labelled ``(GT masks)``).
-        detector: A segmentation checkpoint for ``detect=rgb`` (None: the shipped one that knows the objects).
+        detector: A segmentation checkpoint for ``detect=rgb`` (None: the shipped one that knows the objects);
+            several joined by ``+`` pool their candidate regions (each gives ``candidates`` per object; a region
+            that overlaps an earlier one of the same object at IoU > :data:`SAME_REGION_IOU` is posed once).
         views, min_elevation_deg, size, margin, stride: The bank's settings (:class:`BankSettings`).
         inplane_deg, inplane_range_deg: Roll angles tried per region: from ``-range`` to ``+range`` in steps of
             ``inplane_deg`` (degrees).
@@ -123,6 +131,7 @@ class TemplateEstimator:
         self.local_deg = float(local_deg)
         self.renderers: dict[int, ObjectRenderer] = {}
         self.segmenter = None
+        self.more_segmenters: list = []
         self.last_failures: list[dict[str, Any]] = []
         #: Search the crop window's position and size for the best template match (:mod:`.framing`).
         self.framing = bool(framing)
@@ -159,18 +168,24 @@ class TemplateEstimator:
             self._load_detector(obs.objects)
         seen = replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
         per = self.candidates if obs.target_obj_ids is not None else 1
-        return [(None, int(o), np.asarray(m, bool), float(p)) for o, m, p in
-                self.segmenter.regions(seen, per, self.region_rank, self.region_threshold)]
+        out: list[tuple[int | None, int, np.ndarray, float]] = []
+        for segmenter in [self.segmenter, *self.more_segmenters]:
+            for o, m, p in segmenter.regions(seen, per, self.region_rank, self.region_threshold):
+                m = np.asarray(m, bool)
+                if not any(r[1] == int(o) and _iou(r[2], m) > SAME_REGION_IOU for r in out):
+                    out.append((None, int(o), m, float(p)))
+        return out
 
     def _load_detector(self, objects) -> None:
         from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT, Segmenter
         from simtest.estimators.shipped import choose
 
-        path = self.detector_path
-        if path is None:
-            path = choose("keypoints_detector", SEG_FORMAT, objects, what="templates (its detector)", subset=True).path
-        self.segmenter = Segmenter(path, "cpu", 40, 1, runtime="auto")
-        self.segmenter.check_objects(objects)
+        paths = str(self.detector_path).split("+") if self.detector_path is not None else [
+            choose("keypoints_detector", SEG_FORMAT, objects, what="templates (its detector)", subset=True).path]
+        segmenters = [Segmenter(p, "cpu", 40, 1, runtime="auto") for p in paths]
+        for segmenter in segmenters:
+            segmenter.check_objects(objects)
+        self.segmenter, self.more_segmenters = segmenters[0], segmenters[1:]
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
         """Pose estimates (metres, camera frame) of the regions found (see the module doc)."""

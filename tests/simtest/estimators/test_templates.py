@@ -161,6 +161,32 @@ def test_detector_candidates_keep_the_best_match_per_expected_instance(small_dat
         TemplateEstimator(candidates=0)
 
 
+def test_pooled_detectors_pose_a_shared_region_once(small_dataset, cache, monkeypatch):
+    """``detector=A+B`` pools the candidate regions of both detectors; the same detector twice gives exactly the
+    regions of one (each region of B overlaps its copy in A at IoU 1 and is dropped)."""
+    from simtest.estimators.segicp.infer import FORMAT
+    from simtest.estimators.shipped import choose
+    from simtest.evaluation.images import observation
+    from simtest.io.dataset import image_size, select_images
+    from simtest.objects.loaders import load_dataset_objects
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    objects = load_dataset_objects(small_dataset)
+    width, height = image_size(small_dataset)
+    path = str(choose("keypoints_detector", FORMAT, objects, what="test", subset=True).path)
+    one = TemplateEstimator(detect="rgb", detector=path, candidates=3)
+    two = TemplateEstimator(detect="rgb", detector=f"{path}+{path}", candidates=3)
+    counted = 0
+    for ref in select_images(small_dataset, None, None, 2, objects.ids):
+        obs, _ = observation(ref, objects, "gt-masks", width, height, False)
+        a, b = one._regions(obs), two._regions(obs)
+        assert len(two.more_segmenters) == 1
+        assert [(r[1], r[3]) for r in a] == [(r[1], r[3]) for r in b]
+        assert all(np.array_equal(ra[2], rb[2]) for ra, rb in zip(a, b))
+        counted += len(a)
+    assert counted > 0
+
+
 def test_framing_search_frees_the_pose_from_a_loose_region(objects, cache, monkeypatch):
     """A region far larger than the object and off its centre (a coarse detector's) puts the matched template's
     pose off in depth; the framing search moves and scales the window onto the object: the depth within 8 %
