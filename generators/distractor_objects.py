@@ -53,14 +53,13 @@ def distractor_object_set(name: str) -> ObjectSet:
     return objects
 
 
-def sample_distractor_objects(cfg, rng: np.random.Generator, look: np.random.Generator, place,
+def sample_distractor_objects(cfg, rng: np.random.Generator, look: np.random.Generator, place, random_quat,
                               sample_look) -> tuple[DistractorObjectSpec, ...]:
     """Draw the scene's distractor objects: their count, models and drop poses from the geometry stream
     ``rng``, their looks from the appearance stream ``look``; ``place(radius)`` returns a free drop position
-    (metres) and ``sample_look(look)`` a random ``(r, g, b)`` for objects without a print. Draws nothing when
+    (metres), ``random_quat(rng)`` a uniform orientation (w, x, y, z) and ``sample_look(look)`` a random
+    ``(r, g, b)`` for objects without a print (the scene sampler's own draws). Draws nothing when
     ``scene.distractor_objects`` is unset, so scenes without them keep their bytes."""
-    from simtest.generators.scene_spec import random_quat_wxyz
-
     sc, mat = cfg.scene, cfg.materials
     if not sc.distractor_objects:
         return ()
@@ -70,7 +69,7 @@ def sample_distractor_objects(cfg, rng: np.random.Generator, look: np.random.Gen
     for oid in rng.choice(np.asarray(objects.ids), size=n, replace=True):
         obj = objects.get(int(oid))
         pos = place(obj.diameter / 2.0)
-        quat = random_quat_wxyz(rng)
+        quat = random_quat(rng)
         printed = "skin" in obj.extra
         rgba = (1.0, 1.0, 1.0, 1.0) if printed or obj.appearance is not None else (*sample_look(look), 1.0)
         out.append(DistractorObjectSpec(

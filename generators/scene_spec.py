@@ -239,7 +239,7 @@ def sample_scene_spec(cfg: GenerateConfig, objects: ObjectSet, rng: np.random.Ge
         pos = place(radius)
         distractors.append(DistractorSpec(shape, size, tuple(float(v) for v in pos), random_quat_wxyz(rng),
                                           (*_colour(look), 1.0), material=sample_material(cfg, look)))
-    distractor_objects = sample_distractor_objects(cfg, rng, look, place, _colour)
+    distractor_objects = sample_distractor_objects(cfg, rng, look, place, random_quat_wxyz, _colour)
 
     lc = cfg.lights
     lights = []

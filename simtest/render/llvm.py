@@ -19,6 +19,7 @@ name such as ``/usr/lib/llvm-14/lib/libLLVM.so`` is read from its soname.
 
 from __future__ import annotations
 
+import gc
 import glob
 import logging
 import os
@@ -28,7 +29,7 @@ import sys
 import zlib
 from dataclasses import dataclass
 
-__all__ = ["LibLLVM", "MIN_MAJOR", "ENV", "SEARCH_DIRS", "INSTALL_LLVM", "llvm_major", "find_libllvm",
+__all__ = ["LibLLVM", "MIN_MAJOR", "ENV", "SEARCH_DIRS", "INSTALL_LLVM", "llvm_major", "find_libllvm", "without_gc",
            "point_drjit_at", "PBR_VARIANTS", "Variant", "choose_variant", "note_once"]
 
 #: Oldest LLVM major Mitsuba's LLVM variant runs with (15 aborts the process at the first render).
@@ -306,3 +307,17 @@ def choose_variant(mi, requested: str) -> Variant:
                           f"with: pip install 'simtest[pbr]'")
     mi.set_variant("scalar_rgb")
     return Variant("scalar_rgb")
+
+
+def without_gc(fn, *args):
+    """``fn(*args)`` with Python's cyclic garbage collector paused. A Dr.Jit frozen function must not free an
+    array that wraps numpy memory while it records (Dr.Jit's LLVM backend releases such memory through a host
+    callback, which a recording refuses by terminating the process); a collection that starts inside a recording
+    can free exactly that: an earlier scene's meshes, whose buffers come from numpy, held in a reference cycle."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        return fn(*args)
+    finally:
+        if enabled:
+            gc.enable()

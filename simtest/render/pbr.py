@@ -29,7 +29,6 @@ variant give the same image on one machine (on ``llvm_ad_rgb`` also with any thr
 
 from __future__ import annotations
 
-import gc
 import hashlib
 import importlib
 import logging
@@ -44,7 +43,8 @@ import mujoco
 from simtest.camera import CameraModel
 from simtest.render.colour import linear_to_srgb8, srgb_to_linear
 from simtest.errors import RenderError
-from simtest.render.llvm import PBR_VARIANTS, Variant, choose_variant, find_libllvm, note_once, point_drjit_at
+from simtest.render.llvm import (PBR_VARIANTS, Variant, choose_variant, find_libllvm, note_once, point_drjit_at,
+                                 without_gc)
 from simtest.render.pbr_film import FilmGrid, film_grid, resample_to_image
 from simtest.render.pbr_lights import emitters, panel
 from simtest.render.pbr_stages import StageTimes, process_stages
@@ -54,7 +54,7 @@ from simtest.rng import child_sequence
 
 __all__ = ["PbrRenderer", "require_pbr", "resolved_variant", "frame_seed", "renderer_versions", "auto_spp",
            "FilmGrid", "film_grid", "resample_to_image", "INSTALL_HINT", "PBR_VARIANTS", "SAMPLERS",
-           "DENOISE_QUALITIES", "GUIDE_SPP", "without_gc"]
+           "DENOISE_QUALITIES", "GUIDE_SPP"]
 
 INSTALL_HINT = "pip install 'simtest[pbr]'"
 #: Longest light path of the path tracer (3: direct light plus one indirect bounce, which carries most of the
@@ -169,20 +169,6 @@ def _geom_rgba(m: mujoco.MjModel, g: int) -> np.ndarray:
     if m.geom_matid[g] >= 0 and np.allclose(own, (0.5, 0.5, 0.5, 1.0)):
         return m.mat_rgba[m.geom_matid[g]]
     return own
-
-
-def without_gc(fn, *args):
-    """``fn(*args)`` with Python's cyclic garbage collector paused. A Dr.Jit frozen function must not free an
-    array that wraps numpy memory while it records (Dr.Jit's LLVM backend releases such memory through a host
-    callback, which a recording refuses by terminating the process); a collection that starts inside a recording
-    can free exactly that: an earlier scene's meshes, whose buffers come from numpy, held in a reference cycle."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        return fn(*args)
-    finally:
-        if enabled:
-            gc.enable()
 
 
 def sensor_to_world(mi, camera: CameraModel):
@@ -405,9 +391,8 @@ class PbrRenderer:
         return self._calls
 
     def _or_traced(self, frozen, plain):
-        """``frozen`` called with the seed as a Dr.Jit array; if Dr.Jit cannot record this scene (it refuses some
-        nested virtual calls), this scene's views are traced as without freezing (the same bytes), said once in
-        the log."""
+        """``frozen`` called with the seed as a Dr.Jit array, the garbage collector paused (``without_gc``); if
+        Dr.Jit cannot record this scene (it refuses some nested virtual calls), its views are traced (same bytes)."""
         mi = self._mi
 
         def call(scene, sensor, seed):

@@ -277,7 +277,8 @@ a.mesh = mesh_from_arrays(mi, "old", np.random.default_rng(0).random((30, 3)), n
 a.b, b.a = b, a
 del a, b
 gc.enable()
-y = pbr.without_gc(frozen, x) if sys.argv[1] == "guarded" else frozen(x)
+from simtest.render.llvm import without_gc
+y = without_gc(frozen, x) if sys.argv[1] == "guarded" else frozen(x)
 print("OK", int(y[0]))
 """
 
