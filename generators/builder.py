@@ -180,12 +180,6 @@ class SceneBuilder:
         bodies = []
         for i, p in enumerate(spec.objects):
             obj = self.objects.get(p.obj_id)
-            body = ms.worldbody.add_body(name=f"obj_{i}", pos=list(p.position), quat=list(p.quat_wxyz))
-            body.add_freejoint(name=f"obj_{i}_joint")
-            body.explicitinertial = True
-            body.mass = obj.mass
-            body.ipos = obj.center_of_mass.tolist()
-            body.fullinertia = _full_inertia(obj.inertia)
             mat = ms.add_material(name=f"obj_{i}_mat", rgba=list(p.rgba), specular=p.specular,
                                   shininess=p.shininess, reflectance=p.reflectance)
             skinned = skin_of(obj, p.skin_seed) if textures[p.obj_id] is not None else None
@@ -193,16 +187,8 @@ class SceneBuilder:
                 self._skin_material(ms, mat, f"obj_{i}", skinned)
             elif textures[p.obj_id] is not None and not p.plain:  # the texture times the material colour (a tint)
                 mat.textures = texture_roles(textures[p.obj_id])
-            friction = list(OBJECT_FRICTION) if obj.friction is None else [obj.friction, *OBJECT_FRICTION[1:]]
-            body.add_geom(name=f"obj_{i}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"mesh_{p.obj_id}",
-                          material=f"obj_{i}_mat", group=VISUAL_GROUP, contype=0, conaffinity=0, density=0,
-                          mass=0)
-            for k in range(len(obj.collision_parts)):
-                body.add_geom(name=f"obj_{i}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH,
-                              meshname=f"mesh_{p.obj_id}_col{k}", group=COLLISION_GROUP, density=0, mass=0,
-                              friction=friction, condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
-                              solref=[0.004, 1.0])
-            bodies.append(body)
+            bodies.append(_object_body(ms, f"obj_{i}", obj, f"mesh_{p.obj_id}", p.position, p.quat_wxyz,
+                                       VISUAL_GROUP))
 
         for j, d in enumerate(spec.distractors):
             b = ms.worldbody.add_body(name=f"distractor_{j}", pos=list(d.position), quat=list(d.quat_wxyz))
@@ -350,25 +336,13 @@ class SceneBuilder:
                     for oid in sorted({d.obj_id for d in spec.distractor_objects})}
         for j, d in enumerate(spec.distractor_objects):
             obj, name = objects.get(d.obj_id), f"dobj_{j}"
-            body = ms.worldbody.add_body(name=name, pos=list(d.position), quat=list(d.quat_wxyz))
-            body.add_freejoint()
-            body.explicitinertial = True
-            body.mass = obj.mass
-            body.ipos = obj.center_of_mass.tolist()
-            body.fullinertia = _full_inertia(obj.inertia)
             mat = ms.add_material(name=f"{name}_mat", rgba=list(d.rgba), specular=d.specular, shininess=d.shininess)
             skinned = skin_of(obj, d.skin_seed) if textures[d.obj_id] is not None else None
             if skinned is not None:
                 self._skin_material(ms, mat, name, skinned)
             elif textures[d.obj_id] is not None:
                 mat.textures = texture_roles(textures[d.obj_id])
-            body.add_geom(name=f"{name}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"dmesh_{d.obj_id}",
-                          material=f"{name}_mat", group=0, contype=0, conaffinity=0, density=0, mass=0)
-            for k in range(len(obj.collision_parts)):
-                body.add_geom(name=f"{name}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH,
-                              meshname=f"dmesh_{d.obj_id}_col{k}", group=COLLISION_GROUP, density=0, mass=0,
-                              friction=list(OBJECT_FRICTION), condim=6, rgba=[0.5, 0.5, 0.5, 0.0],
-                              solref=[0.004, 1.0])
+            _object_body(ms, name, obj, f"dmesh_{d.obj_id}", d.position, d.quat_wxyz, 0)
 
     # ------------------------------------------------------------------------------------------------------
     def _mesh_assets(self, ms: mujoco.MjSpec, obj: ObjectModel, prefix: str = "mesh") -> str | None:
@@ -465,6 +439,28 @@ def load_texture_image(path: str) -> np.ndarray:
             return np.asarray(im, dtype=np.uint8).copy()
     except (OSError, ValueError) as exc:
         raise AssetError(f"texture image {path!r} could not be read ({exc}); use a png or jpg file") from None
+
+
+def _object_body(ms: mujoco.MjSpec, name: str, obj: ObjectModel, mesh: str, position, quat_wxyz,
+                 group: int):
+    """A free body ``name`` of ``obj`` at ``position`` (metres) / ``quat_wxyz`` with the object's mass and
+    inertia: its visual mesh ``mesh`` drawn in ``group`` with material ``{name}_mat`` (never colliding) and its
+    convex parts ``{mesh}_col{k}`` colliding (group :data:`COLLISION_GROUP`, never drawn). Targets and distractor
+    objects are built by this one function."""
+    body = ms.worldbody.add_body(name=name, pos=list(position), quat=list(quat_wxyz))
+    body.add_freejoint(name=f"{name}_joint")
+    body.explicitinertial = True
+    body.mass = obj.mass
+    body.ipos = obj.center_of_mass.tolist()
+    body.fullinertia = _full_inertia(obj.inertia)
+    body.add_geom(name=f"{name}_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh, material=f"{name}_mat",
+                  group=group, contype=0, conaffinity=0, density=0, mass=0)
+    friction = list(OBJECT_FRICTION) if obj.friction is None else [obj.friction, *OBJECT_FRICTION[1:]]
+    for k in range(len(obj.collision_parts)):
+        body.add_geom(name=f"{name}_col{k}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"{mesh}_col{k}",
+                      group=COLLISION_GROUP, density=0, mass=0, friction=friction, condim=6,
+                      rgba=[0.5, 0.5, 0.5, 0.0], solref=[0.004, 1.0])
+    return body
 
 
 def _full_inertia(I: np.ndarray) -> list[float]:

@@ -11,7 +11,7 @@ import pytest
 from simtest.errors import ConfigError
 from simtest.io.bop import read_depth, read_mask, read_scene, scene_dirs
 from simtest.objects import load_object_set
-from simtest.render.zbuffer import render_depth
+from tests.generators.test_ground_truth import bop_rule_mask, model_surface_depth
 
 
 @pytest.fixture(scope="module")
@@ -75,11 +75,9 @@ def test_they_occlude_by_the_bop_rule(distractor_dataset):
             for gt_id, gt in enumerate(im["gt"]):
                 if gt.px_count_visib < 30:
                     continue
-                obj = objects.get(gt.obj_id)
-                model_depth = render_depth(obj.vertices, obj.faces, gt.T_cam_obj.R, gt.T_cam_obj.t, im["K"],
-                                           depth.shape[1], depth.shape[0])
+                model_depth = model_surface_depth(objects.get(gt.obj_id), gt, im, depth.shape)
                 visib = read_mask(scene_dir, im_id, gt_id)
-                rule = (model_depth > 0) & ((depth == 0) | (model_depth - depth <= 0.005))
+                rule = bop_rule_mask(model_depth, depth)
                 assert (rule & visib).sum() / (rule | visib).sum() > 0.9
                 others = np.any([a for k, a in enumerate(amodal) if k != gt_id], axis=0) if len(amodal) > 1 \
                     else np.zeros_like(visib)

@@ -13,6 +13,18 @@ from simtest.objects import load_object_set
 from simtest.render.zbuffer import render_depth
 
 
+def model_surface_depth(obj, gt, im, shape: tuple[int, ...]) -> np.ndarray:
+    """(H, W) metres: the depth of ``obj``'s surface alone at its ground-truth pose ``gt`` in image ``im``
+    (0 where it is not), rendered independently of the dataset's renderer."""
+    return render_depth(obj.vertices, obj.faces, gt.T_cam_obj.R, gt.T_cam_obj.t, im["K"], shape[1], shape[0])
+
+
+def bop_rule_mask(model_depth: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """The BOP toolkit's visibility rule on noise-free depth: the object's pixels not behind the scene's
+    surface by more than 5 mm (or where the scene has no depth)."""
+    return (model_depth > 0) & ((depth == 0) | (model_depth - depth <= 0.005))
+
+
 def _instances(dataset):
     for scene_dir in scene_dirs(dataset / "train_pbr"):
         for im_id, im in read_scene(scene_dir).items():
@@ -197,9 +209,7 @@ def test_depth_equals_model_surface_depth(rig_dataset):
     for scene_dir, im_id, im, depth, gt_id, gt in _instances(rig_dataset):
         if gt.px_count_visib < 30:
             continue
-        obj = objects.get(gt.obj_id)
-        model_depth = render_depth(obj.vertices, obj.faces, gt.T_cam_obj.R, gt.T_cam_obj.t, im["K"],
-                                   depth.shape[1], depth.shape[0])
+        model_depth = model_surface_depth(objects.get(gt.obj_id), gt, im, depth.shape)
         visib = read_mask(scene_dir, im_id, gt_id)
         sel = visib & (model_depth > 0) & (depth > 0)
         d = np.abs(depth[sel] - model_depth[sel])
@@ -222,11 +232,8 @@ def test_visib_fract_counts_and_bop_visibility_rule(small_dataset):
             assert gt.visib_fract == pytest.approx(gt.px_count_visib / gt.px_count_all)
         if gt.px_count_visib < 30:
             continue
-        obj = objects.get(gt.obj_id)
-        model_depth = render_depth(obj.vertices, obj.faces, gt.T_cam_obj.R, gt.T_cam_obj.t, im["K"],
-                                   depth.shape[1], depth.shape[0])
-        sil = model_depth > 0
-        rule = sil & ((depth == 0) | (model_depth - depth <= 0.005))
+        model_depth = model_surface_depth(objects.get(gt.obj_id), gt, im, depth.shape)
+        rule = bop_rule_mask(model_depth, depth)
         inter = (rule & visib).sum()
         union = (rule | visib).sum()
         assert inter / union > 0.9, f"BOP-rule mask disagrees: IoU {inter / union:.3f}"

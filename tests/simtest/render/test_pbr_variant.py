@@ -201,17 +201,24 @@ print("DISTINCT", len(set(reused)), "FRESH", reused == fresh, "TRACED", reused =
 """
 
 
+def _in_fresh_process(code: str, *args: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a new Python process from the repository root (where simtest picks libLLVM before Dr.Jit
+    is imported); skips the test when the script prints ``SKIP`` (no LLVM variant here)."""
+    root = Path(__file__).resolve().parents[3]
+    res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=600,
+                         cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    if res.stdout.startswith("SKIP"):
+        pytest.skip(res.stdout.strip())
+    return res
+
+
 @needs_pbr
 def test_frozen_replays_give_the_bytes_of_renderers_made_anew():
     """On the LLVM variant the views of a loaded scene replay the kernels recorded at its first view (Dr.Jit
     frozen functions): five views give the bytes of a renderer made anew for each view (which records) and of
     one with freezing off. In a fresh process, where simtest picks libLLVM before Dr.Jit is imported."""
-    root = Path(__file__).resolve().parents[3]
-    res = subprocess.run([sys.executable, "-c", _FROZEN_CHECK], capture_output=True, text=True, timeout=600,
-                         cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    res = _in_fresh_process(_FROZEN_CHECK)
     assert res.returncode == 0, res.stderr[-2000:]
-    if res.stdout.startswith("SKIP"):
-        pytest.skip(res.stdout.strip())
     assert "DISTINCT 5 FRESH True TRACED True" in res.stdout, res.stdout + res.stderr[-2000:]
 
 
@@ -288,17 +295,9 @@ def test_a_recording_is_not_broken_by_the_garbage_collector():
     """A collection that frees an earlier scene's numpy-backed mesh while Dr.Jit records a frozen function
     terminates the process ("RecordThreadState::enqueue_host_func(): this function cannot be recorded!", met
     once in 24 pbr scenes of a dataset); frozen renders run with the collector paused (``without_gc``)."""
-    root = Path(__file__).resolve().parents[3]
-
-    def run(mode):
-        return subprocess.run([sys.executable, "-c", _GC_DURING_RECORDING, mode], capture_output=True, text=True,
-                              timeout=300, cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
-
-    guarded = run("guarded")
-    if guarded.stdout.startswith("SKIP"):
-        pytest.skip(guarded.stdout.strip())
+    guarded = _in_fresh_process(_GC_DURING_RECORDING, "guarded")
     assert guarded.returncode == 0 and "OK 2" in guarded.stdout, guarded.stderr[-2000:]
-    direct = run("direct")  # the same without the pause: shows the trigger is real on this Dr.Jit
+    direct = _in_fresh_process(_GC_DURING_RECORDING, "direct")  # without the pause: the trigger is real here
     if direct.returncode == 0:
         pytest.skip("this Dr.Jit no longer aborts when a recording frees numpy-backed memory; the pause is harmless")
     assert "cannot be recorded" in direct.stderr, direct.stderr[-2000:]
