@@ -1,11 +1,12 @@
 """The networks shipped in ``simtest/estimators/weights/``, chosen by the objects they were trained for.
 
-A shipped network is a pair ``<family>_<object set>_<W>x<H>.pt`` / ``.onnx`` (e.g.
-``keypoints_lmo_640x480.onnx``: the keypoint crop network of LM-O's eight objects, trained on 640x480 images).
+A shipped network is a pair ``<family>_<object set>_<W>x<H>[.<variant>].pt`` / ``.onnx`` (e.g.
+``keypoints_lmo_640x480.onnx``: the keypoint crop network of LM-O's eight objects, trained on 640x480 images;
+``keypoints_detector_lmo_640x480.clutter.onnx``: a second LM-O detector, trained on other data).
 The ONNX file carries the object record the network was trained for (ids, mesh hashes, vertex counts, bounding
 boxes; :func:`simtest.estimators.keypoints.checkpoint.object_record`), so an estimator given no checkpoint
 takes the shipped file whose record matches the objects it is asked about: the models' content decides, not a
-folder's name (:func:`choose`). Objects that no shipped network knows get a :class:`ConfigError` that names the
+folder's name (:func:`choose`; :func:`choose_all` for every match, e.g. the detectors whose regions are pooled). Objects that no shipped network knows get a :class:`ConfigError` that names the
 shipped sets and why each does not match.
 """
 
@@ -21,7 +22,7 @@ from typing import Any
 from simtest.errors import ConfigError
 from simtest.estimators.checkpoint import check_objects
 
-__all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "matches", "POSE_STAGES", "pose_stage"]
+__all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "choose_all", "matches", "POSE_STAGES", "pose_stage"]
 
 #: The pose stage of the ``keypoints`` estimator for a shipped object set where it is not the set's crop
 #: network (``network``): on LM-O's real photographs the template matcher
@@ -29,19 +30,22 @@ __all__ = ["ShippedNet", "weights_dir", "shipped_nets", "choose", "matches", "PO
 #: than the crop network trained on renders (docs/sim2real.md).
 POSE_STAGES = {"lmo": "templates"}
 
-_NAME = re.compile(r"^(?P<family>[a-z_]+?)_(?P<set>[A-Za-z0-9.-]+)_(?P<w>\d+)x(?P<h>\d+)\.onnx$")
+_NAME = re.compile(r"^(?P<family>[a-z_]+?)_(?P<set>[A-Za-z0-9.-]+?)_(?P<w>\d+)x(?P<h>\d+)"
+                   r"(?:\.(?P<variant>[a-z0-9-]+))?\.onnx$")
 
 
 @dataclass(frozen=True)
 class ShippedNet:
     """One shipped network: ``path`` (the ``.pt`` file; its ``.onnx`` beside it), the ``object_set`` of its name,
-    its training image size ``(width, height)`` in pixels and the object ``record`` it was trained for."""
+    its training image size ``(width, height)`` in pixels, the object ``record`` it was trained for and the
+    ``variant`` of its name ("" for the set's first network)."""
 
     path: Path
     family: str
     object_set: str
     size: tuple[int, int]
     record: dict[str, Any]
+    variant: str = ""
 
 
 def weights_dir() -> Path:
@@ -65,17 +69,18 @@ def _record(onnx_path: Path, fmt: str) -> dict[str, Any] | None:
 
 def shipped_nets(family: str, fmt: str, folder: Path | None = None) -> list[ShippedNet]:
     """The shipped networks of one family (``keypoints``, ``keypoints_detector``, ``segicp``) and checkpoint
-    format, sorted by file name."""
+    format, sorted by object set, size and variant (a set's network without a variant first)."""
     folder = weights_dir() if folder is None else Path(folder)
     out = []
-    for onnx in sorted(folder.glob(f"{family}_*.onnx")):
+    for onnx in folder.glob(f"{family}_*.onnx"):
         m = _NAME.match(onnx.name)
         if m is None or m["family"] != family:
             continue
         rec = _record(onnx.resolve(), fmt)
         if rec is not None:
-            out.append(ShippedNet(onnx.with_suffix(".pt"), family, m["set"], (int(m["w"]), int(m["h"])), rec))
-    return out
+            out.append(ShippedNet(onnx.with_suffix(".pt"), family, m["set"], (int(m["w"]), int(m["h"])), rec,
+                                  m["variant"] or ""))
+    return sorted(out, key=lambda n: (n.object_set, n.size, n.variant))
 
 
 def matches(record: dict[str, Any], objects: Any, subset: bool = False) -> str | None:
@@ -101,19 +106,29 @@ def pose_stage(net: ShippedNet) -> str:
 
 def choose(family: str, fmt: str, objects: Any, *, what: str, subset: bool = False,
            folder: Path | None = None) -> ShippedNet:
-    """The shipped network of ``family`` trained for ``objects`` (compared by content: ids and meshes).
+    """The shipped network of ``family`` trained for ``objects`` (compared by content: ids and meshes); the
+    first of :func:`choose_all`."""
+    return choose_all(family, fmt, objects, what=what, subset=subset, folder=folder)[0]
+
+
+def choose_all(family: str, fmt: str, objects: Any, *, what: str, subset: bool = False,
+               folder: Path | None = None) -> list[ShippedNet]:
+    """Every shipped network of ``family`` trained for ``objects``, in :func:`shipped_nets`' order (a set's
+    network without a variant first).
 
     Raises:
         ConfigError: No shipped network of the family knows these objects; the message names each shipped set
             and what differs, and how to train one.
     """
-    nets = shipped_nets(family, fmt, folder)
-    reasons = []
-    for net in nets:
+    found, reasons = [], []
+    for net in shipped_nets(family, fmt, folder):
         why = matches(net.record, objects, subset)
         if why is None:
-            return net
-        reasons.append(f"{net.path.with_suffix('.onnx').name} ({net.object_set}): {why}")
+            found.append(net)
+        else:
+            reasons.append(f"{net.path.with_suffix('.onnx').name} ({net.object_set}): {why}")
+    if found:
+        return found
     shipped = "; ".join(reasons) if reasons else f"none found in {weights_dir()}"
     raise ConfigError(f"{what}: no shipped network was trained for these objects. Shipped: {shipped}. Train one "
                       "(simtest generate --objects SET ...; simtest train ...) and pass --opt checkpoint=RUN/model.pt")

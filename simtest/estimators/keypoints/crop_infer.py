@@ -38,7 +38,9 @@ each one, which 8 keypoints cannot.
 
 With ``pose=templates`` steps 2-6 are replaced by template matching
 (:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, sharing the detector): the pose stage the
-shipped LM-O set takes by default (:func:`simtest.estimators.shipped.pose_stage`; docs/sim2real.md).
+shipped LM-O set takes by default (:func:`simtest.estimators.shipped.pose_stage`; docs/sim2real.md). Where
+several shipped detectors know the objects (LM-O: two), template matching pools their regions; the crop
+network's pose stage reads the first.
 
 The observation's depth is never read (``detect="segicp"`` excepted, for the detection). torch is imported only
 for a ``.pt`` checkpoint without its current ONNX file (or ``runtime=torch``).
@@ -65,7 +67,7 @@ from simtest.estimators.silhouette import fit_translation
 from simtest.io.bop import mask_bbox
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
-from simtest.estimators.shipped import choose, matches, pose_stage
+from simtest.estimators.shipped import choose, choose_all, matches, pose_stage
 
 if TYPE_CHECKING:
     from simtest.estimators.templates.estimator import TemplateEstimator
@@ -252,6 +254,7 @@ class CropKeypointEstimator:
             self._load(checkpoint, runtime, threads)
         self._configure()
         self.segmenter = None
+        self.more_segmenters: list = []
         if detect != "gt":
             self._load_detector(None if detect == "segicp" else (detector or default_detector()))
         self.last_failures: list[dict[str, Any]] = []
@@ -269,13 +272,15 @@ class CropKeypointEstimator:
         self.fusion = ("uniform" if self.solver == "dense" else "confidence") if fusion == "auto" else fusion
         self.class_ids = [int(i) for i in self.record["obj_ids"]]
 
-    def _load_detector(self, path: str | Path | None) -> None:
-        """The segmentation network that finds the objects (None: segicp's shipped RGB-D one)."""
+    def _load_detector(self, path: str | Path | None, more: list[Path] | None = None) -> None:
+        """The segmentation network that finds the objects (None: segicp's shipped RGB-D one) and ``more``
+        detectors whose regions ``pose=templates`` pools with its own (``self.more_segmenters``)."""
         if self.detect == "rgb" and self._options["detector"] is None and not Path(path).is_file():
             raise ConfigError(f"keypoints: the shipped detector {str(path)!r} is missing; pass "
                               "--opt detector=SEGMENTATION_CHECKPOINT or --opt detect=gt")
-        self.segmenter = Segmenter(path, "cpu", self._options["min_region_pixels"], self._options["threads"],
-                                   runtime="auto")
+        self.segmenter, *self.more_segmenters = [
+            Segmenter(p, "cpu", self._options["min_region_pixels"], self._options["threads"], runtime="auto")
+            for p in [path, *(more or [])]]
         if self.detect == "rgb" and self.segmenter.depth_input:
             raise ConfigError(f"keypoints: detector {self.segmenter.checkpoint} reads depth; detect=rgb needs an "
                               "RGB-only segmentation network (simtest train segmentation without --depth-input)")
@@ -289,8 +294,9 @@ class CropKeypointEstimator:
         self._load(net.path, self._options["runtime"], self._options["threads"])
         self._configure()
         if self.detect == "rgb" and self._options["detector"] is None:
-            det = choose("keypoints_detector", SEG_FORMAT, objects, what="keypoints (its detector)", subset=True)
-            self._load_detector(det.path)
+            det, *more = choose_all("keypoints_detector", SEG_FORMAT, objects, what="keypoints (its detector)",
+                                    subset=True)
+            self._load_detector(det.path, [m.path for m in more])
 
     def _load(self, checkpoint: str | Path | None, runtime: str, threads: int | None) -> None:
         shipped = checkpoint is None
@@ -406,7 +412,7 @@ class CropKeypointEstimator:
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
                 framing=TEMPLATE_FRAMING and self.detect == "rgb",
                 local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0)
-            self.templates.segmenter = self.segmenter
+            self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)
         return out

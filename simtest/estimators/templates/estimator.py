@@ -70,8 +70,8 @@ class TemplateEstimator:
     Args:
         detect: ``rgb`` (the shipped RGB detector for the dataset's objects, or ``detector``) or ``gt``
             (ground-truth visible masks; runs are labelled ``(GT masks)``).
-        detector: A segmentation checkpoint for ``detect=rgb`` (None: the shipped one that knows the objects);
-            several joined by ``+`` pool their candidate regions (each gives ``candidates`` per object; a region
+        detector: A segmentation checkpoint for ``detect=rgb`` (None: every shipped one that knows the objects,
+            pooled); several joined by ``+`` pool their candidate regions (each gives ``candidates`` per object; a region
             that overlaps an earlier one of the same object at IoU > :data:`SAME_REGION_IOU` is posed once).
         views, min_elevation_deg, size, margin, stride: The bank's settings (:class:`BankSettings`).
         inplane_deg, inplane_range_deg: Roll angles tried per region: from ``-range`` to ``+range`` in steps of
@@ -178,10 +178,11 @@ class TemplateEstimator:
 
     def _load_detector(self, objects) -> None:
         from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT, Segmenter
-        from simtest.estimators.shipped import choose
+        from simtest.estimators.shipped import choose_all
 
         paths = str(self.detector_path).split("+") if self.detector_path is not None else [
-            choose("keypoints_detector", SEG_FORMAT, objects, what="templates (its detector)", subset=True).path]
+            n.path for n in choose_all("keypoints_detector", SEG_FORMAT, objects, what="templates (its detector)",
+                                       subset=True)]
         segmenters = [Segmenter(p, "cpu", 40, 1, runtime="auto") for p in paths]
         for segmenter in segmenters:
             segmenter.check_objects(objects)

@@ -58,8 +58,30 @@ def test_the_lmo_models_get_the_lmo_networks():
     est = load_estimator("keypoints")  # no options: builtin-small's until it sees other objects
     est.check_objects(objects)
     assert Path(est.checkpoint).name.startswith("keypoints_lmo_")
-    assert Path(est.segmenter.checkpoint).name.startswith("keypoints_detector_lmo_")
+    assert Path(est.segmenter.checkpoint).name == "keypoints_detector_lmo_640x480.onnx"
+    # every shipped LM-O detector is loaded; template matching (LM-O's pose stage) pools their regions
+    assert [Path(s.checkpoint).name for s in est.more_segmenters] == ["keypoints_detector_lmo_640x480.clutter.onnx"]
     assert est.class_ids == objects.ids
+
+
+def test_a_variant_is_a_second_network_of_its_set_and_comes_after_the_first(tmp_path):
+    """``<family>_<set>_<W>x<H>.<variant>.onnx`` is one more network of the same set: :func:`choose_all`
+    returns every match (the one without a variant first), :func:`choose` the first."""
+    from simtest.estimators.shipped import choose_all
+
+    src = weights_dir() / "keypoints_detector_builtin-small_320x240.onnx"
+    for name in ["keypoints_detector_builtin-small_320x240.a-2.onnx", "keypoints_detector_builtin-small_320x240.onnx",
+                 "keypoints_detector_builtin-small_320x240.b.onnx", "keypoints_detector_builtin-small_320x240.B.onnx"]:
+        (tmp_path / name).write_bytes(src.read_bytes())
+    nets = shipped_nets("keypoints_detector", SEG_FORMAT, tmp_path)
+    assert [n.variant for n in nets] == ["", "a-2", "b"]  # an upper-case variant is not a shipped name
+    objects = load_object_set("builtin-small")
+    found = choose_all("keypoints_detector", SEG_FORMAT, objects, what="test", folder=tmp_path)
+    assert [n.path.name for n in found] == [n.path.name for n in nets]
+    assert found[0].path.name == "keypoints_detector_builtin-small_320x240.pt"
+    assert choose("keypoints_detector", SEG_FORMAT, objects, what="test", folder=tmp_path) == found[0]
+    with pytest.raises(ConfigError, match=r"\.a-2\.onnx \(builtin-small\)"):
+        choose_all("keypoints_detector", SEG_FORMAT, load_object_set("builtin"), what="test", folder=tmp_path)
 
 
 def test_the_pose_stage_follows_the_shipped_set():
