@@ -11,7 +11,9 @@ the ADD(-S)-0.1d score with its 95 % Wilson interval before (the sweep's cells),
 the images and CPU minutes per arm, and whether adapted beat the control on the sweep's weakest condition by
 more than the control's interval without losing more than it on clean images.
 
-Only ``segicp`` (its segmentation network) is trained here; other estimators are refused with the list.
+The networks trained here: ``segicp``'s segmentation network and ``keypoints``' crop network (its detector is
+kept); other estimators are refused with the list. Both arms start from the checkpoint the sweep's estimator ran
+with (its ``checkpoint`` option), else the train config's ``init``, else the shipped one.
 This is an orchestration module: generation, training and evaluation are imported lazily.
 """
 
@@ -35,7 +37,7 @@ from simtest.sweeps.adapt_targets import TargetResult, read_targets
 __all__ = ["LoopTrainConfig", "load_train_config", "run_loop", "condition_scores", "TRAINABLE", "ARMS"]
 
 #: Estimators whose network the loop trains, and the model ``simtest train`` calls it.
-TRAINABLE = {"segicp": "segmentation"}
+TRAINABLE = {"segicp": "segmentation", "keypoints": "keypoints"}
 #: The two arms, in table order.
 ARMS = ("control", "adapted")
 
@@ -45,9 +47,11 @@ class LoopTrainConfig:
     """How both arms continue training (``--train-config F``, TOML or JSON; every field optional).
 
     ``data``: the original training datasets the new images join (empty: the new images alone); ``init``: the
-    checkpoint both arms start from (None: the shipped network); ``epochs``, ``batch_size``, ``lr`` (peak
-    learning rate), ``seed``, ``augment``, ``threads`` as ``simtest train segmentation``; the network's own
-    settings (depth input, widths, crop) are the init checkpoint's."""
+    checkpoint both arms start from (None: the one the sweep's estimator ran with, its ``checkpoint`` option,
+    else the shipped network); ``epochs``, ``batch_size``, ``lr`` (peak learning rate), ``seed``, ``augment``,
+    ``threads`` as ``simtest train segmentation`` / ``simtest train keypoints``; ``max_images`` (segmentation
+    only) caps the training images; the network's own settings (depth input, widths, crop, keypoints, heads)
+    are the init checkpoint's."""
 
     data: tuple[str, ...] = ()
     init: str | None = None
@@ -97,25 +101,34 @@ def _sweep_settings(sweep: Path, estimator: str) -> tuple[Any, Any]:
     return cfg, entry
 
 
-def _init_checkpoint(train: LoopTrainConfig) -> tuple[str, dict]:
-    """The checkpoint both arms start from and its training settings."""
+def _init_checkpoint(train: LoopTrainConfig, entry: Any) -> tuple[str, dict]:
+    """The checkpoint both arms start from (``init``, else the sweep entry's ``checkpoint`` option, else the
+    shipped network of the estimator) and its recorded training settings."""
     import torch
 
-    from simtest.estimators.segicp.infer import default_checkpoint
-
-    path = str(train.init) if train.init is not None else str(default_checkpoint())
+    if train.init is not None:
+        path = str(train.init)
+    elif dict(entry.options).get("checkpoint"):
+        path = str(dict(entry.options)["checkpoint"])
+    elif entry.estimator == "keypoints":
+        from simtest.estimators.keypoints.crop_infer import default_checkpoint
+        path = str(default_checkpoint())
+    else:
+        from simtest.estimators.segicp.infer import default_checkpoint
+        path = str(default_checkpoint())
+    if Path(path).suffix == ".onnx":
+        path = str(Path(path).with_suffix(".pt"))
     if not Path(path).is_file():
-        raise ConfigError(f"the init checkpoint {path!r} does not exist")
+        raise ConfigError(f"the init checkpoint {path!r} does not exist (training needs the .pt checkpoint)")
     return path, dict(torch.load(path, weights_only=True, map_location="cpu").get("train") or {})
 
 
-def _train_arm(train: LoopTrainConfig, data: Path, out: Path, progress: bool) -> Path:
-    """Continue training from the init checkpoint on the original data and ``data``; the new ``model.pt``."""
+def _train_segmentation(train: LoopTrainConfig, init: str, settings: dict, data: tuple[str, ...], out: Path,
+                        progress: bool) -> Path:
     from simtest.training.segmentation import SegTrainConfig, train_segmentation
 
-    init, settings = _init_checkpoint(train)
     crop = settings.get("crop")
-    cfg = SegTrainConfig(data=tuple(train.data) + (str(data),), out=str(out), epochs=train.epochs,
+    cfg = SegTrainConfig(data=data, out=str(out), epochs=train.epochs,
                          batch_size=train.batch_size, lr=train.lr, seed=train.seed, augment=tuple(train.augment),
                          threads=train.threads, max_images=train.max_images, init=init,
                          depth_input=bool(settings.get("depth_input", False)),
@@ -123,6 +136,37 @@ def _train_arm(train: LoopTrainConfig, data: Path, out: Path, progress: bool) ->
                          backbone=str(settings.get("backbone", "plain")),
                          crop=None if crop is None else (int(crop[0]), int(crop[1])))
     return train_segmentation(cfg, progress=progress, log=lambda _msg: None).model_path
+
+
+#: Settings of a keypoint checkpoint's ``train`` record that fix its network and targets (kept by the loop).
+_KEYPOINT_NET = ("arch", "keypoints", "widths", "decoder", "margin", "dense", "hypotheses", "backbone",
+                 "seg_weight", "xyz_weight", "kp_weight", "augment_p", "encoder_lr_scale", "freeze_encoder_bn")
+
+
+def _train_keypoints(train: LoopTrainConfig, init: str, settings: dict, data: tuple[str, ...], out: Path,
+                     progress: bool) -> Path:
+    from simtest.training.keypoints import TrainConfig, train_keypoints
+
+    if train.max_images is not None:
+        raise ConfigError(f"train config: max_images is for segmentation only; keypoint training reads every "
+                          f"image, got max_images = {train.max_images}")
+    kept = {k: settings[k] for k in _KEYPOINT_NET if k in settings}
+    for k in ("widths", "decoder"):
+        if k in kept:
+            kept[k] = tuple(int(v) for v in kept[k])
+    crop = settings.get("crop")
+    cfg = TrainConfig(data=data, out=str(out), epochs=train.epochs, batch_size=train.batch_size, lr=train.lr,
+                      seed=train.seed, augment=tuple(train.augment), threads=train.threads, init=init,
+                      crop=None if crop is None else (int(crop[0]), int(crop[1])), **kept)
+    return train_keypoints(cfg, progress=progress, log=lambda _msg: None).model_path
+
+
+def _train_arm(train: LoopTrainConfig, entry: Any, data: Path, out: Path, progress: bool) -> Path:
+    """Continue training the estimator's network from the init checkpoint on the original data and ``data``;
+    the new ``model.pt``."""
+    init, settings = _init_checkpoint(train, entry)
+    trainer = _train_keypoints if entry.estimator == "keypoints" else _train_segmentation
+    return trainer(train, init, settings, tuple(train.data) + (str(data),), out, progress)
 
 
 def _evaluate_arm(sweep_cfg: Any, sweep: Path, entry: Any, name: str, checkpoint: Path, out: Path) -> None:
@@ -165,7 +209,7 @@ def _run_arm(fit: AdaptFit, arm: str, train: LoopTrainConfig, sweep_cfg: Any, en
 
     rep = timed("generate", lambda: generate(cfg, out / "data" / arm, overwrite=True, progress=progress,
                                              command_line=[]))
-    model = timed("train", lambda: _train_arm(train, out / "data" / arm, out / "train" / arm, progress))
+    model = timed("train", lambda: _train_arm(train, entry, out / "data" / arm, out / "train" / arm, progress))
     timed("evaluate", lambda: _evaluate_arm(sweep_cfg, sweep, entry, fit.estimator, model, out / "sweeps" / arm))
     images = cfg.scenes * cfg.frames_per_scene
     return {"images": images, "frames_written": rep.frames_written, "checkpoint": str(model),
@@ -224,7 +268,7 @@ def run_loop(fit: AdaptFit, train: LoopTrainConfig, *, progress: bool = False) -
     meta = json.loads((fit.out / "fit.json").read_text())
     sweep = Path(meta["sweep"])
     sweep_cfg, entry = _sweep_settings(sweep, fit.estimator)
-    init, _ = _init_checkpoint(train)
+    init, _ = _init_checkpoint(train, entry)
     t0 = time.perf_counter()
     arms = {arm: _run_arm(fit, arm, train, sweep_cfg, entry, progress) for arm in ARMS}
     before = condition_scores(read_targets(sweep, fit.estimator))

@@ -247,7 +247,8 @@ def _setup(cfg: TrainConfig) -> Plan:
             lambda n: validate(n, record, cfg.val, cfg.val_split, cfg.device, cfg.val_images, cfg.arch)),
         score="val_add_s_or_add_01d", score_label="ADD(-S)-0.1d",
         warm_start=None if cfg.init is None else (
-            lambda n: load_warm_start(n, cfg.init, objects, fmt, "keypoint training")))
+            lambda n: load_warm_start(n, cfg.init, objects, fmt, "keypoint training",
+                                      defaults={"backbone": "plain"} if crop_arch else None)))
 
 
 def train_keypoints(cfg: TrainConfig, *, resume: bool = False, progress: bool = True,

@@ -63,10 +63,11 @@ def test_the_written_config_reproduces_its_dataset(tmp_path, small_config):
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
 
 
-def test_the_loop_runs_end_to_end(tmp_path):
+@pytest.mark.parametrize("estimator", ["segicp", "keypoints"])
+def test_the_loop_runs_end_to_end(tmp_path, estimator):
     sweep_cfg = tmp_path / "sweep.toml"
-    sweep_cfg.write_text('seed = 3\nmetrics = ["add_s_or_add_01d"]\n[[estimators]]\nname = "segicp"\n'
-                         'estimator = "segicp"\n[dataset.generate]\nobjects = "builtin-small"\nscenes = 1\n'
+    sweep_cfg.write_text(f'seed = 3\nmetrics = ["add_s_or_add_01d"]\n[[estimators]]\nname = "{estimator}"\n'
+                         f'estimator = "{estimator}"\n[dataset.generate]\nobjects = "builtin-small"\nscenes = 1\n'
                          'frames_per_scene = 2\ncamera = { width = 160, height = 120 }\n[factors]\n'
                          'occlusion = ["L2"]\n')
     assert main(["sweep", str(sweep_cfg), "--out", str(tmp_path / "sweep"), "--quiet"]) == 0
@@ -81,6 +82,7 @@ def test_the_loop_runs_end_to_end(tmp_path):
         assert result["arms"][arm]["images"] == 2
         assert set(result["arms"][arm]["conditions"]) == {"clean", "L2"}
         assert (out / "train" / arm / "model.pt").is_file()
+        assert (out / "sweeps" / arm / "cells" / estimator / "L2" / "pose").is_dir()
     assert result["verdict"]["weakest_condition"] in ("clean", "L2")
     assert "| L2 |" in (out / "adapt.md").read_text() and (out / "mass.png").stat().st_size > 1000
     fit = json.loads((out / "fit.json").read_text())
@@ -88,3 +90,16 @@ def test_the_loop_runs_end_to_end(tmp_path):
     assert np.isclose(sum(b["mass"] for b in fit["factors"][0]["bins"]), 1.0)
     assert main(["adapt", "--sweep", str(tmp_path / "sweep"), "--out", str(tmp_path / "x"), "--images", "2",
                  "--estimator", "icp"]) == 2
+
+
+def test_the_shipped_adapt_configs_load():
+    from pathlib import Path
+
+    from simtest.sweeps.adapt_loop import load_train_config
+    from simtest.sweeps.grid import load_sweep_config
+
+    root = Path(__file__).parents[3] / "configs"
+    sweep = load_sweep_config(root / "sweep-adapt.toml")
+    assert [e.estimator for e in sweep.estimators] == ["segicp"]
+    train = load_train_config(root / "adapt-train.toml")
+    assert train.data == () and train.augment == ("occlusion", "weather")
