@@ -100,6 +100,6 @@ def test_the_shipped_adapt_configs_load():
 
     root = Path(__file__).parents[3] / "configs"
     sweep = load_sweep_config(root / "sweep-adapt.toml")
-    assert [e.estimator for e in sweep.estimators] == ["segicp"]
+    assert [e.estimator for e in sweep.estimators] == ["segicp", "keypoints"]
     train = load_train_config(root / "adapt-train.toml")
     assert train.data == () and train.augment == ("occlusion", "weather")
