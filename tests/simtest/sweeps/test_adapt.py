@@ -84,6 +84,7 @@ def test_the_loop_runs_end_to_end(tmp_path, estimator):
         assert (out / "train" / arm / "model.pt").is_file()
         assert (out / "sweeps" / arm / "cells" / estimator / "L2" / "pose").is_dir()
     assert result["verdict"]["weakest_condition"] in ("clean", "L2")
+    assert result["verdict"]["weakest_aimed_condition"] in ("clean", "L2")
     assert "| L2 |" in (out / "adapt.md").read_text() and (out / "mass.png").stat().st_size > 1000
     fit = json.loads((out / "fit.json").read_text())
     assert [f["factor"] for f in fit["factors"]] == [f.name for f in FACTORS]
@@ -103,3 +104,20 @@ def test_the_shipped_adapt_configs_load():
     assert [e.estimator for e in sweep.estimators] == ["segicp", "keypoints"]
     train = load_train_config(root / "adapt-train.toml")
     assert train.data == () and train.augment == ("occlusion", "weather")
+
+
+def test_the_verdict_names_the_weakest_condition_the_config_aims_at():
+    from simtest.sweeps.adapt_loop import _verdict
+
+    def score(ok, n):
+        from simtest.metrics.intervals import wilson_interval
+        return {"score": ok / n, "ci95": list(wilson_interval(ok, n)), "n": n}
+
+    before = {"clean": score(80, 100), "L3": score(40, 100), "fog-4": score(10, 100)}
+    control = {"clean": score(80, 100), "L3": score(40, 100), "fog-4": score(10, 100)}
+    adapted = {"clean": score(79, 100), "L3": score(70, 100), "fog-4": score(11, 100)}
+    v = _verdict(before, {"control": {"conditions": control}, "adapted": {"conditions": adapted}})
+    assert v["weakest_condition"] == "fog-4" and not v["success"]
+    assert v["weakest_aimed_condition"] == "L3" and v["aimed"]["adapted_above_control_interval"]
+    assert np.isclose(v["aimed"]["adapted_minus_control"], 0.30)
+    assert v["clean_within_control_interval"]
