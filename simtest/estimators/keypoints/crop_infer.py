@@ -137,7 +137,9 @@ class CropKeypointEstimator:
         checkpoint: Crop-network checkpoint from ``simtest train keypoints`` (``.pt`` or its ``.onnx``); None:
             the shipped one (``builtin-small``).
         detect: ``rgb``, ``segicp`` or ``gt`` (see the module doc).
-        detector: Segmentation checkpoint for ``detect=rgb`` (None: the shipped RGB-only one).
+        detector: Segmentation checkpoint for ``detect=rgb`` (None: the shipped RGB-only ones), or several
+            joined by ``+`` (``A.onnx+B.onnx``): ``pose=templates`` pools their regions, the crop network
+            reads the first's.
         fusion: ``auto`` (``confidence`` for the keypoint solver, ``uniform`` for the dense one), ``confidence``
             (top ``top_n`` per keypoint, confidence-weighted) or ``uniform`` (all object cells,
             equal weights).
@@ -256,7 +258,8 @@ class CropKeypointEstimator:
         self.segmenter = None
         self.more_segmenters: list = []
         if detect != "gt":
-            self._load_detector(None if detect == "segicp" else (detector or default_detector()))
+            first, *more = [None] if detect == "segicp" else str(detector or default_detector()).split("+")
+            self._load_detector(first, [Path(m) for m in more])
         self.last_failures: list[dict[str, Any]] = []
         self._checked: set[int] = set()
 

@@ -102,3 +102,15 @@ def test_the_pose_stage_follows_the_shipped_set():
         CropKeypointEstimator(pose="mesh")
     with pytest.raises(ConfigError, match="unknown pose 'templates' for detect='segicp'"):
         CropKeypointEstimator(pose="templates", detect="segicp")
+
+
+def test_detectors_joined_by_plus_are_pooled_in_that_order():
+    from simtest.estimators import load_estimator
+    from simtest.estimators.keypoints.crop_infer import default_detector
+
+    det = default_detector().with_suffix(".onnx")
+    missing = Path(__file__).parent / "no_such_detector.onnx"
+    est = load_estimator("keypoints", detector=f"{det}+{det}")
+    assert Path(est.segmenter.checkpoint) == det and [Path(s.checkpoint) for s in est.more_segmenters] == [det]
+    with pytest.raises(ConfigError, match="no_such_detector.onnx"):
+        load_estimator("keypoints", detector=f"{det}+{missing}")
