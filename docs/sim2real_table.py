@@ -32,15 +32,17 @@ from simtest.metrics.bop19 import MSPD_THETAS, MSSD_THETAS  # noqa: E402
 LMO_NAMES = {1: "ape", 5: "can", 6: "cat", 8: "driller", 9: "duck", 10: "eggbox", 11: "glue", 12: "holepuncher"}
 
 
-def per_target(run: Path, skip_images: int = 0) -> list[dict[str, float]]:
+def per_target(run: Path, skip_images: int = 0, first_images: int | None = None) -> list[dict[str, float]]:
     """Per target of a run folder's errors.csv: ADD(-S)-0.1d hit (0/1) and its MSSD and MSPD recalls; with
-    ``skip_images`` the targets of the run's first images (by scene and image id) are left out."""
+    ``skip_images`` the targets of the run's first images (by scene and image id) are left out, with
+    ``first_images`` only those of its first images are kept."""
     out = []
     with open(run / "errors.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    skipped = set(sorted({(int(r["scene_id"]), int(r["im_id"])) for r in rows})[:skip_images])
+    images = sorted({(int(r["scene_id"]), int(r["im_id"])) for r in rows})
+    kept = set(images[skip_images:] if first_images is None else images[:first_images])
     for row in rows:
-        if (int(row["scene_id"]), int(row["im_id"])) not in skipped:
+        if (int(row["scene_id"]), int(row["im_id"])) in kept:
             matched = row["matched"] == "1"
             d = float(row["diameter_m"])
             adds = float(row["add_s_or_add"]) if matched and row["add_s_or_add"] else math.inf
@@ -77,7 +79,7 @@ def check_against_metrics(run: Path, rows: list[dict[str, float]]) -> None:
             raise SystemExit(f"{run}: recomputed {key} {ours} differs from metrics.json's {overall[key]}")
 
 
-def table(specs: list[str], skip_images: int = 0) -> str:
+def table(specs: list[str], skip_images: int = 0, first_images: int | None = None) -> str:
     ids = sorted(LMO_NAMES)
     head = ["variant", "real ADD(-S)-0.1d %", "real AR_MSSD", "real AR_MSPD"] + \
         [f"{LMO_NAMES[i]}" for i in ids] + ["sim ADD(-S)-0.1d %", "train CPU min"]
@@ -86,8 +88,8 @@ def table(specs: list[str], skip_images: int = 0) -> str:
     for spec in specs:
         name, real, sim, cpu = (spec.split("|") + ["", "", ""])[:4]
         cells = [name]
-        rows = per_target(Path(real), skip_images)
-        if not skip_images:
+        rows = per_target(Path(real), skip_images, first_images)
+        if not skip_images and first_images is None:
             check_against_metrics(Path(real), rows)
         n_real = len(rows)
         cells += [rate([r["add"] for r in rows]), mean_ci([r["mssd"] for r in rows]),
@@ -104,7 +106,8 @@ def table(specs: list[str], skip_images: int = 0) -> str:
             cells.append("-")
         cells.append(cpu or "-")
         lines.append("| " + " | ".join(cells) + " |")
-    frames = f"the last {100 - skip_images}" if skip_images else "the 100"
+    frames = f"the first {first_images}" if first_images is not None else \
+        f"the last {100 - skip_images}" if skip_images else "the 100"
     notes = f"\nReal: {n_real} targets of {frames} real LM-O frames." + \
         (f" Sim: {n_sim} targets of the held-out simtest set." if n_sim else "") + \
         " Per-object columns: real ADD(-S)-0.1d %. Brackets: 95 % intervals (see docs/sim2real_table.py).\n"
@@ -116,9 +119,13 @@ def main() -> int:
     ap.add_argument("--row", action="append", required=True, metavar="NAME|REAL|SIM|CPU_MIN")
     ap.add_argument("--skip-images", type=int, default=0, metavar="N",
                     help="leave out the real run's first N images (those a choice was tuned on)")
+    ap.add_argument("--first-images", type=int, metavar="N",
+                    help="keep only the real run's first N images (those choices are made on)")
     ap.add_argument("--out", type=Path, help="also write the table here")
     args = ap.parse_args()
-    text = table(args.row, args.skip_images)
+    if args.first_images is not None and args.skip_images:
+        ap.error("--first-images and --skip-images exclude each other")
+    text = table(args.row, args.skip_images, args.first_images)
     print(text)
     if args.out:
         args.out.write_text(text)
