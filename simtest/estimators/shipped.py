@@ -6,8 +6,9 @@ A shipped network is a pair ``<family>_<object set>_<W>x<H>[.<variant>].pt`` / `
 The ONNX file carries the object record the network was trained for (ids, mesh hashes, vertex counts, bounding
 boxes; :func:`simtest.estimators.keypoints.checkpoint.object_record`), so an estimator given no checkpoint
 takes the shipped file whose record matches the objects it is asked about: the models' content decides, not a
-folder's name (:func:`choose`; :func:`choose_all` for every match, e.g. the detectors whose regions are pooled). Objects that no shipped network knows get a :class:`ConfigError` that names the
-shipped sets and why each does not match.
+folder's name (:func:`choose`; :func:`choose_all` for every match, e.g. the detectors whose regions are
+pooled). Objects that no shipped network knows get a :class:`ConfigError` that names the shipped sets and why
+each does not match.
 """
 
 from __future__ import annotations

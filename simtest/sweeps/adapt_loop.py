@@ -210,7 +210,8 @@ def _run_arm(fit: AdaptFit, arm: str, train: LoopTrainConfig, sweep_cfg: Any, en
 
     rep = timed("generate", lambda: generate(cfg, out / "data" / arm, overwrite=True, progress=progress,
                                              command_line=[]))
-    model = timed("train", lambda: _train_arm(train, entry, out / "data" / arm, out / "train" / arm, progress))
+    model = timed("train", lambda: _train_arm(train, entry, out / "data" / arm, out / "train" / arm,
+                                              progress))
     timed("evaluate", lambda: _evaluate_arm(sweep_cfg, sweep, entry, fit.estimator, model, out / "sweeps" / arm))
     images = cfg.scenes * cfg.frames_per_scene
     return {"images": images, "frames_written": rep.frames_written, "checkpoint": str(model),
