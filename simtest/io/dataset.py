@@ -21,8 +21,6 @@ __all__ = ["ImageRef", "DataNotes", "select_scene_dirs", "select_images", "image
            "describe_dataset", "labels_root", "WITHHELD"]
 
 log = logging.getLogger(__name__)
-#: (split folder, rotation-repair warning) pairs already logged by this process.
-_WARNED: set[tuple[str, str]] = set()
 
 #: Folder (in a dataset root) holding the labels of an unlabelled split: ``withheld/<split>/<scene>/``.
 WITHHELD = "withheld"
@@ -225,8 +223,7 @@ def select_images(dataset_dir: Path, split: str | None, scenes: Sequence[int] | 
     chosen = sorted({r.scene_id: r for r in refs}.values(), key=lambda r: r.scene_id)
     notes.no_depth_scenes = [r.scene_id for r in chosen if not r.has_depth]
     notes.no_mask_scenes = [r.scene_id for r in chosen if not r.has_masks]
-    if notes.repairs.count and (str(split_dir), notes.repairs.summary()) not in _WARNED:
-        _WARNED.add((str(split_dir), notes.repairs.summary()))  # a second read in this process: no repeat
+    if notes.repairs.count:
         log.warning("%s", notes.repairs.summary())
     for line in notes.other_lines():
         log.info("%s", line)

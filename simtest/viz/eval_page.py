@@ -33,7 +33,7 @@ from simtest.viz.draw import (BAD_COLOUR, EST_COLOUR, GT_COLOUR, box_corner_pixe
 from simtest.viz.sheet import BG, hstack, legend_strip, text_strip, titled, upscale, upscale_factor, vstack
 
 __all__ = ["EVAL_FILES", "is_eval_run", "EvalRun", "load_eval_run", "TargetError", "target_errors",
-           "worst_targets", "image_index", "target_card", "image_card", "failure_cards", "eval_image_keys",
+           "worst_targets", "image_index", "target_card", "image_card", "failure_cards", "eval_images",
            "EVAL_LEGEND",
            "ERROR_COLUMNS"]
 
@@ -198,12 +198,13 @@ def _zoom(canvas: np.ndarray, pts_canvas: np.ndarray, size: int) -> np.ndarray:
     return cv2.resize(pad, (size, size), interpolation=cv2.INTER_LINEAR if size > n else cv2.INTER_AREA)
 
 
-def image_index(run: EvalRun, objects, keys: Sequence[tuple[int, int]]):
-    """``{(scene, im): (ref, estimates, match)}`` of the images ``keys``."""
+def image_index(run: EvalRun, objects, keys: Sequence[tuple[int, int]], refs: Sequence[ImageRef] | None = None):
+    """``{(scene, im): (ref, estimates, match)}`` of the images ``keys``; ``refs``: those images already read
+    (:func:`eval_images`), else they are read from the dataset."""
     want = set(keys)
-    scenes = sorted({s for s, _ in want})
-    refs = [r for r in select_images(run.dataset, run.split, scenes, None, objects.ids)
-            if (r.scene_id, r.im_id) in want]
+    if refs is None:
+        refs = select_images(run.dataset, run.split, sorted({s for s, _ in want}), None, objects.ids)
+    refs = [r for r in refs if (r.scene_id, r.im_id) in want]
     models = {o.obj_id: o for o in objects}
     return {(ref.scene_id, ref.im_id): (ref, ests, match)
             for ref, _, ests, match in image_matches(refs, run.estimates, models)}
@@ -295,11 +296,11 @@ def failure_cards(run: EvalRun, objects, limit: int, scale: int | None = None) -
     return cards
 
 
-def eval_image_keys(run: EvalRun, objects, sel: ImageSelection) -> list[tuple[int, int]]:
+def eval_images(run: EvalRun, objects, sel: ImageSelection) -> list[ImageRef]:
     """The images of ``sel`` (same rules as the dataset page) among the run's evaluated images."""
     done = {(e.scene_id, e.im_id) for e in run.errors}
     refs = select_show_images(run.dataset, ImageSelection(run.split, sel.scene, sel.image, 10 ** 9), objects.ids)
-    keys = [(r.scene_id, r.im_id) for r in refs if (r.scene_id, r.im_id) in done]
-    if not keys:
+    refs = [r for r in refs if (r.scene_id, r.im_id) in done]
+    if not refs:
         raise ConfigError(f"{run.run_dir}: the run scored none of the selected images")
-    return keys[:sel.count]
+    return refs[:sel.count]

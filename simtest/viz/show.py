@@ -107,8 +107,9 @@ def _eval_cards(path: Path, opts: ShowOptions) -> list[np.ndarray]:
         targets = eval_page.worst_targets(run, opts.worst, opts.by)
         index = eval_page.image_index(run, objects, [(t.scene_id, t.im_id) for t in targets])
         return [head, *(eval_page.target_card(run, objects, t, index, opts.scale) for t in targets)]
-    keys = eval_page.eval_image_keys(run, objects, opts.selection)
-    index = eval_page.image_index(run, objects, keys)
+    refs = eval_page.eval_images(run, objects, opts.selection)
+    keys = [(r.scene_id, r.im_id) for r in refs]
+    index = eval_page.image_index(run, objects, keys, refs)
     return [head, *(eval_page.image_card(run, objects, k, index, opts.scale) for k in keys)]
 
 
