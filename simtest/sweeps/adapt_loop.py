@@ -12,8 +12,8 @@ the images and CPU minutes per arm, and whether adapted beat the control on the 
 more than the control's interval without losing more than it on clean images.
 
 The networks trained here: ``segicp``'s segmentation network and ``keypoints``' crop network (its detector is
-kept); other estimators are refused with the list. Both arms start from the checkpoint the sweep's estimator ran
-with (its ``checkpoint`` option), else the train config's ``init``, else the shipped one.
+kept); other estimators are refused with the list. Both arms start from the train config's ``init``, else the
+checkpoint the sweep's estimator ran with (its ``checkpoint`` option, else the shipped one it chose).
 This is an orchestration module: generation, training and evaluation are imported lazily.
 """
 
@@ -33,7 +33,7 @@ from simtest.metrics.intervals import wilson_interval
 from simtest.schema import bounds, build, read_config_file
 from simtest.sweeps import cells
 from simtest.sweeps.adapt import AdaptFit
-from simtest.sweeps.adapt_targets import TargetResult, read_targets
+from simtest.sweeps.adapt_targets import TargetResult, cell_dataset, read_targets
 
 __all__ = ["LoopTrainConfig", "load_train_config", "run_loop", "condition_scores", "TRAINABLE", "ARMS"]
 
@@ -102,9 +102,19 @@ def _sweep_settings(sweep: Path, estimator: str) -> tuple[Any, Any]:
     return cfg, entry
 
 
-def _init_checkpoint(train: LoopTrainConfig, entry: Any) -> tuple[str, dict]:
-    """The checkpoint both arms start from (``init``, else the sweep entry's ``checkpoint`` option, else the
-    shipped network of the estimator) and its recorded training settings."""
+def _first_cell_dataset(sweep: Path, name: str) -> Path:
+    """The dataset of the first finished pose cell of ``name`` in the sweep."""
+    for cdir in sorted((sweep / "cells" / name).iterdir()):
+        pose = cells.cell_dir(sweep, name, cdir.name, "pose")
+        if cells.is_finished(pose):
+            return cell_dataset(sweep, cdir.name, json.loads((pose / "cell.json").read_text()))
+    raise ConfigError(f"estimator {name!r} has no finished pose cell in {str(sweep)!r}")
+
+
+def _init_checkpoint(train: LoopTrainConfig, entry: Any, sweep: Path, name: str) -> tuple[str, dict]:
+    """The checkpoint both arms start from and its recorded training settings: ``init``, else the sweep
+    entry's ``checkpoint`` option, else the shipped network the estimator ran with (keypoints: the one chosen
+    for the sweep's objects; segicp: its shipped one)."""
     import torch
 
     if train.init is not None:
@@ -112,8 +122,12 @@ def _init_checkpoint(train: LoopTrainConfig, entry: Any) -> tuple[str, dict]:
     elif dict(entry.options).get("checkpoint"):
         path = str(dict(entry.options)["checkpoint"])
     elif entry.estimator == "keypoints":
-        from simtest.estimators.keypoints.crop_infer import default_checkpoint
-        path = str(default_checkpoint())
+        from simtest.estimators.keypoints.crop_infer import CROP_FORMAT
+        from simtest.estimators.shipped import choose
+        from simtest.objects.loaders import load_dataset_objects
+
+        objects = load_dataset_objects(_first_cell_dataset(sweep, name))
+        path = str(choose("keypoints", CROP_FORMAT, objects, what="adapt --loop (keypoints)").path)
     else:
         from simtest.estimators.segicp.infer import default_checkpoint
         path = str(default_checkpoint())
@@ -162,10 +176,11 @@ def _train_keypoints(train: LoopTrainConfig, init: str, settings: dict, data: tu
     return train_keypoints(cfg, progress=progress, log=lambda _msg: None).model_path
 
 
-def _train_arm(train: LoopTrainConfig, entry: Any, data: Path, out: Path, progress: bool) -> Path:
-    """Continue training the estimator's network from the init checkpoint on the original data and ``data``;
-    the new ``model.pt``."""
-    init, settings = _init_checkpoint(train, entry)
+def _train_arm(train: LoopTrainConfig, entry: Any, init: tuple[str, dict], data: Path, out: Path,
+               progress: bool) -> Path:
+    """Continue training the estimator's network from the ``init`` checkpoint (path, recorded settings) on the
+    original data and ``data``; the new ``model.pt``."""
+    init, settings = init
     trainer = _train_keypoints if entry.estimator == "keypoints" else _train_segmentation
     return trainer(train, init, settings, tuple(train.data) + (str(data),), out, progress)
 
@@ -179,8 +194,7 @@ def _evaluate_arm(sweep_cfg: Any, sweep: Path, entry: Any, name: str, checkpoint
         before = cells.cell_dir(sweep, name, cdir.name, "pose")
         if not cells.is_finished(before):
             continue
-        recorded = json.loads((before / "cell.json").read_text())
-        data = sweep / "data" / cdir.name if (sweep / "data" / cdir.name).is_dir() else Path(recorded["dataset"])
+        data = cell_dataset(sweep, cdir.name, json.loads((before / "cell.json").read_text()))
         target = cells.cell_dir(out, name, cdir.name, "pose")
         rep = evaluate(data, entry.estimator, split=sweep_cfg.dataset.split, max_images=sweep_cfg.dataset.max_images,
                        progress=False, out_dir=target, vsd=sweep_cfg.vsd,
@@ -191,8 +205,8 @@ def _evaluate_arm(sweep_cfg: Any, sweep: Path, entry: Any, name: str, checkpoint
     atomic_write_json(out / "sweep_config.json", json.loads((sweep / "sweep_config.json").read_text()))
 
 
-def _run_arm(fit: AdaptFit, arm: str, train: LoopTrainConfig, sweep_cfg: Any, entry: Any, progress: bool
-             ) -> dict[str, Any]:
+def _run_arm(fit: AdaptFit, arm: str, train: LoopTrainConfig, init: tuple[str, dict], sweep_cfg: Any, entry: Any,
+             progress: bool) -> dict[str, Any]:
     """Generate, train and evaluate one arm; its scores, images and CPU minutes per step."""
     from simtest.generators.config import load_config
     from simtest.generators.pipeline import generate
@@ -210,7 +224,7 @@ def _run_arm(fit: AdaptFit, arm: str, train: LoopTrainConfig, sweep_cfg: Any, en
 
     rep = timed("generate", lambda: generate(cfg, out / "data" / arm, overwrite=True, progress=progress,
                                              command_line=[]))
-    model = timed("train", lambda: _train_arm(train, entry, out / "data" / arm, out / "train" / arm,
+    model = timed("train", lambda: _train_arm(train, entry, init, out / "data" / arm, out / "train" / arm,
                                               progress))
     timed("evaluate", lambda: _evaluate_arm(sweep_cfg, sweep, entry, fit.estimator, model, out / "sweeps" / arm))
     images = cfg.scenes * cfg.frames_per_scene
@@ -292,9 +306,10 @@ def run_loop(fit: AdaptFit, train: LoopTrainConfig, *, progress: bool = False) -
     meta = json.loads((fit.out / "fit.json").read_text())
     sweep = Path(meta["sweep"])
     sweep_cfg, entry = _sweep_settings(sweep, fit.estimator)
-    init, _ = _init_checkpoint(train, entry)
+    start = _init_checkpoint(train, entry, sweep, fit.estimator)
+    init = start[0]
     t0 = time.perf_counter()
-    arms = {arm: _run_arm(fit, arm, train, sweep_cfg, entry, progress) for arm in ARMS}
+    arms = {arm: _run_arm(fit, arm, train, start, sweep_cfg, entry, progress) for arm in ARMS}
     before = condition_scores(read_targets(sweep, fit.estimator))
     result = {"sweep": str(sweep), "estimator": fit.estimator, "images": meta["images"], "seed": meta["seed"],
               "init": init, "train": asdict(train), "before": before, "arms": arms,

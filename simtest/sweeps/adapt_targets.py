@@ -22,7 +22,7 @@ from simtest.io.bop_splits import dataset_split_dir
 from simtest.io.files import read_csv
 from simtest.sweeps.cells import cell_dir
 
-__all__ = ["TargetResult", "view_factors", "read_targets", "sweep_estimators", "FAIL_THRESHOLD"]
+__all__ = ["TargetResult", "view_factors", "read_targets", "sweep_estimators", "cell_dataset", "FAIL_THRESHOLD"]
 
 #: A target fails when its ADD(-S) error exceeds this fraction of the object's diameter (or it is unmatched).
 FAIL_THRESHOLD = 0.1
@@ -95,7 +95,8 @@ class _Views:
         return view_factors(T_c.R, T_c.t, T_o.R, T_o.t)
 
 
-def _cell_dataset(sweep: Path, condition: str, cell: dict) -> Path:
+def cell_dataset(sweep: Path, condition: str, cell: dict) -> Path:
+    """The dataset a pose cell ran on: the sweep's own ``data/<condition>`` folder, else the recorded one."""
     local = sweep / "data" / condition
     if local.is_dir():
         return local
@@ -125,7 +126,7 @@ def read_targets(sweep_dir: str | Path, estimator: str) -> list[TargetResult]:
         pose = cell_dir(sweep, estimator, cdir.name, "pose")
         if not (pose / "cell.json").is_file() or not (pose / "errors.csv").is_file():
             continue
-        data = _cell_dataset(sweep, cdir.name, json.loads((pose / "cell.json").read_text()))
+        data = cell_dataset(sweep, cdir.name, json.loads((pose / "cell.json").read_text()))
         v = views.setdefault(data, _Views(data, split))
         for row in read_csv(pose / "errors.csv"):
             d, el, ip = v.factors(int(row["scene_id"]), int(row["im_id"]), int(row["gt_id"]))
