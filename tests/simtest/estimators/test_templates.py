@@ -213,3 +213,29 @@ def test_framing_search_frees_the_pose_from_a_loose_region(objects, cache, monke
     assert dz_f < 0.08 and px_f < 6.0 and dz_f < dz_p, (px_f, dz_f, px_p, dz_p)
     (again,) = est.estimate(obs)
     assert np.array_equal(again.t, framed.t) and np.array_equal(again.R, framed.R)  # deterministic
+
+
+def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects, cache, monkeypatch):
+    """The last framing search against the final template alone starts where the first ended, so its match
+    is at least as good and the depth stays close; ``depth_scale`` multiplies the matched translation exactly
+    (the object keeps its pixel), and the rest of the pose is unchanged."""
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    obj = objects.by_name("mug_0")
+    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    loose = cv2.dilate(np.roll(mask, (14, -10), axis=(0, 1)).astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
+    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                      target_obj_ids=(obj.obj_id,), masks=(loose,))
+    est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none", framing=True,
+                            polish=0.02)
+    (polished,) = est.estimate(obs)
+    assert polished.info["polish_crops"] > 8 and polished.info["match_polish"] >= polished.info["match"]
+    assert abs(polished.t[2] / t[2] - 1.0) < 0.08
+    est.depth_scale = 0.98
+    (scaled,) = est.estimate(obs)
+    assert np.allclose(scaled.t, 0.98 * polished.t, rtol=1e-12, atol=0.0) and np.array_equal(scaled.R, polished.R)
+    with pytest.raises(ConfigError, match="depth_scale"):
+        TemplateEstimator(depth_scale=3.0)
+    with pytest.raises(ConfigError, match="polish"):
+        TemplateEstimator(polish=0.7)
