@@ -12,6 +12,7 @@ and to score; the search itself sees only the image. Run from the repository roo
     python docs/sim2real_depth.py LMO --images 20                  # real frames
     python docs/sim2real_depth.py data/lmo-val --images 20         # simtest renders of the same objects
     python docs/sim2real_depth.py data/lmo-val --images 20 --blur 1.5   # the renders blurred (sigma, pixels)
+    python docs/sim2real_depth.py LMO --images 50 --background 128      # templates on grey, not black
 """
 
 from __future__ import annotations
@@ -39,11 +40,12 @@ from simtest.objects.loaders import load_dataset_objects  # noqa: E402
 FACTORS = (1.0, 1.005, 1.01, 1.015, 1.02)
 
 
-def measure(data: Path, images: int, size: int, blur: float, min_visib: float = 0.5) -> np.ndarray:
+def measure(data: Path, images: int, size: int, blur: float, background: int = 0, min_visib: float = 0.5
+            ) -> np.ndarray:
     """Rows ``(obj_id, depth ratio, translation error m, diameter m)`` over ``images`` images spread evenly
     through the dataset (see the module doc)."""
     objects = load_dataset_objects(data)
-    settings = BankSettings(size=int(size))
+    settings = BankSettings(size=int(size), background=int(background))
     encoder = FeatureEncoder(settings.stride, str(default_encoder()), 2)
     renderers: dict[int, ObjectRenderer] = {}
     refs = [(s, im, d) for s in scene_dirs(dataset_split_dir(data)) for im, d in sorted(bop.read_scene(s).items())]
@@ -80,8 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--images", type=int, default=20, help="images, spread evenly through the dataset")
     ap.add_argument("--size", type=int, default=128, help="crop size of the templates and queries (pixels)")
     ap.add_argument("--blur", type=float, default=0.0, help="Gaussian blur of the images first (sigma, pixels)")
+    ap.add_argument("--background", type=int, default=0, help="grey level behind the templates (0-255)")
     args = ap.parse_args(argv)
-    r = measure(args.data, args.images, args.size, args.blur)
+    r = measure(args.data, args.images, args.size, args.blur, args.background)
     if not len(r):
         print("no target with visib_fract >= 0.5")
         return 1

@@ -27,7 +27,7 @@ from simtest.estimators.templates.render import ObjectRenderer
 from simtest.estimators.templates.views import sphere_directions, view_rotation
 from simtest.objects.cache import cache_dir
 
-__all__ = ["BankSettings", "TemplateBank", "build_bank", "render_intrinsics", "render_templates", "load_or_build", "bank_path", "FORMAT"]
+__all__ = ["BankSettings", "TemplateBank", "build_bank", "render_intrinsics", "render_templates", "template_image", "load_or_build", "bank_path", "FORMAT"]
 
 #: Version of the bank file; a change of what a bank holds or how it is made bumps it.
 FORMAT = "simtest-templates/1"
@@ -39,7 +39,7 @@ class BankSettings:
     """How a bank is made: ``views`` lattice points of the whole sphere, kept at and above
     ``min_elevation_deg`` (degrees); crops of ``size`` pixels (a multiple of 32) with side ``margin`` times
     the object's box; features at ``stride`` pixels; the object at ``distance`` metres filling ``fill`` of a
-    256-pixel render."""
+    256-pixel render, on a ``background`` grey level."""
 
     views: int = 600
     min_elevation_deg: float = -20.0
@@ -48,10 +48,15 @@ class BankSettings:
     stride: int = 8
     distance: float = 1.0
     fill: float = 0.6
+    #: Grey level (0-255) behind the object in a template: 0 (black) hides the object's dark parts against it,
+    #: which a real background does not.
+    background: int = 0
 
     def check(self) -> None:
         if int(self.size) % 32 or int(self.size) < 32:
             raise ConfigError(f"templates: crop size must be a positive multiple of 32 pixels, got {self.size!r}")
+        if not 0 <= int(self.background) <= 255:
+            raise ConfigError(f"templates: background must be a grey level in 0-255, got {self.background!r}")
         if int(self.views) < 2 or not self.distance > 0 or not 0 < self.fill <= 1 or not self.margin >= 1:
             raise ConfigError(f"templates: need views >= 2, distance > 0, 0 < fill <= 1, margin >= 1, got "
                               f"{self.views!r}, {self.distance!r}, {self.fill!r}, {self.margin!r}")
@@ -85,8 +90,11 @@ def _appearance_hash(obj) -> str:
 
 def bank_path(obj, settings: BankSettings, folder: Path | None = None) -> Path:
     """The cache file of ``obj``'s bank with ``settings`` (in ``folder``, default ``<cache>/templates``)."""
-    key = json.dumps({"format": FORMAT, "mesh": obj.mesh_hash, "appearance": _appearance_hash(obj),
-                      **asdict(settings)}, sort_keys=True)
+    fields = asdict(settings)
+    if not fields["background"]:  # banks made before the setting existed keep their files
+        del fields["background"]
+    key = json.dumps({"format": FORMAT, "mesh": obj.mesh_hash, "appearance": _appearance_hash(obj), **fields},
+                     sort_keys=True)
     digest = hashlib.sha1(key.encode()).hexdigest()[:20]
     return (folder or cache_dir() / "templates") / f"{obj.name}_{digest}.npz"
 
@@ -98,6 +106,15 @@ def render_intrinsics(obj, settings: BankSettings) -> np.ndarray:
     return np.array([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]])
 
 
+def template_image(renderer: ObjectRenderer, R: np.ndarray, settings: BankSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The object of ``renderer`` at rotation ``R`` (model to camera), ``distance`` metres down the optical axis:
+    RGB (H, W, 3) uint8 on the ``background`` grey level, and its mask (H, W) bool."""
+    rgb, mask = renderer.render(R, np.array([0.0, 0.0, float(settings.distance)]))
+    if settings.background:
+        rgb[~mask] = int(settings.background)
+    return rgb, mask
+
+
 def render_templates(renderer: ObjectRenderer, rotations: np.ndarray, settings: BankSettings,
                      encoder: FeatureEncoder, directions: np.ndarray | None = None) -> TemplateBank:
     """Templates of the object of ``renderer`` (made with :func:`render_intrinsics`) at ``rotations`` (n, 3, 3),
@@ -107,7 +124,7 @@ def render_templates(renderer: ObjectRenderer, rotations: np.ndarray, settings: 
     crops, Rs, ts, Ks = [], [], [], []
     for R in rotations:
         t = np.array([0.0, 0.0, D])
-        rgb, mask = renderer.render(R, t)
+        rgb, mask = template_image(renderer, R, settings)
         crop = region_crop(rgb, mask, K_r, S, settings.margin)
         crops.append((crop.rgb, crop.mask))
         Rs.append(crop.R_virt @ R)

@@ -77,7 +77,7 @@ class TemplateEstimator:
         detector: A segmentation checkpoint for ``detect=rgb`` (None: every shipped one that knows the objects,
             pooled); several joined by ``+`` pool their candidate regions (each gives ``candidates`` per object; a region
             that overlaps an earlier one of the same object at IoU > :data:`SAME_REGION_IOU` is posed once).
-        views, min_elevation_deg, size, margin, stride: The bank's settings (:class:`BankSettings`).
+        views, min_elevation_deg, size, margin, stride, background: The bank's settings (:class:`BankSettings`).
         inplane_deg, inplane_range_deg: Roll angles tried per region: from ``-range`` to ``+range`` in steps of
             ``inplane_deg`` (degrees).
         query_mask: Weight the query's cells by its region mask too (:func:`match_scores`).
@@ -112,7 +112,7 @@ class TemplateEstimator:
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
-                 depth_scale: float = 1.0) -> None:
+                 depth_scale: float = 1.0, background: int = 0) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -126,7 +126,7 @@ class TemplateEstimator:
             raise ConfigError(f"templates: need inplane_deg > 0 and inplane_range_deg >= 0, got {inplane_deg!r}, "
                               f"{inplane_range_deg!r}")
         self.settings = BankSettings(views=int(views), min_elevation_deg=float(min_elevation_deg), size=int(size),
-                                     margin=float(margin), stride=int(stride))
+                                     margin=float(margin), stride=int(stride), background=int(background))
         self.settings.check()
         n = int(np.floor(float(inplane_range_deg) / float(inplane_deg) + 1e-9))
         self.inplane = np.radians(np.arange(-n, n + 1) * float(inplane_deg))

@@ -82,6 +82,32 @@ def test_bank_is_cached_and_reused(objects, cache):
     assert bank_path(obj, BankSettings(views=61, min_elevation_deg=0.0), cache) != path
 
 
+def test_template_background_is_a_setting_of_its_own(objects, cache):
+    """A grey background behind the template is drawn where the object is not (the object's own pixels are the
+    same render), is part of the bank's cache key, and the default black keeps the key banks had before."""
+    from dataclasses import asdict
+    import hashlib
+    import json
+
+    from simtest.estimators.templates.bank import FORMAT, RENDER_SIZE, _appearance_hash, render_intrinsics, \
+        template_image
+
+    obj = objects.by_name("mug_0")
+    black, grey = BankSettings(views=60), BankSettings(views=60, background=128)
+    old = {k: v for k, v in asdict(black).items() if k != "background"}
+    key = json.dumps({"format": FORMAT, "mesh": obj.mesh_hash, "appearance": _appearance_hash(obj), **old},
+                     sort_keys=True)
+    assert bank_path(obj, black, cache).name == f"{obj.name}_{hashlib.sha1(key.encode()).hexdigest()[:20]}.npz"
+    assert bank_path(obj, grey, cache) != bank_path(obj, black, cache)
+    R = view_rotation([0.3, -0.5, 0.8])
+    with ObjectRenderer(obj, render_intrinsics(obj, black), RENDER_SIZE, RENDER_SIZE) as renderer:
+        (b, mb), (g, mg) = template_image(renderer, R, black), template_image(renderer, R, grey)
+    assert np.array_equal(mb, mg) and mb.any() and not mb.all()
+    assert np.array_equal(b[mb], g[mb]) and b[~mb].max() == 0 and np.all(g[~mg] == 128)
+    with pytest.raises(ConfigError, match="background"):
+        BankSettings(background=300).check()
+
+
 @pytest.mark.parametrize("name", ["banana_0", "mug_0"])
 def test_clean_render_pose_from_templates(objects, cache, monkeypatch, name):
     """A clean render at a pose between the bank's views: rotation within 15 degrees, the centre
