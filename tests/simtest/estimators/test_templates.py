@@ -213,19 +213,25 @@ def test_pooled_detectors_pose_a_shared_region_once(small_dataset, cache, monkey
     assert counted > 0
 
 
+def _loose_region(objects) -> tuple[Observation, np.ndarray]:
+    """A mug rendered at 0.65 m, given as a region far larger than it and off its centre (a coarse detector's):
+    the observation and the true translation (metres)."""
+    obj = objects.by_name("mug_0")
+    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    loose = cv2.dilate(np.roll(mask, (14, -10), axis=(0, 1)).astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
+    return Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                       target_obj_ids=(obj.obj_id,), masks=(loose,)), t
+
+
 def test_framing_search_frees_the_pose_from_a_loose_region(objects, cache, monkeypatch):
     """A region far larger than the object and off its centre (a coarse detector's) puts the matched template's
     pose off in depth; the framing search moves and scales the window onto the object: the depth within 8 %
     and the centre within 6 pixels, closer than the region's own framing."""
     monkeypatch.setenv("SIMTEST_CACHE", str(cache))
-    obj = objects.by_name("mug_0")
     est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none")
-    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
-    with ObjectRenderer(obj, K, W, H) as renderer:
-        rgb, mask = renderer.render(R, t)
-    loose = cv2.dilate(np.roll(mask, (14, -10), axis=(0, 1)).astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
-    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
-                      target_obj_ids=(obj.obj_id,), masks=(loose,))
+    obs, t = _loose_region(objects)
     (plain,) = est.estimate(obs)
     est.framing = True
     (framed,) = est.estimate(obs)
@@ -246,13 +252,7 @@ def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects,
     is at least as good and the depth stays close; ``depth_scale`` multiplies the matched translation exactly
     (the object keeps its pixel), and the rest of the pose is unchanged."""
     monkeypatch.setenv("SIMTEST_CACHE", str(cache))
-    obj = objects.by_name("mug_0")
-    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
-    with ObjectRenderer(obj, K, W, H) as renderer:
-        rgb, mask = renderer.render(R, t)
-    loose = cv2.dilate(np.roll(mask, (14, -10), axis=(0, 1)).astype(np.uint8), np.ones((41, 41), np.uint8)) > 0
-    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
-                      target_obj_ids=(obj.obj_id,), masks=(loose,))
+    obs, t = _loose_region(objects)
     est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none", framing=True,
                             polish=0.02)
     (polished,) = est.estimate(obs)
