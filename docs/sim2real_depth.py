@@ -34,6 +34,7 @@ from simtest.estimators.templates.framing import framing_search  # noqa: E402
 from simtest.estimators.templates.match import template_pose, template_weights  # noqa: E402
 from simtest.estimators.templates.render import ObjectRenderer  # noqa: E402
 from simtest.io import bop  # noqa: E402
+from simtest.metrics.intervals import wilson_interval  # noqa: E402
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
 from simtest.objects.loaders import load_dataset_objects  # noqa: E402
 
@@ -93,8 +94,10 @@ def main(argv: list[str] | None = None) -> int:
           f" - {np.percentile(ratio, 75):.4f})")
     for k, f in enumerate(FACTORS):
         te = r[:, 2 + k]
-        print(f"translation / {f:.3f}: median error {1000 * np.median(te):.1f} mm, within 0.1 d "
-              f"{100 * np.mean(te < 0.1 * diam):.1f} %")
+        hits = int(np.sum(te < 0.1 * diam))
+        lo, hi = wilson_interval(hits, len(te))
+        print(f"translation / {f:.3f}: median error {1000 * np.median(te):.1f} mm, within 0.1 d {hits} of "
+              f"{len(te)} = {100 * hits / len(te):.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]")
     for o in np.unique(r[:, 0]):
         m = r[:, 0] == o
         print(f"  obj {int(o)}: {int(m.sum())} targets, depth ratio median {np.median(ratio[m]):.4f}")

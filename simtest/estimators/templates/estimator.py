@@ -96,7 +96,7 @@ class TemplateEstimator:
         polish: First aim step (a fraction of the window) of a last framing search against the final template
             alone (after the local search; 0: none), its size and roll steps in proportion (:mod:`.framing`),
             down to ``polish_min_shift``: finer than the first search, whose 600 templates make the score
-            step-wise.
+            step-wise. The polished match (one template's score) is then what ``select=match`` compares.
         depth_scale: The matched pose's translation is multiplied by it (moved along its viewing ray, so the
             object stays on the same pixels): a calibration of the depth the template match implies. With the
             exact rotation that depth lies a median 1.7 % too far on real LM-O frames and 0.4 % on renders
@@ -157,9 +157,9 @@ class TemplateEstimator:
         self.region_threshold = float(region_threshold)
         #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
         self.last_candidates: list[dict[str, Any]] = []
-        if not 0.0 <= float(polish) < 0.5 or not 0.0 < float(polish_min_shift) <= max(float(polish), 1.0):
-            raise ConfigError(f"templates: need 0 <= polish < 0.5 and polish_min_shift > 0, got {polish!r}, "
-                              f"{polish_min_shift!r}")
+        if not 0.0 <= float(polish) < 0.5 or not 0.0 < float(polish_min_shift) < 0.5:
+            raise ConfigError(f"templates: need polish and polish_min_shift in [0, 0.5) (fractions of the window; "
+                              f"polish_min_shift above 0), got {polish!r}, {polish_min_shift!r}")
         if not 0.5 <= float(depth_scale) <= 2.0:
             raise ConfigError(f"templates: depth_scale must lie in [0.5, 2], got {depth_scale!r}")
         #: Factor of the matched pose's translation (its depth along the viewing ray).
@@ -257,7 +257,6 @@ class TemplateEstimator:
     def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
               ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
         bank, weights = self.bank(obj)
-        bank_all = bank
         crops = [region_crop(rgb, mask, K, self.settings.size, self.settings.margin, a) for a in self.inplane]
         q = self.encoder.features(np.stack([c.rgb for c in crops]))
         qm = None
@@ -281,10 +280,9 @@ class TemplateEstimator:
                 self._renderer(obj), self.settings, self.encoder, query, query_mask, bank.R[j],
                 best, step_deg=self.local_deg)
             if found is not None:
-                bank, j, info["match_local"] = found, 0, best
+                bank, j, weights, info["match_local"] = found, 0, template_weights(found), best
         if self.polish > 0:
-            w_final = weights[j:j + 1] if bank is bank_all else template_weights(bank)[j:j + 1]
-            fr = framing_search(rgb, K, window_centre(crop, K), crop.window[2], roll, self.encoder, w_final,
+            fr = framing_search(rgb, K, window_centre(crop, K), crop.window[2], roll, self.encoder, weights[j:j + 1],
                                 self.settings.size, shift=self.polish, scale=1.5 * self.polish,
                                 roll_deg=100.0 * self.polish, min_shift=self.polish_min_shift)
             info.update(polish_crops=fr.crops, match_polish=fr.score, inplane_deg=float(np.degrees(fr.roll_rad)))

@@ -3,6 +3,10 @@ and poses of clean renders recovered from templates and frozen ImageNet features
 
 from __future__ import annotations
 
+import hashlib
+import json
+from dataclasses import asdict
+
 import cv2
 import numpy as np
 import pytest
@@ -10,7 +14,8 @@ import pytest
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation
 from simtest.estimators.templates import TemplateEstimator
-from simtest.estimators.templates.bank import BankSettings, bank_path, load_or_build
+from simtest.estimators.templates.bank import (FORMAT, RENDER_SIZE, BankSettings, _appearance_hash, bank_path,
+                                               load_or_build, render_intrinsics, template_image)
 from simtest.estimators.templates.crops import region_crop
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
@@ -85,13 +90,6 @@ def test_bank_is_cached_and_reused(objects, cache):
 def test_template_background_is_a_setting_of_its_own(objects, cache):
     """A grey background behind the template is drawn where the object is not (the object's own pixels are the
     same render), is part of the bank's cache key, and the default black keeps the key banks had before."""
-    from dataclasses import asdict
-    import hashlib
-    import json
-
-    from simtest.estimators.templates.bank import FORMAT, RENDER_SIZE, _appearance_hash, render_intrinsics, \
-        template_image
-
     obj = objects.by_name("mug_0")
     black, grey = BankSettings(views=60), BankSettings(views=60, background=128)
     old = {k: v for k, v in asdict(black).items() if k != "background"}
@@ -248,15 +246,18 @@ def test_framing_search_frees_the_pose_from_a_loose_region(objects, cache, monke
 
 
 def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects, cache, monkeypatch):
-    """The last framing search against the final template alone starts where the first ended, so its match
-    is at least as good and the depth stays close; ``depth_scale`` multiplies the matched translation exactly
+    """The last framing search against the final template alone (after the local search) starts where the
+    first ended, so its match is at least as good and the depth stays close; ``depth_scale`` multiplies the matched translation exactly
     (the object keeps its pixel), and the rest of the pose is unchanged."""
     monkeypatch.setenv("SIMTEST_CACHE", str(cache))
     obs, t = _loose_region(objects)
     est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none", framing=True,
-                            polish=0.02)
+                            local_deg=4.0, polish=0.02)
     (polished,) = est.estimate(obs)
-    assert polished.info["polish_crops"] > 8 and polished.info["match_polish"] >= polished.info["match"]
+    info = polished.info
+    assert "match_local" in info  # a local template was found, so the polish searched against it
+    # the polish starts from the final template's framing and only moves uphill
+    assert info["polish_crops"] > 8 and info["match_polish"] >= info.get("match_local", info["match"])
     assert abs(polished.t[2] / t[2] - 1.0) < 0.08
     est.depth_scale = 0.98
     (scaled,) = est.estimate(obs)
@@ -265,3 +266,5 @@ def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects,
         TemplateEstimator(depth_scale=3.0)
     with pytest.raises(ConfigError, match="polish"):
         TemplateEstimator(polish=0.7)
+    with pytest.raises(ConfigError, match="polish_min_shift"):
+        TemplateEstimator(polish=0.02, polish_min_shift=0.0)
