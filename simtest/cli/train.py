@@ -1,5 +1,5 @@
-"""``simtest train keypoints|segmentation``: train the keypoint pose estimator or the segmentation network of
-``segicp`` on a BOP dataset."""
+"""``simtest train keypoints|segmentation|outlines``: train the keypoint pose estimator, the segmentation network of
+``segicp`` or the template estimator's outline network on a BOP dataset."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from simtest.cli.common import add_no_progress_alias, common_parser, locks_outpu
 from simtest.errors import ConfigError
 
 #: Models this command can train.
-MODELS = ("keypoints", "segmentation")
+MODELS = ("keypoints", "segmentation", "outlines")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,8 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Train the confidence-based keypoint estimator (keypoints) or the segmentation network of "
                     "segicp (segmentation) on a BOP dataset. Writes OUT/last.pt after every epoch (resume with "
                     "--resume), OUT/best.pt (best validation score, with --val: ADD(-S)-0.1d for keypoints, mean "
-                    "IoU for segmentation), OUT/model.pt (final weights) and OUT/history.json. Evaluate with: "
-                    "simtest eval --estimator keypoints|segicp --opt checkpoint=OUT/model.pt --data TEST --out DIR.",
+                    "IoU for segmentation and outlines), OUT/model.pt (final weights) and OUT/history.json. Evaluate "
+                    "with: simtest eval --estimator keypoints|segicp --opt checkpoint=OUT/model.pt --data TEST --out "
+                    "DIR (outlines: --estimator templates --opt outline=OUT/model.onnx).",
     )
     p.add_argument("model", choices=MODELS, help="what to train")
     p.add_argument("--data", required=True, metavar="DATASET", action="append",
@@ -34,8 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--val-split", default=None, help="validation split folder (default: the dataset's only split)")
     p.add_argument("--val-images", type=int, metavar="N", help="validate on the first N images only")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder (checkpoints and history)")
-    p.add_argument("--epochs", type=int, help="epochs (default: 20 keypoints, 12 segmentation)")
-    p.add_argument("--batch-size", type=int, default=8, help="images per step (default: 8)")
+    p.add_argument("--epochs", type=int, help="epochs (default: 20 keypoints, 12 segmentation, 3 outlines)")
+    p.add_argument("--batch-size", type=int, help="images (outlines: crops) per step (default: 8; outlines 32)")
     p.add_argument("--lr", type=float, help="peak learning rate (default: 2e-3 keypoints, 3e-3 segmentation)")
     p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
                    help="on-the-fly augmentation: occlusion, weather, depth, color (photometric jitter), or none (default: occlusion,weather; "
@@ -74,7 +75,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--augment-p", type=float, metavar="P",
                    help="probability that a training sample is corrupted at all (default: 0.8 keypoints, "
                         "0.5 segmentation)")
-    p.add_argument("--max-images", type=int, metavar="N", help="segmentation: train on the first N images only")
+    p.add_argument("--max-images", type=int, metavar="N", help="segmentation and outlines: train on the first N images (outlines: of each dataset) only")
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--init", metavar="CHECKPOINT",
@@ -131,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
         import torch  # noqa: F401
     except ImportError:
         raise ConfigError("simtest train needs PyTorch; install it with: pip install 'simtest[train]'") from None
+    if args.model == "outlines":
+        return _run_outlines(args)
     augment = tuple(a.strip() for a in args.augment.split(",") if a.strip() and a.strip() != "none")
     from simtest.data import augmentation
 
@@ -141,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     data = args.data[0] if len(args.data) == 1 else tuple(args.data)
     common = dict(data=data, data_weights=weights, out=args.out, split=args.split, val=args.val,
                   val_split=args.val_split,
-                  val_images=args.val_images, batch_size=args.batch_size, augment=augment, device=args.device,
+                  val_images=args.val_images, batch_size=args.batch_size or 8, augment=augment, device=args.device,
                   seed=args.seed, crop=parse_crop(args.crop), threads=args.threads,
                   freeze_encoder_bn=bool(args.freeze_encoder_bn),
                   **_given(args, encoder_lr_scale="encoder_lr_scale", epochs="epochs", lr="lr", workers="workers", augment_p="augment_p"))
@@ -176,4 +179,23 @@ def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
     if res.best_path is not None:
         best = max(res.history, key=lambda h: h.get("val_miou", -1.0))
         print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val mIoU {100 * best['val_miou']:.1f} %)")
+    return 0
+
+
+def _run_outlines(args: argparse.Namespace) -> int:
+    """``simtest train outlines``: the template estimator's outline network (its own crops and camera changes:
+    ``--augment``, ``--crop`` and the network options do not apply)."""
+    from simtest.training.outlines import OutlineTrainConfig, train_outlines
+
+    cfg = OutlineTrainConfig(data=args.data[0] if len(args.data) == 1 else tuple(args.data), out=args.out,
+                             split=args.split, val=args.val, val_split=args.val_split, val_images=args.val_images,
+                             max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
+                             **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size"))
+    res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
+    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
+    print(f"model: {res.model_path}")
+    if res.best_path is not None:
+        best = max(res.history, key=lambda h: h.get("val_iou", -1.0))
+        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val mask IoU {100 * best['val_iou']:.1f} %, "
+              f"the priors' {100 * best['val_prior_iou']:.1f} %)")
     return 0

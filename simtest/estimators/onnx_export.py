@@ -11,7 +11,9 @@ inputs and outputs:
 * keypoint crops (``simtest-keypoints/2``): ``input`` (N, 3, S, S) crops -> ``fg`` (N, C, S/4, S/4) mask logits,
   ``kp`` (N, C 3 J, S/4, S/4) per-class offsets and confidence logits and, for a dense network, ``xyz``
   (N, 4 C, S/4, S/4) object coordinates and their confidence logits
-  (:class:`simtest.estimators.keypoints.crop_model.CropKeypointNet`).
+  (:class:`simtest.estimators.keypoints.crop_model.CropKeypointNet`);
+* outlines (``simtest-outline/1``): ``input`` (N, 4, S, S) crops (RGB in [0, 1], then the pose's silhouette)
+  -> ``logits`` (N, 1, S, S) visible-mask logits (:class:`simtest.estimators.templates.mask_model.MaskNet`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ __all__ = ["export_checkpoint", "OPSET", "INSTALL_HINT"]
 
 OPSET = 18
 INSTALL_HINT = "pip install 'simtest[train]' (torch, onnx, onnxscript)"
-_FORMATS = ("simtest-segmentation/1", "simtest-keypoints/1", "simtest-keypoints/2")
+_FORMATS = ("simtest-segmentation/1", "simtest-keypoints/1", "simtest-keypoints/2", "simtest-outline/1")
 
 
 def _network(ckpt: dict[str, Any]):
@@ -46,6 +48,13 @@ def _network(ckpt: dict[str, Any]):
         cin = 4 if net.cfg.depth_input else 3
         h = 240 if net.cfg.backbone == "plain" else 256  # the EfficientNet encoder's sizes are multiples of 32
         return net.eval(), torch.rand(2, cin, h, 320, generator=torch.Generator().manual_seed(0)), ["logits"]
+    if ckpt["format"] == "simtest-outline/1":
+        from simtest.estimators.templates.mask_model import MaskNet, MaskNetConfig
+
+        mask_net = MaskNet(MaskNetConfig.from_dict(ckpt["net"]))
+        mask_net.load_state_dict(ckpt["model"])
+        S = int(mask_net.cfg.crop_size)
+        return mask_net.eval(), torch.rand(2, 4, S, S, generator=torch.Generator().manual_seed(0)), ["logits"]
     from simtest.estimators.keypoints.model import KeypointNet, NetConfig
 
     class _Tuple(torch.nn.Module):  # the exporter wants a tuple of outputs, the net returns a dict
@@ -107,9 +116,11 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path | None = None, ove
             if "not a" not in str(exc):
                 raise
     if fmt is None:
-        raise ConfigError(f"{checkpoint}: not a segmentation or keypoint checkpoint of simtest train")
+        raise ConfigError(f"{checkpoint}: not a segmentation, keypoint or outline checkpoint of simtest train")
     net, example, names = _network(ckpt)
     dims = {0: Dim("batch", min=1, max=64), 2: Dim("height", min=16, max=4096), 3: Dim("width", min=16, max=4096)}
+    if fmt == "simtest-outline/1":  # crops of the network's one size
+        dims = {0: Dim("batch", min=1, max=64)}
     quiet = logging.getLogger("torch.onnx")
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # "torchvision is not installed. Skipping ..." per export

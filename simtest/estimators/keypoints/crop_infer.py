@@ -173,6 +173,9 @@ class CropKeypointEstimator:
             ``detect=rgb`` not fitted to the detector's coarse region). None: what
             the shipped set found for the objects prefers (:func:`simtest.estimators.shipped.pose_stage`:
             ``templates`` for LM-O), else ``network``.
+        outline: ``pose=templates`` with ``detect=rgb``: the outline network that fits each kept pose to the
+            object's visible mask (:mod:`simtest.estimators.templates.outline`); None: the shipped one trained
+            for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit.
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class
             probability first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md):
             the detector's region holds the object for 44.9 % of 761 real targets ranked by probability,
@@ -194,7 +197,7 @@ class CropKeypointEstimator:
                  dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int | None = None,
                  refine: str | None = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.15,
                  refine_coverage: float = 0.2, candidates: int | None = None, region_rank: str = "prob",
-                 pose: str | None = None, *, model: Any = None,
+                 pose: str | None = None, outline: str | bool | None = None, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS)):
@@ -244,7 +247,7 @@ class CropKeypointEstimator:
         self.net = self.model = None
         self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
                          "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
-                         "candidates": candidates}
+                         "candidates": candidates, "outline": outline}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:
@@ -408,13 +411,17 @@ class CropKeypointEstimator:
             # local: the templates package imports this package's crop geometry
             from simtest.estimators.templates.estimator import TemplateEstimator
 
-            given = self._options["candidates"]
+            from simtest.estimators.templates.outline import shipped_outline
+
+            given, outline = self._options["candidates"], self._options["outline"]
+            if outline is None:
+                outline = shipped_outline(obs.objects) if self.detect == "rgb" else None
             self.templates = TemplateEstimator(
                 detect=self.detect, region_rank=self.region_rank, threads=self._options["threads"] or 1,
                 candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
                 framing=TEMPLATE_FRAMING and self.detect == "rgb",
-                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0)
+                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline)
             self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

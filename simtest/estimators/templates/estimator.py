@@ -23,6 +23,9 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
 7. With ``candidates`` > 1 (``detect=rgb``, target ids known) the detector's first ``candidates`` regions per
    expected instance are all posed, and per object the best (``select``: template match by default) are kept;
    every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
+8. With ``outline`` (an outline network, ``simtest train outlines``) every kept pose is fitted to the visible
+   mask that network draws from the crop with the pose's silhouette as its prior (:mod:`.outline`: depth and
+   image position, the depth by at most ``outline_max_scale``).
 
 On the 100 real LM-O frames (734 targets; docs/sim2real_templates.py) with ground-truth visible masks
 (``detect=gt``, a diagnostic) and the defaults: 50.5 % [46.9, 54.1] ADD(-S)-0.1d, median rotation error
@@ -43,13 +46,14 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.templates.bank import RENDER_SIZE, BankSettings, TemplateBank, load_or_build, render_intrinsics
-from simtest.estimators.templates.crops import region_crop, window_centre
+from simtest.estimators.templates.crops import region_crop, window_centre, window_crop
 from simtest.estimators.templates.edges import edge_distance, fit_edges
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
+from simtest.estimators.templates.outline import OutlineNet, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
@@ -101,6 +105,9 @@ class TemplateEstimator:
             object stays on the same pixels): a calibration of the depth the template match implies. With the
             exact rotation that depth lies a median 1.7 % too far on real LM-O frames and 0.4 % on renders
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
+        outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; None or False: none) that fits
+            every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
+            change of that fit.
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -112,7 +119,8 @@ class TemplateEstimator:
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
-                 depth_scale: float = 1.0, background: int = 0) -> None:
+                 depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
+                 outline_max_scale: float = 0.1) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -168,6 +176,11 @@ class TemplateEstimator:
         self.polish, self.polish_min_shift = float(polish), float(polish_min_shift)
         #: The distance transform of the current image's edges (``refine="edges"``), made at first use.
         self._edges: np.ndarray | None = None
+        if not 0.0 < float(outline_max_scale) < 1.0:
+            raise ConfigError(f"templates: outline_max_scale must lie in (0, 1), got {outline_max_scale!r}")
+        #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
+        self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)
+        self.outline_max_scale = float(outline_max_scale)
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -217,13 +230,23 @@ class TemplateEstimator:
         K = np.asarray(obs.K, np.float64)
         regions = self._regions(obs)
         if self.candidates > 1 and self.detect == "rgb" and obs.target_obj_ids is not None:
-            return self._estimate_candidates(obs, regions, K)
+            return self._outlined(obs, self._estimate_candidates(obs, regions, K), K)
         out = []
         for n, (k, oid, mask, dscore) in enumerate(regions):
             obj = obs.objects.get(oid)
             others = [r[2] for j, r in enumerate(regions) if j != n]
             R, t, score, info = self._pose(obj, np.asarray(obs.rgb), mask, K, others)
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
+        return self._outlined(obs, out, K)
+
+    def _outlined(self, obs: Observation, found: list[PoseEstimate], K: np.ndarray) -> list[PoseEstimate]:
+        """``found`` with every pose fitted to the outline network's mask (step 8; unchanged without one)."""
+        if self.outline is None:
+            return found
+        rgb, out = np.asarray(obs.rgb), []
+        for e in found:
+            fit = outline_fit(self.outline, obs.objects.get(e.obj_id), rgb, K, e.R, e.t, self.outline_max_scale)
+            out.append(replace(e, R=fit.R, t=fit.t, info={**e.info, "outline": fit.info()}))
         return out
 
     def _estimate_candidates(self, obs: Observation, regions: list[tuple[int | None, int, np.ndarray, float]],
@@ -291,6 +314,8 @@ class TemplateEstimator:
         t = t * self.depth_scale
         info["t_matched"] = t.tolist()
         if self.refine == "silhouette":
+            if not crop.mask.any():  # a searched framing's crop carries no region: look at it through that crop
+                crop = window_crop(rgb, K, crop.R_virt, crop.window, self.settings.size, mask)
             R, t, info["silhouette"] = self._refine(obj, R, t, crop, K, rgb.shape[:2], others)
         elif self.refine == "edges":
             if self._edges is None:  # one distance transform per image

@@ -62,6 +62,11 @@ def test_the_lmo_models_get_the_lmo_networks():
     # every shipped LM-O detector is loaded; template matching (LM-O's pose stage) pools their regions
     assert [Path(s.checkpoint).name for s in est.more_segmenters] == ["keypoints_detector_lmo_640x480.clutter.onnx"]
     assert est.class_ids == objects.ids
+    # and the outline network that fits the kept poses (templates, docs/sim2real.md, eighth round)
+    from simtest.estimators.templates.outline import shipped_outline
+
+    assert Path(shipped_outline(objects)).name == "templates_outline_lmo_640x480.onnx"
+    assert shipped_outline(load_object_set("builtin-small")) is None
 
 
 def test_a_variant_is_a_second_network_of_its_set_and_comes_after_the_first(tmp_path):

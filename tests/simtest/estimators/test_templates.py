@@ -268,3 +268,21 @@ def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects,
         TemplateEstimator(polish=0.7)
     with pytest.raises(ConfigError, match="polish_min_shift"):
         TemplateEstimator(polish=0.02, polish_min_shift=0.0)
+
+
+def test_silhouette_fit_runs_after_the_framing_search(objects, cache, monkeypatch):
+    """The framing search's crop carries no region, so the silhouette fit looks at the searched framing through a
+    crop that carries the region's mask: with the exact mask the fit runs, its outline agrees with the mask at
+    least as well as the matched one, and the depth ends within 3 %."""
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    obj = objects.by_name("mug_0")
+    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                      target_obj_ids=(obj.obj_id,), masks=(mask,))
+    est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="silhouette", framing=True)
+    (e,) = est.estimate(obs)
+    fit = e.info["silhouette"]
+    assert fit["iou_before"] > 0.5 and fit["iou_after"] >= fit["iou_before"], fit
+    assert abs(e.t[2] / t[2] - 1.0) < 0.03, (e.t, t)

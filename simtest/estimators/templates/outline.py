@@ -1,0 +1,131 @@
+"""The outline stage of the template estimator: a found pose's silhouette, moved onto the object's visible pixels
+by the outline network (:mod:`.mask_model`, trained by ``simtest train outlines``), and the pose's translation
+fitted to that mask.
+
+:func:`outline_fit` looks at the pose through the crop the templates use (the pose's own silhouette framed with
+margin 1.2), asks the network for the visible mask with the silhouette as its prior, and moves the object
+along its viewing ray and across the image (depth by at most ``max_scale``) until its silhouette agrees with
+that mask best (:func:`simtest.estimators.silhouette.fit_translation`); the rotation stays. Inference runs
+through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through torch from a ``.pt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simtest.errors import ConfigError
+from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
+from simtest.estimators.templates.crops import region_crop
+from simtest.render.silhouette import object_silhouette
+
+__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "shipped_outline", "MARGIN", "MIN_SILHOUETTE_PX"]
+
+#: The ``format`` entry of outline-network checkpoints and ONNX files.
+FORMAT = "simtest-outline/1"
+#: Margin of the crop around the pose's silhouette (as the templates are cropped).
+MARGIN = 1.2
+#: A pose whose silhouette covers fewer image pixels is left as it is.
+MIN_SILHOUETTE_PX = 50
+
+
+class OutlineNet:
+    """An outline network from its checkpoint (``.pt``) or ONNX file.
+
+    Args:
+        path: ``model.onnx`` / ``model.pt`` of ``simtest train outlines`` (or a shipped file).
+        runtime: ``auto``, ``onnx`` or ``torch`` (:func:`simtest.estimators.onnx_net.resolve_runtime`).
+        threads: ONNX Runtime threads (None: 1).
+
+    Raises:
+        ConfigError: A missing or unreadable file, or one of another format.
+    """
+
+    def __init__(self, path: str | Path, runtime: str = "auto", threads: int | None = None) -> None:
+        self.runtime, p = resolve_runtime(Path(path), runtime, "templates (outline network)")
+        self.path = str(p)
+        if self.runtime == "onnx":
+            self.net = OnnxNet(p, FORMAT, threads)
+            self.record, cfg = self.net.meta["objects"], self.net.meta["net"]
+        else:
+            import torch
+
+            from simtest.estimators.checkpoint import load_checkpoint
+            from simtest.estimators.templates.mask_model import MaskNet, MaskNetConfig
+
+            ckpt = load_checkpoint(p, fmt=FORMAT)
+            self.model = MaskNet(MaskNetConfig.from_dict(ckpt["net"]))
+            self.model.load_state_dict(ckpt["model"])
+            self.model.eval()
+            self.record, cfg = ckpt["objects"], ckpt["net"]
+            self._torch = torch
+        self.size = int(cfg["crop_size"])
+
+    def mask(self, crop_rgb: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """The visible mask (S, S) bool of a crop (S, S, 3) uint8 given the prior silhouette (S, S) bool."""
+        S = self.size
+        if crop_rgb.shape != (S, S, 3) or prior.shape != (S, S):
+            raise ConfigError(f"outline network: needs a ({S}, {S}, 3) crop and a ({S}, {S}) prior, got "
+                              f"{crop_rgb.shape} and {prior.shape}")
+        x = np.concatenate([crop_rgb.transpose(2, 0, 1).astype(np.float32) / np.float32(255.0),
+                            np.asarray(prior, np.float32)[None]], 0)[None]
+        if self.runtime == "onnx":
+            logits = self.net.run(x)[0]
+        else:
+            with self._torch.inference_mode():
+                logits = self.model(self._torch.from_numpy(x)).numpy()
+        return logits[0, 0] > 0
+
+
+@dataclass
+class OutlineFit:
+    """What :func:`outline_fit` did: the pose (model to camera, metres), whether the fit moved it, the IoU of the
+    silhouette with the network's mask before and after, and the depth ratio after / before."""
+
+    R: np.ndarray
+    t: np.ndarray
+    applied: bool
+    iou_before: float
+    iou_after: float
+    scale: float
+
+    def info(self) -> dict[str, Any]:
+        return {"applied": self.applied, "iou_before": self.iou_before, "iou_after": self.iou_after,
+                "scale": self.scale}
+
+
+def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                max_scale: float = 0.1) -> OutlineFit:
+    """The pose ``(R, t)`` of ``obj`` in image ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` refined by the
+    outline network's mask (see the module doc); ``max_scale`` bounds the depth change ``|s - 1|``."""
+    from simtest.estimators.silhouette import fit_translation
+
+    R, t, K = np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3), np.asarray(K, np.float64)
+    H, W = rgb.shape[:2]
+    sil = object_silhouette(obj, R, t, K, W, H) if t[2] > 0 else np.zeros((H, W), bool)
+    if int(sil.sum()) < MIN_SILHOUETTE_PX:
+        return OutlineFit(R, t, False, 0.0, 0.0, 1.0)
+    crop = region_crop(rgb, sil, K, net.size, MARGIN)
+    mask = net.mask(crop.rgb, crop.mask)
+    Rv = crop.R_virt
+    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale)
+    R2, t2 = Rv.T @ fit.R, Rv.T @ fit.t
+    return OutlineFit(R2, t2, bool(fit.applied), float(fit.iou_before), float(fit.iou_after), float(t2[2] / t[2]))
+
+
+#: The shipped outline networks' family (``weights/templates_outline_<set>_<W>x<H>.onnx``).
+FAMILY = "templates_outline"
+
+
+def shipped_outline(objects) -> str | None:
+    """The ONNX file of the shipped outline network trained for ``objects`` (compared by content: ids and
+    meshes; the dataset may hold more objects), or None when none was."""
+    from simtest.estimators.shipped import matches, shipped_nets
+
+    for net in shipped_nets(FAMILY, FORMAT):
+        if matches(net.record, objects, subset=True) is None:
+            return str(net.path.with_suffix(".onnx"))
+    return None

@@ -1,0 +1,119 @@
+"""The outline network: its samples (seeded crops of real generated frames, the prior near the visible mask), its
+trainer (resumable through the one loop), its ONNX file (the same masks as torch) and the pose fit it drives in
+the template estimator (real renders, real training, no mocks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from simtest.errors import ConfigError  # noqa: E402
+from simtest.estimators.base import Observation  # noqa: E402
+from simtest.estimators.templates.outline import OutlineNet, outline_fit, shipped_outline  # noqa: E402
+from simtest.objects import load_object_set  # noqa: E402
+from simtest.training.outlines import OutlineCrops, OutlineTrainConfig, _instances, train_outlines  # noqa: E402
+
+from tests.simtest.training.test_fit import _resume_equals_uninterrupted  # noqa: E402
+
+K = np.array([[572.4, 0.0, 325.3], [0.0, 573.6, 242.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def outline_run(small_dataset, tmp_path_factory):
+    """One epoch of the outline network on the small dataset (64-pixel crops): its model.pt and model.onnx."""
+    out = tmp_path_factory.mktemp("outlines") / "run"
+    res = train_outlines(OutlineTrainConfig(data=str(small_dataset), out=str(out), val=str(small_dataset),
+                                            val_images=2, epochs=1, batch_size=8, crop_size=64, seed=3, threads=1),
+                         progress=False, log=lambda s: None)
+    return res
+
+
+def test_samples_are_seeded_per_epoch_and_their_prior_lies_near_the_visible_mask(small_dataset):
+    instances = _instances([str(small_dataset)], None, 0.8, None)
+    assert instances
+    crops = OutlineCrops(instances, 64, seed=1, photometric=True)
+    first = [crops.arrays(i) for i in range(len(crops))]
+    again = crops.arrays(0)
+    assert all(np.array_equal(a, b) for a, b in zip(first[0], again))  # same seed, epoch and index
+    crops.set_epoch(1)
+    assert not np.array_equal(crops.arrays(0)[0], first[0][0])  # another epoch, another draw
+    ious = []
+    for crop, prior, visible in first:
+        assert crop.shape == (64, 64, 3) and crop.dtype == np.uint8
+        assert set(np.unique(prior)) <= {0, 1} and set(np.unique(visible)) <= {0, 1} and visible.any()
+        ious.append(np.count_nonzero(prior & visible) / np.count_nonzero(prior | visible))
+    # the prior is the object's silhouette a few percent off: mostly on the (mostly visible) object
+    assert np.mean(ious) > 0.6, ious
+    sample = crops[0]
+    assert sample["x"].shape == (4, 64, 64) and sample["y"].shape == (1, 64, 64)
+
+
+def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
+    _resume_equals_uninterrupted(train_outlines, OutlineTrainConfig, tmp_path, data=str(small_dataset), epochs=2,
+                                 batch_size=4, crop_size=32, max_images=2, seed=5, threads=1)
+
+
+def test_bad_settings_name_the_value():
+    with pytest.raises(ConfigError, match="crop_size"):
+        OutlineTrainConfig(data="x", out="y", crop_size=100)
+    with pytest.raises(ConfigError, match="frozen"):
+        OutlineTrainConfig(data="x", out="y", encoder_lr_scale=0.5)
+    with pytest.raises(ConfigError, match="min_visib"):
+        OutlineTrainConfig(data="x", out="y", min_visib=1.5)
+
+
+def test_the_onnx_file_draws_the_masks_torch_draws_and_the_fit_moves_the_pose_within_its_bound(outline_run):
+    assert outline_run.history[0]["val_prior_iou"] > 0.5 and 0.0 <= outline_run.history[0]["val_iou"] <= 1.0
+    onnx, pt = OutlineNet(outline_run.model_path.with_suffix(".onnx")), OutlineNet(outline_run.model_path, "torch")
+    assert onnx.runtime == "onnx" and pt.runtime == "torch" and onnx.size == pt.size == 64
+    rng = np.random.default_rng(0)
+    crop = rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    prior = np.zeros((64, 64), bool)
+    prior[16:48, 20:44] = True
+    a, b = onnx.mask(crop, prior), pt.mask(crop, prior)
+    assert np.mean(a == b) > 0.99
+    with pytest.raises(ConfigError, match="64"):
+        onnx.mask(crop[:32], prior)
+
+    from simtest.estimators.templates.render import ObjectRenderer
+    from simtest.estimators.templates.views import view_rotation
+
+    obj = load_object_set("builtin-small").by_name("mug_0")
+    R, t = view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, 640, 480) as renderer:
+        rgb, _ = renderer.render(R, t)
+    fit = outline_fit(onnx, obj, rgb, K, R, t, max_scale=0.1)
+    assert abs(fit.scale - 1.0) <= 0.1 + 1e-9 and np.allclose(fit.R, R, atol=1e-12)
+    assert set(fit.info()) == {"applied", "iou_before", "iou_after", "scale"}
+    behind = outline_fit(onnx, obj, rgb, K, R, -t)  # nothing of it in the image: left as it is
+    assert not behind.applied and np.array_equal(behind.t, -t)
+
+
+def test_the_template_estimator_fits_its_kept_poses_with_an_outline_network(outline_run, tmp_path, monkeypatch):
+    from simtest.estimators.templates import TemplateEstimator
+    from simtest.estimators.templates.render import ObjectRenderer
+    from simtest.estimators.templates.views import view_rotation
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
+    objects = load_object_set("builtin-small")
+    obj = objects.by_name("mug_0")
+    R, t = view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, 640, 480) as renderer:
+        rgb, mask = renderer.render(R, t)
+    obs = Observation(rgb=rgb, depth=None, K=K, width=640, height=480, objects=objects,
+                      target_obj_ids=(obj.obj_id,), masks=(mask,))
+    plain = TemplateEstimator(detect="gt", views=60, refine="none", outline="none")
+    fitted = TemplateEstimator(detect="gt", views=60, refine="none", outline=str(outline_run.model_path),
+                               outline_max_scale=0.05)
+    (a,), (b,) = plain.estimate(obs), fitted.estimate(obs)
+    assert plain.outline is None and "outline" not in a.info
+    assert b.info["outline"]["scale"] == pytest.approx(b.t[2] / a.t[2])
+    assert abs(b.t[2] / a.t[2] - 1.0) <= 0.05 + 1e-9 and np.allclose(a.R, b.R, atol=1e-12)
+    with pytest.raises(ConfigError, match="outline_max_scale"):
+        TemplateEstimator(outline_max_scale=1.5)
+
+
+def test_no_outline_network_is_shipped_for_builtin_small():
+    assert shipped_outline(load_object_set("builtin-small")) is None
