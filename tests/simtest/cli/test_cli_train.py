@@ -50,3 +50,18 @@ def test_train_segmentation_on_a_mixture(small_dataset, tmp_path):
                  "--quiet"]) == 0
     ck = torch.load(out / "model.pt", weights_only=True)
     assert ck["train"]["data_weights"] is None and len(ck["train"]["data"]) == 2
+
+
+def test_train_outlines_from_the_command_line(small_dataset, tmp_path, capsys):
+    """``simtest train outlines``: its own defaults (3 epochs, 32 crops a step) unless given, an ONNX file the
+    template estimator takes (``--opt outline=FILE``)."""
+    out = tmp_path / "outlines"
+    assert main(["train", "outlines", "--data", str(small_dataset), "--val", str(small_dataset), "--val-images", "1",
+                 "--out", str(out), "--epochs", "1", "--max-images", "2", "--threads", "1", "--quiet"]) == 0
+    ck = torch.load(out / "model.pt", weights_only=True)
+    assert ck["format"] == "simtest-outline/1" and ck["train"]["batch_size"] == 32 and ck["net"]["crop_size"] == 128
+    assert (out / "model.onnx").is_file() and "val mask IoU" in capsys.readouterr().out
+    from simtest.estimators import load_estimator
+
+    est = load_estimator("templates", outline=str(out / "model.onnx"))
+    assert est.outline is not None and est.outline.runtime == "onnx"
