@@ -59,6 +59,8 @@ class OutlineTrainConfig:
         min_visib: Smallest visible fraction of an instance that makes a sample.
         max_images: Train on the first N images of each dataset only (None: all).
         device, seed, workers, threads: As ``simtest train segmentation``.
+        augment_p: The share of samples given the camera's changes (blur, colour, noise; default all).
+        encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
     data: str | tuple[str, ...]
@@ -79,7 +81,6 @@ class OutlineTrainConfig:
     workers: int = 0
     threads: int | None = None
     augment_p: float = 1.0
-    #: The encoder is frozen (see :mod:`~simtest.estimators.templates.mask_model`); fit reads these two.
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -146,8 +147,10 @@ class OutlineCrops:
     """The samples of ``instances`` (see the module doc) as a map-style dataset: ``{"x": (4, S, S) float32,
     "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes."""
 
-    def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool) -> None:
+    def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
+                 augment_p: float = 1.0) -> None:
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
+        self.augment_p = float(augment_p)
         self.epoch = 0
         self._cameras: dict[str, dict] = {}
 
@@ -167,7 +170,7 @@ class OutlineCrops:
         rgb = bop.read_image(scene, im)
         crop, prior, visible = outline_sample(rgb, K, bop.read_mask(scene, im, g, visible=False),
                                               bop.read_mask(scene, im, g, visible=True), self.size, rng)
-        if self.photometric:
+        if self.photometric and (self.augment_p >= 1.0 or rng.random() < self.augment_p):  # no draw at 1
             crop = _photometric(crop, rng)
         return crop, prior, visible
 
@@ -224,7 +227,8 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
     record = object_record(objects)
     for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
         check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
-    train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True)
+    train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True,
+                         cfg.augment_p)
     if not len(train):
         raise ConfigError(f"outline training: no instance with visib_fract >= {cfg.min_visib} in {roots}")
     val = None

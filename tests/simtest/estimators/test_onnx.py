@@ -120,7 +120,7 @@ def test_a_stale_onnx_file_is_not_used_and_the_errors_name_the_fix(kp_run, tmp_p
     proc = subprocess.run([sys.executable, "-m", "simtest", "export", str(other), "--overwrite"], capture_output=True,
                           text=True)
     assert proc.returncode == 0 and KeypointEstimator(other).runtime == "onnx"
-    with pytest.raises(ConfigError, match="not a segmentation or keypoint checkpoint"):
+    with pytest.raises(ConfigError, match="not a segmentation, keypoint or outline checkpoint"):
         torch.save({"hello": 1}, tmp_path / "x.pt")
         export_checkpoint(tmp_path / "x.pt")
 
