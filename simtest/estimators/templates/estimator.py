@@ -24,8 +24,8 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
    expected instance are all posed, and per object the best (``select``: template match by default) are kept;
    every candidate of the last image is in :attr:`TemplateEstimator.last_candidates`.
 8. With ``outline`` (an outline network, ``simtest train outlines``) every kept pose is fitted to the visible
-   mask that network draws from the crop with the pose's silhouette as its prior (:mod:`.outline`: depth and
-   image position, the depth by at most ``outline_max_scale``).
+   mask that network draws from the crop with the pose's silhouette as its prior (:mod:`.outline`: depth,
+   image position and small turns from ``outline_deg``, the depth by at most ``outline_max_scale``).
 
 On the 100 real LM-O frames (734 targets; docs/sim2real_templates.py) with ground-truth visible masks
 (``detect=gt``, a diagnostic) and the defaults: 50.5 % [46.9, 54.1] ADD(-S)-0.1d, median rotation error
@@ -107,7 +107,8 @@ class TemplateEstimator:
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
         outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
-            change of that fit.
+            change of that fit; outline_deg: its first rotation step in degrees (0: the rotation stays; 2 chosen
+            on held-out renders, docs/sim2real.md, eighth round).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -120,7 +121,7 @@ class TemplateEstimator:
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
-                 outline_max_scale: float = 0.1) -> None:
+                 outline_max_scale: float = 0.1, outline_deg: float = 2.0) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -176,11 +177,12 @@ class TemplateEstimator:
         self.polish, self.polish_min_shift = float(polish), float(polish_min_shift)
         #: The distance transform of the current image's edges (``refine="edges"``), made at first use.
         self._edges: np.ndarray | None = None
-        if not 0.0 < float(outline_max_scale) < 1.0:
-            raise ConfigError(f"templates: outline_max_scale must lie in (0, 1), got {outline_max_scale!r}")
+        if not 0.0 < float(outline_max_scale) < 1.0 or not 0.0 <= float(outline_deg) <= 10.0:
+            raise ConfigError(f"templates: need outline_max_scale in (0, 1) and outline_deg in [0, 10] degrees, got "
+                              f"{outline_max_scale!r}, {outline_deg!r}")
         #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
         self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)
-        self.outline_max_scale = float(outline_max_scale)
+        self.outline_max_scale, self.outline_deg = float(outline_max_scale), float(outline_deg)
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -245,7 +247,8 @@ class TemplateEstimator:
             return found
         rgb, out = np.asarray(obs.rgb), []
         for e in found:
-            fit = outline_fit(self.outline, obs.objects.get(e.obj_id), rgb, K, e.R, e.t, self.outline_max_scale)
+            fit = outline_fit(self.outline, obs.objects.get(e.obj_id), rgb, K, e.R, e.t, self.outline_max_scale,
+                              self.outline_deg)
             out.append(replace(e, R=fit.R, t=fit.t, info={**e.info, "outline": fit.info()}))
         return out
 

@@ -98,9 +98,10 @@ class OutlineFit:
 
 
 def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                max_scale: float = 0.1) -> OutlineFit:
+                max_scale: float = 0.1, step_deg: float = 2.0) -> OutlineFit:
     """The pose ``(R, t)`` of ``obj`` in image ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` refined by the
-    outline network's mask (see the module doc); ``max_scale`` bounds the depth change ``|s - 1|``."""
+    outline network's mask (see the module doc); ``max_scale`` bounds the depth change ``|s - 1|``, ``step_deg``
+    is the first rotation step (degrees; 0: the rotation stays)."""
     from simtest.estimators.silhouette import fit_translation
 
     R, t, K = np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3), np.asarray(K, np.float64)
@@ -111,7 +112,8 @@ def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndar
     crop = region_crop(rgb, sil, K, net.size, MARGIN)
     mask = net.mask(crop.rgb, crop.mask)
     Rv = crop.R_virt
-    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale)
+    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale,
+                          step_deg=step_deg)
     R2, t2 = Rv.T @ fit.R, Rv.T @ fit.t
     return OutlineFit(R2, t2, bool(fit.applied), float(fit.iou_before), float(fit.iou_after), float(t2[2] / t[2]))
 
