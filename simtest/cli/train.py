@@ -158,12 +158,18 @@ def run(args: argparse.Namespace) -> int:
                       margin=args.margin, dense=args.dense, init=args.init, backbone=args.backbone,
                       **_given(args, hypotheses="hypotheses", xyz_weight="xyz_weight", kp_weight="kp_weight"), **common)
     res = train_keypoints(cfg, resume=args.resume, progress=not args.quiet)
-    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
+    return _report(res, cfg.epochs, "val_add_s_or_add_01d",
+                   lambda b: f"val ADD(-S)-0.1d {100 * b['val_add_s_or_add_01d']:.1f} %")
+
+
+def _report(res, epochs: int, score: str, describe) -> int:
+    """Print what a run produced: epochs, time, the model, and the best validated epoch (``describe`` of its
+    history record); 0 (the command's exit status)."""
+    print(f"finished epoch {len(res.history)}/{epochs}; this run took {res.seconds:.0f} s")
     print(f"model: {res.model_path}")
     if res.best_path is not None:
-        best = max(res.history, key=lambda h: h.get("val_add_s_or_add_01d", -1.0))
-        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val ADD(-S)-0.1d "
-              f"{100 * best['val_add_s_or_add_01d']:.1f} %)")
+        best = max(res.history, key=lambda h: h.get(score, -1.0))
+        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, {describe(best)})")
     return 0
 
 
@@ -174,12 +180,7 @@ def _run_segmentation(args: argparse.Namespace, common: dict) -> int:
     cfg = SegTrainConfig(depth_input=bool(args.depth_input), max_images=args.max_images, backbone=args.backbone,
                          init=args.init, **common)
     res = train_segmentation(cfg, resume=args.resume, progress=not args.quiet)
-    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
-    print(f"model: {res.model_path}")
-    if res.best_path is not None:
-        best = max(res.history, key=lambda h: h.get("val_miou", -1.0))
-        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val mIoU {100 * best['val_miou']:.1f} %)")
-    return 0
+    return _report(res, cfg.epochs, "val_miou", lambda b: f"val mIoU {100 * b['val_miou']:.1f} %")
 
 
 def _run_outlines(args: argparse.Namespace) -> int:
@@ -192,10 +193,5 @@ def _run_outlines(args: argparse.Namespace) -> int:
                              max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
                              **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size"))
     res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
-    print(f"finished epoch {len(res.history)}/{cfg.epochs}; this run took {res.seconds:.0f} s")
-    print(f"model: {res.model_path}")
-    if res.best_path is not None:
-        best = max(res.history, key=lambda h: h.get("val_iou", -1.0))
-        print(f"best:  {res.best_path} (epoch {best['epoch'] + 1}, val mask IoU {100 * best['val_iou']:.1f} %, "
-              f"the priors' {100 * best['val_prior_iou']:.1f} %)")
-    return 0
+    return _report(res, cfg.epochs, "val_iou", lambda b: f"val mask IoU {100 * b['val_iou']:.1f} %, the priors' "
+                                                         f"{100 * b['val_prior_iou']:.1f} %")
