@@ -32,7 +32,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.checkpoint import check_objects, object_record
-from simtest.estimators.templates.crops import region_crop, window_crop
+from simtest.estimators.templates.crops import mask_in_crop, region_crop, window_crop
 from simtest.estimators.templates.outline import FORMAT
 from simtest.io import bop
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs
@@ -135,7 +135,7 @@ def outline_sample(rgb: np.ndarray, K: np.ndarray, amodal: np.ndarray, visible: 
     x = x0 + 0.5 * (side - s) + rng.uniform(-0.06, 0.06) * side
     y = y0 + 0.5 * (side - s) + rng.uniform(-0.06, 0.06) * side
     crop = window_crop(rgb, K, c0.R_virt, (x, y, s, s), size, visible)
-    full = window_crop(rgb, K, c0.R_virt, (x, y, s, s), size, amodal).mask
+    full = mask_in_crop(amodal, K, crop)
     M = cv2.getRotationMatrix2D((size / 2, size / 2), float(rng.uniform(-6.0, 6.0)),
                                 float(np.exp(rng.uniform(-0.05, 0.05))))
     M[:, 2] += rng.uniform(-0.04, 0.04, 2) * size

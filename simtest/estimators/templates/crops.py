@@ -20,7 +20,8 @@ from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_
 from simtest.estimators.templates.views import inplane_rotation
 from simtest.errors import ConfigError
 
-__all__ = ["Crop", "ray_rotation", "region_crop", "window_crop", "aimed_crop", "window_centre", "MAX_BOX_POINTS"]
+__all__ = ["Crop", "ray_rotation", "region_crop", "window_crop", "aimed_crop", "window_centre", "mask_in_crop",
+           "MAX_BOX_POINTS"]
 
 #: Mask pixels used to find a region's box in the virtual camera (a deterministic subsample beyond this).
 MAX_BOX_POINTS = 4000
@@ -97,10 +98,20 @@ def window_crop(rgb: np.ndarray, K: np.ndarray, R_virt: np.ndarray, window, size
     K_crop = crop_intrinsics(K, window, S)[0]
     H = K_crop @ R_virt @ np.linalg.inv(K)
     out = cv2.warpPerspective(rgb, H, (S, S), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    m = (np.zeros((S, S), bool) if mask is None else
-         cv2.warpPerspective(np.asarray(mask, np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0)
-    valid = cv2.warpPerspective(np.ones(rgb.shape[:2], np.uint8), H, (S, S), flags=cv2.INTER_NEAREST) > 0
+    m = np.zeros((S, S), bool) if mask is None else _warp_mask(mask, H, S)
+    valid = _warp_mask(np.ones(rgb.shape[:2], np.uint8), H, S)
     return Crop(rgb=out, mask=m, valid=valid, K=K_crop, R_virt=R_virt, window=tuple(float(v) for v in window))
+
+
+def _warp_mask(mask: np.ndarray, H: np.ndarray, size: int) -> np.ndarray:
+    return cv2.warpPerspective(np.asarray(mask, np.uint8), H, (size, size), flags=cv2.INTER_NEAREST) > 0
+
+
+def mask_in_crop(mask: np.ndarray, K: np.ndarray, crop: Crop) -> np.ndarray:
+    """A mask (H, W) of the real image (intrinsics ``K``) as ``crop`` sees it: (S, S) bool, nearest pixel (the
+    warp :func:`window_crop` gives its own ``mask``)."""
+    S = int(crop.rgb.shape[0])
+    return _warp_mask(mask, crop.K @ crop.R_virt @ np.linalg.inv(np.asarray(K, np.float64)), S)
 
 
 def aimed_crop(rgb: np.ndarray, K: np.ndarray, uv, side: float, roll_rad: float, size: int) -> Crop:

@@ -46,7 +46,7 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 from simtest.estimators.templates.bank import RENDER_SIZE, BankSettings, TemplateBank, load_or_build, render_intrinsics
-from simtest.estimators.templates.crops import region_crop, window_centre, window_crop
+from simtest.estimators.templates.crops import mask_in_crop, region_crop, window_centre
 from simtest.estimators.templates.edges import edge_distance, fit_edges
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
@@ -317,8 +317,8 @@ class TemplateEstimator:
         t = t * self.depth_scale
         info["t_matched"] = t.tolist()
         if self.refine == "silhouette":
-            if not crop.mask.any():  # a searched framing's crop carries no region: look at it through that crop
-                crop = window_crop(rgb, K, crop.R_virt, crop.window, self.settings.size, mask)
+            if not crop.mask.any():  # a searched framing's crop carries no region: give it the region
+                crop = replace(crop, mask=mask_in_crop(mask, K, crop))
             R, t, info["silhouette"] = self._refine(obj, R, t, crop, K, rgb.shape[:2], others)
         elif self.refine == "edges":
             if self._edges is None:  # one distance transform per image
@@ -341,14 +341,12 @@ class TemplateEstimator:
         """The pose fitted to the region's mask in the crop's camera, the other regions' pixels not counted."""
         from simtest.estimators.silhouette import fit_translation
 
-        S = self.settings.size
         valid = crop.valid.copy()
         if others:
-            H = crop.K @ crop.R_virt @ np.linalg.inv(K)
             occ = np.zeros(shape, np.uint8)
             for m in others:
                 occ |= np.asarray(m, np.uint8)
-            valid &= ~(cv2.warpPerspective(occ, H, (S, S), flags=cv2.INTER_NEAREST) > 0)
+            valid &= ~mask_in_crop(occ, K, crop)
         Rv = crop.R_virt
         fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, crop.mask.astype(np.float64), valid,
                               max_scale=self.refine_max_scale, step_deg=self.refine_deg,

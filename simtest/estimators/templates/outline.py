@@ -114,8 +114,10 @@ def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndar
     Rv = crop.R_virt
     fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale,
                           step_deg=step_deg)
+    if not fit.applied:  # the fit kept the pose: give it back as it came
+        return OutlineFit(R, t, False, float(fit.iou_before), float(fit.iou_after), 1.0)
     R2, t2 = Rv.T @ fit.R, Rv.T @ fit.t
-    return OutlineFit(R2, t2, bool(fit.applied), float(fit.iou_before), float(fit.iou_after), float(t2[2] / t[2]))
+    return OutlineFit(R2, t2, True, float(fit.iou_before), float(fit.iou_after), float(t2[2] / t[2]))
 
 
 #: The shipped outline networks' family (``weights/templates_outline_<set>_<W>x<H>.onnx``).

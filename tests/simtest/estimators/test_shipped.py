@@ -37,6 +37,9 @@ def test_builtin_small_gets_its_network_and_other_sets_are_refused_with_reasons(
     msg = str(err.value)
     assert "no shipped network was trained for these objects" in msg
     assert "keypoints_builtin-small_320x240.onnx (builtin-small)" in msg and "Train one" in msg
+    from simtest.estimators.templates.outline import shipped_outline
+
+    assert shipped_outline(load_object_set("builtin-small")) is None  # no outline network for it: no outline fit
 
 
 def test_the_estimator_without_options_refuses_an_unknown_set_naming_the_shipped_ones():
@@ -66,7 +69,6 @@ def test_the_lmo_models_get_the_lmo_networks():
     from simtest.estimators.templates.outline import shipped_outline
 
     assert Path(shipped_outline(objects)).name == "templates_outline_lmo_640x480.onnx"
-    assert shipped_outline(load_object_set("builtin-small")) is None
 
 
 def test_a_variant_is_a_second_network_of_its_set_and_comes_after_the_first(tmp_path):

@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 
 from simtest.errors import ConfigError  # noqa: E402
 from simtest.estimators.base import Observation  # noqa: E402
-from simtest.estimators.templates.outline import OutlineNet, outline_fit, shipped_outline  # noqa: E402
+from simtest.estimators.templates.outline import OutlineNet, outline_fit  # noqa: E402
 from simtest.objects import load_object_set  # noqa: E402
 from simtest.training.outlines import OutlineCrops, OutlineTrainConfig, _instances, train_outlines  # noqa: E402
 
@@ -117,7 +117,3 @@ def test_the_template_estimator_fits_its_kept_poses_with_an_outline_network(outl
         TemplateEstimator(outline_max_scale=1.5)
     with pytest.raises(ConfigError, match="outline_deg"):
         TemplateEstimator(outline_deg=-1.0)
-
-
-def test_no_outline_network_is_shipped_for_builtin_small():
-    assert shipped_outline(load_object_set("builtin-small")) is None
