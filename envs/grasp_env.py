@@ -152,8 +152,9 @@ class PandaGraspEnv(gym.Env):
         object_units, object_scale: Units (``"m"``, ``"cm"``, ``"mm"``, ``"auto"``) and scale factor of mesh
             files in the object sets (see :func:`simtest.objects.load_object_set`).
         render_width, render_height: Third-person view size (default: the wrist camera size).
-        looks: The generator's looks on every scene (default; a dressed scene is compiled each reset, so the
-            model pool is not used), or False for the plain look of earlier releases (:mod:`simtest.envs.looks`).
+        looks: The generator's looks on every scene (default; written into the pool model's looks slots at
+            each reset, :mod:`simtest.envs.looks_slots`), or False for the plain look of earlier releases
+            (:mod:`simtest.envs.looks`).
         **episode: Default reset options (:data:`~simtest.envs.options.RESET_OPTIONS`): ``objects``
             (``"builtin"``), ``target`` (None: a random graspable object), ``n_distractors`` (2), ``occlusion``
             (``"L0"``), ``placement`` (``"upright"``), ``start`` (``"home"`` or ``"observe"``).

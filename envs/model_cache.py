@@ -35,6 +35,15 @@ the object set, the image size and the room, so the same seed gives the same sce
 newly compiled one. Episodes the pool cannot hold (an object more than :data:`POOL_COPIES` times, other
 distractors) and object sets too large for a pool (more than :data:`POOL_MAX_INSTANCES` pool instances) use the
 per-structure model above.
+
+**Looks.** Dressed episodes (the generator's materials, prints, lights and environment on the wrist camera's
+scene, :mod:`simtest.envs.looks`) run on a pool with looks slots when their looks fit them
+(:func:`simtest.envs.looks_slots.poolable`: library materials on the room, at most
+:data:`~simtest.envs.looks_slots.LIGHT_SLOTS` lights): every surface, the occluder and every printed copy
+compiled with a texture of its look's size, and a fixed set of lights. A reset writes the episode's textures,
+material values and lights into it (:func:`~simtest.envs.looks_slots.write_looks`), and :attr:`GraspModelCache.uploads`
+names the textures the renderers must upload again. Other dressed specs get a model of their own structure,
+which then includes what is compiled into textures (prints, images, materials, the environment).
 """
 
 from __future__ import annotations
@@ -54,6 +63,7 @@ import mujoco
 from simtest.generators.builder import SceneBuilder, SimScene
 from simtest.robot import reset_arm
 from simtest.generators.scene_spec import DistractorSpec, LightSpec, ObjectPlacement, SceneSpec, SurfaceSpec
+from simtest.envs.looks_slots import SlotMismatch, poolable, slot_spec, write_looks
 
 __all__ = ["GraspModelCache", "ModelPool", "structure_key", "apply_spec", "snapshot_model", "restore_model",
            "trim_heap", "resident_mb", "TRIM_SLACK_MB", "POOL_COPIES", "POOL_MAX_INSTANCES", "PARKED_GROUP"]
@@ -64,12 +74,37 @@ _GREY = (0.5, 0.5, 0.5, 1.0)
 
 def structure_key(spec: SceneSpec) -> tuple:
     """What decides the compiled model of a grasp scene: obj_id per instance, distractor shapes and sizes
-    (sizes set the masses), the number of lights and the room surfaces (a flat table only by its pattern)."""
-    table = spec.table
-    table_key = (table.pattern, table.repeat) if _flat(table) else table
+    (sizes set the masses), the room and lights (:func:`_room_key`), and what is compiled into textures: each
+    instance's print (or plain look) and each distractor's image or material."""
     return (tuple(int(p.obj_id) for p in spec.objects),
             tuple((d.shape, tuple(float(v) for v in d.size)) for d in spec.distractors),
-            len(spec.lights), table_key, spec.floor, spec.walls)
+            *_room_key(spec),
+            tuple((p.skin_seed, p.plain) for p in spec.objects),
+            tuple((d.image, d.material) for d in spec.distractors))
+
+
+def _room_key(spec: SceneSpec) -> tuple:
+    """The lights and the room: the number of lights, the room surfaces (a flat table only by its pattern),
+    the environment and the ceiling panel."""
+    table = spec.table
+    table_key = (table.pattern, table.repeat) if _flat(table) else table
+    return (len(spec.lights), table_key, spec.floor, spec.walls, spec.environment, spec.ceiling)
+
+
+def _undressed(spec: SceneSpec) -> bool:
+    """No print, plain look, image or material on an instance or distractor (a pool without looks slots shows
+    each copy as compiled)."""
+    return (all(p.skin_seed is None and not p.plain for p in spec.objects)
+            and all(d.image is None and d.material is None for d in spec.distractors))
+
+
+#: The key of a pool with looks slots (:mod:`simtest.envs.looks_slots`): every dressed spec it can hold.
+LOOKS_KEY = ("looks slots",)
+
+
+def _pool_key(spec: SceneSpec) -> tuple:
+    """The pool that holds ``spec``: one with looks slots if its looks fit them, else one per room."""
+    return LOOKS_KEY if poolable(spec) else _room_key(spec)
 
 
 def _flat(s: SurfaceSpec) -> bool:
@@ -138,10 +173,12 @@ def apply_spec(template: SimScene, pristine: dict[str, np.ndarray], spec: SceneS
     return scene
 
 
-def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str]) -> None:
+def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str],
+                   looks: Callable[[], None] | None = None) -> None:
     """Write the episode's values into the scene's model (instance colours: instance i has material
-    ``materials[i]``; distractor colours, lights, ambient light, table colour), reset its data, then put the
-    instances and distractors at their poses and the arm at home (``mj_forward`` run).
+    ``materials[i]``; distractor colours, lights, ambient light, table colour) and then ``looks`` (a pool's
+    looks slots, :func:`simtest.envs.looks_slots.write_looks`), reset its data, then put the instances and
+    distractors at their poses and the arm at home (``mj_forward`` run).
 
     The model is written before the reset: with sleeping enabled (pool models), the poses of static bodies'
     lights are computed by :func:`mujoco.mj_resetData`, not by ``mj_forward``.
@@ -151,15 +188,19 @@ def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str]) -> No
         mat = _id(m, mujoco.mjtObj.mjOBJ_MATERIAL, materials[i])
         m.mat_rgba[mat] = p.rgba
         m.mat_specular[mat], m.mat_shininess[mat], m.mat_reflectance[mat] = p.specular, p.shininess, p.reflectance
-    for j, dis in enumerate(spec.distractors):
-        m.geom_rgba[_id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")] = dis.rgba
-    for k, light in enumerate(spec.lights):
-        lid = _id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"light_{k}")
-        m.light_pos[lid], m.light_dir[lid] = light.position, _unit(light.direction)
-        m.light_diffuse[lid], m.light_specular[lid] = light.diffuse, [light.specular] * 3
-    m.vis.headlight.ambient[:] = [spec.ambient] * 3
+    for j, dis in enumerate(spec.distractors):  # an image or material is not tinted (as the builder draws it)
+        textured = dis.image is not None or dis.material is not None
+        m.geom_rgba[_id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")] = _WHITE + (1.0,) if textured else dis.rgba
+    if spec.environment is None:  # else the environment's lights and ambient term are compiled (its structure)
+        for k, light in enumerate(spec.lights):
+            lid = _id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"light_{k}")
+            m.light_pos[lid], m.light_dir[lid] = light.position, _unit(light.direction)
+            m.light_diffuse[lid], m.light_specular[lid] = light.diffuse, [light.specular] * 3
+        m.vis.headlight.ambient[:] = [spec.ambient] * 3
     if _flat(spec.table):
         m.mat_rgba[_id(m, mujoco.mjtObj.mjOBJ_MATERIAL, "table_mat")] = (*spec.table.rgb1, 1.0)
+    if looks is not None:
+        looks()
     mujoco.mj_resetData(m, d)
     for i, p in enumerate(spec.objects):
         _set_free_pose(m, d, scene.instance_bodies[i], p.position, p.quat_wxyz)
@@ -213,11 +254,18 @@ class ModelPool:
     distractor_bodies: list[int]
     key: tuple
     live: dict[str, np.ndarray]
+    builder: SceneBuilder | None = None
+    uploaded: list[int] = dataclasses.field(default_factory=list)
+
+    @property
+    def dressed(self) -> bool:
+        """Whether the pool has looks slots (:mod:`simtest.envs.looks_slots`)."""
+        return self.key == LOOKS_KEY
 
     @classmethod
     def compile(cls, builder: SceneBuilder, spec: SceneSpec, distractors: tuple) -> "ModelPool":
-        """The pool of ``builder``'s object set for scenes like ``spec`` (its lights and room), with the
-        distractor primitives ``distractors`` ((shape, size) pairs)."""
+        """The pool of ``builder``'s object set for scenes like ``spec`` (its lights and room, or looks slots
+        when its looks fit them), with the distractor primitives ``distractors`` ((shape, size) pairs)."""
         ids = [int(i) for i in builder.objects.ids]
         objects = tuple(ObjectPlacement(obj_id=oid, position=_park_spot(c * len(ids) + k), quat_wxyz=(1.0, 0, 0, 0),
                                         rgba=_GREY, specular=0.5, shininess=0.5, reflectance=0.0)
@@ -225,7 +273,9 @@ class ModelPool:
         n = len(objects)
         dis = tuple(DistractorSpec(shape, tuple(size), _park_spot(n + j), (1.0, 0, 0, 0), _GREY)
                     for j, (shape, size) in enumerate(distractors))
-        template = builder.build(dataclasses.replace(_canonical_spec(spec), objects=objects, distractors=dis))
+        key = _pool_key(spec)
+        pool_spec = dataclasses.replace(_canonical_spec(spec), objects=objects, distractors=dis)
+        template = builder.build(slot_spec(pool_spec, builder.objects) if key == LOOKS_KEY else pool_spec)
         m = template.model
         m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)  # before MjData: it initialises sleep
         template = dataclasses.replace(template, data=mujoco.MjData(m))
@@ -237,12 +287,12 @@ class ModelPool:
         slots: dict[int, list[int]] = {}
         for i, oid in enumerate(template.instance_obj_ids):
             slots.setdefault(int(oid), []).append(i)
-        return cls(template, snapshot_model(m), slots, tuple(distractors), dbodies, _room_key(spec), live)
+        return cls(template, snapshot_model(m), slots, tuple(distractors), dbodies, key, live, builder)
 
     def fits(self, spec: SceneSpec) -> bool:
-        """Whether the pool holds ``spec``: its room and lights, no object more often than the pool has it,
-        and either no distractors or exactly the pool's."""
-        if _room_key(spec) != self.key:
+        """Whether the pool holds ``spec``: its room and lights (or looks that fit the slots), no object more
+        often than the pool has it, and either no distractors or exactly the pool's."""
+        if _pool_key(spec) != self.key or (not self.dressed and not _undressed(spec)):
             return False
         if spec.distractors and _distractor_key(spec) != self.distractors:
             return False
@@ -252,7 +302,12 @@ class ModelPool:
         return all(c <= len(self.slots.get(oid, ())) for oid, c in counts.items())
 
     def scene(self, spec: SceneSpec) -> SimScene:
-        """The scene of ``spec`` (which :meth:`fits`) on the pool's model and data."""
+        """The scene of ``spec`` (which :meth:`fits`) on the pool's model and data.
+
+        Raises:
+            SlotMismatch: A dressed spec's texture does not fit its slot (the model is left to the next
+                :meth:`scene`, which restores it).
+        """
         m, t = self.template.model, self.template
         taken: dict[int, int] = {}
         pool_index = []
@@ -272,13 +327,14 @@ class ModelPool:
             instance_qpos=[t.instance_qpos[k] for k in pool_index],
             instance_dofs=[t.instance_dofs[k] for k in pool_index],
             geom_instance=geom_instance, active=[True] * len(spec.objects))
-        _write_episode(scene, spec, [f"obj_{k}_mat" for k in pool_index])
+        materials = [f"obj_{k}_mat" for k in pool_index]
+        self.uploaded = []
+        looks = None
+        if self.dressed:
+            def looks() -> None:
+                self.uploaded = write_looks(scene, spec, materials, self.builder)
+        _write_episode(scene, spec, materials, looks)
         return scene
-
-
-def _room_key(spec: SceneSpec) -> tuple:
-    """The parts of :func:`structure_key` other than objects and distractors (lights and room)."""
-    return structure_key(spec)[2:]
 
 
 def _distractor_key(spec: SceneSpec) -> tuple:
@@ -321,6 +377,8 @@ class GraspModelCache:
     Attributes:
         compiles: Models compiled so far; ``reuses``: scenes built on a kept model; ``pool_misses``: scenes the
             pool could not hold.
+        uploads: Texture ids the last :meth:`build` wrote into a kept model (its looks slots): GL contexts made
+            for that model must upload them again (``mujoco.mjr_uploadTexture``) before drawing.
     """
 
     def __init__(self, builder: SceneBuilder, on_release: Callable[[], None] | None = None,
@@ -332,6 +390,7 @@ class GraspModelCache:
         self.compiles = 0
         self.reuses = 0
         self.pool_misses = 0
+        self.uploads: list[int] = []
         self._pool: ModelPool | None = None
         self._key: tuple | None = None
         self._template: SimScene | None = None
@@ -346,18 +405,25 @@ class GraspModelCache:
     def build(self, spec: SceneSpec) -> SimScene:
         """The scene of ``spec``: on the pool when it holds ``spec``, else on the model of its structure (the
         cached one when the structure matches, else a new one)."""
+        self.uploads = []
         if self.use_pool:
-            if self._pool is not None and self._pool.fits(spec):
-                self.reuses += 1
-                return self._pool.scene(spec)
-            if self._pool is None or self._pool.key != _room_key(spec):
+            reuse = self._pool is not None and self._pool.fits(spec)
+            some_pool = poolable(spec) or _undressed(spec)  # else no pool holds it: keep the one there is
+            if not reuse and some_pool and (self._pool is None or self._pool.key != _pool_key(spec)):
                 self.clear()
                 self._pool = ModelPool.compile(self.builder, spec, self.pool_distractors)
                 self.compiles += 1
-                if self._pool.fits(spec):
-                    return self._pool.scene(spec)
+            if self._pool is not None and self._pool.fits(spec):
+                try:
+                    scene = self._pool.scene(spec)
+                except SlotMismatch:
+                    pass
+                else:
+                    self.reuses += reuse
+                    self.uploads = list(self._pool.uploaded) if reuse else []
+                    return scene
             self.pool_misses += 1
-        if self.matches(spec):
+        if self._template is not None and structure_key(spec) == self._key:
             self.reuses += 1
         else:
             self._drop_structure()

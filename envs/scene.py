@@ -271,7 +271,8 @@ def build_grasp_scene(
             ``pool_distractors=POOL_DISTRACTORS`` so episodes with an occluder use the pool too.
         looks: Dresses the sampled spec before it is built (appearance only, e.g.
             :func:`simtest.envs.looks.dress_grasp_spec` with the episode's appearance stream); it draws nothing
-            from ``rng``. A dressed scene is always compiled anew (``models`` is not used).
+            from ``rng``. A dressed scene runs on ``models``' pool with looks slots when its looks fit them
+            (:mod:`simtest.envs.looks_slots`); ``models.uploads`` then names the textures to upload again.
 
     Raises:
         ConfigError: On a bad ``placement`` or ``n_distractors``, or when the target falls off the table.
@@ -280,7 +281,7 @@ def build_grasp_scene(
                              placement=placement, scene_index=scene_index)
     if looks is not None:
         spec = looks(spec)
-    sim = builder.build(spec) if models is None or looks is not None else models.build(spec)
+    sim = builder.build(spec) if models is None else models.build(spec)
     settle(sim, SettleOptions(max_time=SETTLE_MAX_TIME, room=builder.options.room))
     if not sim.active[0]:
         raise ConfigError(f"target obj_id {target_id} fell off the table while settling; use another seed")

@@ -41,7 +41,7 @@ import mujoco
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
 from simtest.envs.looks import dress_grasp_spec, looks_stream
-from simtest.envs.model_cache import TRIM_SLACK_MB, GraspModelCache, trim_heap
+from simtest.envs.model_cache import GraspModelCache
 from simtest.envs.observation import (Capture, ObservationModel, T_world_cam_matrix, capture_images,
                                       observation_dict, pbr_seed, sensor_stream)
 from simtest.envs.options import (CONTROL_DT, MAX_STEP_ROTATION, MAX_STEP_TRANSLATION, SUCCESS_HEIGHT,
@@ -93,7 +93,8 @@ class GraspTask:
         render_width, render_height: Size of the third-person view, pixels (default: the wrist camera size).
         looks: Dress every scene in the generator's looks (materials, prints, environment, lights;
             :mod:`simtest.envs.looks`), as datasets are drawn; False: the plain look of earlier releases (flat
-            table, checker floor). A dressed scene is compiled anew each episode (no model reuse).
+            table, checker floor). A dressed scene's looks are written into the kept pool model
+            (:mod:`simtest.envs.looks_slots`); looks that do not fit its slots get a model of their own.
     """
 
     def __init__(self, *, width: int = 320, height: int = 240, episode: EpisodeConfig | dict | None = None,
@@ -199,6 +200,7 @@ class GraspTask:
         else:
             mujoco.mj_resetData(self.model, self._scratch)
             mujoco.mj_resetData(self.model, self._diffik.data)
+            self._upload_looks(self._models.uploads)
         self.target_obj = objects.get(target_id)
         self._target_body = sim.instance_bodies[self.grasp_scene.target_instance]
         self._instance_bodies = np.asarray(sim.instance_bodies, dtype=np.int64)
@@ -233,14 +235,9 @@ class GraspTask:
         return self.observe()
 
     def _looks(self, builder: SceneBuilder, objects, scene_rng: np.random.Generator):
-        """The dresser of this episode's spec (None without looks); releases the cached model first (a dressed
-        scene is compiled anew) and returns freed heap to the system."""
+        """The dresser of this episode's spec (None without looks)."""
         if not self.looks:
             return None
-        if self._models is not None:
-            self._models.clear()  # closes the renderers through _release_model
-        self._release_model()
-        trim_heap(TRIM_SLACK_MB)
         look = looks_stream(scene_rng)
         table_z = float(builder.options.room.table_height)
         return lambda spec: dress_grasp_spec(spec, objects, look, table_z)
@@ -279,6 +276,18 @@ class GraspTask:
         self._left_geoms = self.ids.finger_geoms[fb == bodies[0]]
         self._right_geoms = self.ids.finger_geoms[fb == bodies[-1]]
         self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
+
+    def _upload_looks(self, textures: list[int]) -> None:
+        """A kept model's looks changed (``textures`` written): upload them to the renderers' GL contexts, and
+        let the path tracer read the model anew at its next capture."""
+        if not textures:
+            return
+        for r in (self._renderer, self._tp_renderer):
+            if r is not None:
+                r.upload_textures(textures)
+        if self._pbr is not None:
+            self._pbr.close()
+            self._pbr = None
 
     def _release_model(self) -> None:
         """Close the renderers (their GL resources) and drop every reference to the current model."""

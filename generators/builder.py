@@ -23,7 +23,7 @@ from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
 
-__all__ = ["SimScene", "SceneState", "SceneBuilder", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
+__all__ = ["SimScene", "SceneState", "SceneBuilder", "LightValue", "texture_pixels", "library_values", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
 
 VISUAL_GROUP = 1
 COLLISION_GROUP = 3
@@ -241,50 +241,55 @@ class SceneBuilder:
 
     # ------------------------------------------------------------------------------------------------------
     def _lights(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
-        """The scene's lights and ambient term. With an environment, the pbr profile takes its light from the
-        environment map alone (no MuJoCo light); the other profiles approximate the map by its dominant
-        directions as directional lights and the rest as ambient (:func:`simtest.materials.light_summary`). A
-        ceiling panel lights the rasterized profiles as a directional light straight down."""
+        """Add the scene's lights and set its ambient term (:meth:`light_values`)."""
+        ambient, lights = self.light_values(spec)
+        ms.visual.headlight.ambient = ambient
+        shadows = self.options.quality == "quality"
+        for light in lights:
+            ms.worldbody.add_light(name=light.name, type=light.type, pos=light.position, dir=light.direction,
+                                   diffuse=light.diffuse, specular=light.specular, castshadow=shadows)
+
+    def light_values(self, spec: SceneSpec) -> tuple[list[float], list["LightValue"]]:
+        """The scene's ambient term (RGB) and lights, in the order they are added. With an environment, the pbr
+        profile takes its light from the environment map alone (no MuJoCo light); the other profiles
+        approximate the map by its dominant directions as directional lights and the rest as ambient
+        (:func:`simtest.materials.light_summary`). A ceiling panel lights the rasterized profiles as a
+        directional light straight down. Positions in metres, world frame; directions as given (MuJoCo normalises
+        them when compiling)."""
         from simtest.render.colour import linear_to_srgb
 
-        shadows = self.options.quality == "quality"
         pbr = self.options.quality == "pbr"
+        spot, directional = mujoco.mjtLightType.mjLIGHT_SPOT, mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+        lights: list[LightValue] = []
         if spec.environment is None:
-            ms.visual.headlight.ambient = [spec.ambient] * 3
+            ambient = [float(spec.ambient)] * 3
             for i, light in enumerate(spec.lights):
-                ms.worldbody.add_light(
-                    name=f"light_{i}", pos=list(light.position), dir=list(light.direction),
-                    diffuse=list(light.diffuse), specular=[light.specular] * 3, castshadow=shadows)
+                lights.append(LightValue(f"light_{i}", spot, list(light.position), list(light.direction),
+                                         list(light.diffuse), [light.specular] * 3))
         elif pbr:
-            ms.visual.headlight.ambient = [0.0, 0.0, 0.0]
+            ambient = [0.0, 0.0, 0.0]
         else:
             from simtest.materials import light_summary
 
-            ambient, dominant = light_summary(environment_of(spec.environment))
+            summary, dominant = light_summary(environment_of(spec.environment))
             k = spec.environment.strength
-            ms.visual.headlight.ambient = np.clip(linear_to_srgb(np.asarray(ambient) * k), 0, 1).tolist()
+            ambient = np.clip(linear_to_srgb(np.asarray(summary) * k), 0, 1).tolist()
             for i, (toward, irradiance) in enumerate(dominant):
-                ms.worldbody.add_light(
-                    name=f"env_light_{i}", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                    pos=(np.asarray(toward) * 3.0).tolist(), dir=(-np.asarray(toward)).tolist(),
-                    diffuse=np.clip(linear_to_srgb(np.asarray(irradiance) * k / np.pi), 0, 1).tolist(),
-                    specular=[0.3] * 3, castshadow=shadows)
+                lights.append(LightValue(
+                    f"env_light_{i}", directional, (np.asarray(toward) * 3.0).tolist(),
+                    (-np.asarray(toward)).tolist(),
+                    np.clip(linear_to_srgb(np.asarray(irradiance) * k / np.pi), 0, 1).tolist(), [0.3] * 3))
         if spec.ceiling is not None and not pbr:
-            ms.worldbody.add_light(name="ceiling_light", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                                   pos=[0.0, 0.0, CEILING_HEIGHT], dir=[0.0, 0.0, -1.0],
-                                   diffuse=list(spec.ceiling), specular=[0.1] * 3, castshadow=shadows)
+            lights.append(LightValue("ceiling_light", directional, [0.0, 0.0, CEILING_HEIGHT], [0.0, 0.0, -1.0],
+                                     list(spec.ceiling), [0.1] * 3))
+        return ambient, lights
 
     def _add_map(self, ms: mujoco.MjSpec, name: str, image: np.ndarray) -> str:
-        """Add a 2D texture ``name`` from an (H, W) or (H, W, C) uint8 image (row 0 at the top); a grey map is
-        stored as RGB (MuJoCo's rasterizer uploads no 1-channel texture, and the pbr profile's depth and masks
-        render through it)."""
-        pixels = np.asarray(image, dtype=np.uint8)
-        if pixels.ndim == 2:
-            pixels = np.repeat(pixels[..., None], 3, axis=2)
-        pixels = np.ascontiguousarray(pixels)
-        channels = pixels.shape[2]
+        """Add a 2D texture ``name`` from an (H, W) or (H, W, C) uint8 image (row 0 at the top), stored as
+        :func:`texture_pixels` gives it."""
+        pixels = texture_pixels(image)
         ms.add_texture(name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=pixels.shape[1],
-                       height=pixels.shape[0], nchannel=channels).data = pixels.tobytes()
+                       height=pixels.shape[0], nchannel=pixels.shape[2]).data = pixels.tobytes()
         return name
 
     def _pbr_roles(self, ms: mujoco.MjSpec, name: str, rgb: str, roughness=None, normal=None,
@@ -305,10 +310,8 @@ class SceneBuilder:
         """Material ``{name}_mat`` of a library material (:func:`simtest.generators.looks.surface_maps`)."""
         maps = material_maps(s.material, self.options.material_folder, self.options.texture_size)
         self._add_map(ms, f"{name}_tex", maps.albedo)
-        rough = float(maps.roughness.mean() / 255.0)  # the rasterizer's shininess; pbr reads the map
         mat = ms.add_material(name=f"{name}_mat", texrepeat=[s.repeat * size, s.repeat * size], texuniform=False,
-                              specular=float(maps.specular), shininess=1.0 - rough, metallic=float(maps.metallic),
-                              roughness=rough)
+                              **library_values(maps))
         mat.textures = self._pbr_roles(ms, name, f"{name}_tex", maps.roughness, maps.normal)
         return f"{name}_mat"
 
@@ -417,6 +420,37 @@ class SceneBuilder:
                                               ([0, -hy + t, h + wall_h / 2], [hx, t, wall_h / 2])]):
                 ms.worldbody.add_geom(name=f"bin_wall_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos, size=size,
                                       material=table_mat, group=2, friction=list(OBJECT_FRICTION))
+
+
+@dataclass(frozen=True)
+class LightValue:
+    """One MuJoCo light of a scene: name, ``mjtLightType``, position (m, world), direction (any length),
+    diffuse and specular RGB."""
+
+    name: str
+    type: "mujoco.mjtLightType"
+    position: list[float]
+    direction: list[float]
+    diffuse: list[float]
+    specular: list[float]
+
+
+def texture_pixels(image: np.ndarray) -> np.ndarray:
+    """The (H, W, C) uint8 array a 2D texture stores for ``image`` ((H, W) or (H, W, C) uint8, row 0 at the
+    top): a grey map becomes RGB (MuJoCo's rasterizer uploads no 1-channel texture, and the pbr profile's depth
+    and masks render through it)."""
+    pixels = np.asarray(image, dtype=np.uint8)
+    if pixels.ndim == 2:
+        pixels = np.repeat(pixels[..., None], 3, axis=2)
+    return np.ascontiguousarray(pixels)
+
+
+def library_values(maps) -> dict[str, float]:
+    """The material values of a library material's maps (:class:`simtest.materials.MaterialMaps`): specular,
+    metallic, roughness (the roughness map's mean; pbr reads the map) and the rasterizer's shininess."""
+    rough = float(maps.roughness.mean() / 255.0)
+    return {"specular": float(maps.specular), "shininess": 1.0 - rough, "metallic": float(maps.metallic),
+            "roughness": rough}
 
 
 #: Longest side (pixels) of an image texture; larger images are downsampled.

@@ -148,6 +148,15 @@ class Renderer:
         self.znear = float(model.vis.map.znear) * extent
         self.zfar = float(model.vis.map.zfar) * extent
 
+    def upload_textures(self, textures) -> None:
+        """Upload the model's textures ``textures`` (ids) to this renderer's GL context again, after their
+        ``tex_data`` was written in place."""
+        if self._con is None:
+            raise RenderError("upload_textures() called after close()")
+        self._ctx.make_current()
+        for t in textures:
+            mujoco.mjr_uploadTexture(self.model, self._con, int(t))
+
     def _camera_id(self, camera: int | str) -> int:
         return camera_id(self.model, camera)
 

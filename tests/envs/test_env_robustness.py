@@ -72,7 +72,7 @@ def test_bad_action_is_rejected_and_changes_nothing():
 def test_resets_reuse_the_model_and_stay_deterministic():
     """One model (the object set's pool) serves every episode of an object set: other targets, distractors,
     with and without the occluder. The same seed gives identical observations and steps on a fresh env. (The
-    plain look: a scene in the generator's looks is compiled each reset.)"""
+    plain look; the looks slots: tests/envs/test_looks_slots.py.)"""
     env = _make(render_mode="rgb_array", render_width=80, render_height=60, objects="builtin-small",
                 target=None, n_distractors=2, looks=False)
     u = env.unwrapped
