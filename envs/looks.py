@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import colorsys
 import dataclasses
+from typing import Callable
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from simtest.generators.looks import appearance_rng, sample_environment, sample_
 from simtest.generators.scene_spec import LightSpec, SceneSpec, SurfaceSpec, object_colour
 from simtest.objects import ObjectSet
 
-__all__ = ["LOOKS_CONFIG", "dress_grasp_spec", "looks_stream", "TABLE_EXTENT"]
+__all__ = ["LOOKS_CONFIG", "dress_grasp_spec", "dresser", "looks_stream", "TABLE_EXTENT"]
 
 #: The appearance settings grasp scenes draw their looks with: the dataset defaults.
 LOOKS_CONFIG = GenerateConfig()
@@ -114,3 +115,10 @@ def dress_grasp_spec(spec: SceneSpec, objects: ObjectSet, look: np.random.Genera
     environment = sample_environment(cfg, look)
     return dataclasses.replace(spec, objects=tuple(placements), distractors=distractors, lights=lights,
                                ambient=ambient, table=table, floor=floor, walls=walls, environment=environment)
+
+
+def dresser(objects: ObjectSet, scene_rng: np.random.Generator, builder) -> "Callable[[SceneSpec], SceneSpec]":
+    """What dresses an episode's sampled spec: :func:`dress_grasp_spec` with the appearance stream of the
+    episode's scene stream ``scene_rng`` (:func:`looks_stream`), lights aimed at ``builder``'s table."""
+    look, table_z = looks_stream(scene_rng), float(builder.options.room.table_height)
+    return lambda spec: dress_grasp_spec(spec, objects, look, table_z)

@@ -40,7 +40,7 @@ import mujoco
 
 from simtest import robot
 from simtest.camera import CameraModel, look_at_pose
-from simtest.envs.looks import dress_grasp_spec, looks_stream
+from simtest.envs.looks import dresser
 from simtest.envs.model_cache import GraspModelCache
 from simtest.envs.observation import (Capture, ObservationModel, T_world_cam_matrix, capture_images,
                                       observation_dict, pbr_seed, sensor_stream)
@@ -193,7 +193,7 @@ class GraspTask:
         self.grasp_scene = build_grasp_scene(builder, objects, target_id, scene_rng,
                                              n_distractors=cfg.n_distractors, occlusion=cfg.occlusion,
                                              placement=cfg.placement, models=self._model_cache(cfg.objects),
-                                             looks=self._looks(builder, objects, scene_rng))
+                                             looks=dresser(objects, scene_rng, builder) if self.looks else None)
         sim = self.grasp_scene.sim
         if sim.model is not self.model:
             self._bind_model(sim)
@@ -234,14 +234,6 @@ class GraspTask:
         self._pbr_captures = 0  # the episode's path-traced captures so far (their sampler seeds)
         return self.observe()
 
-    def _looks(self, builder: SceneBuilder, objects, scene_rng: np.random.Generator):
-        """The dresser of this episode's spec (None without looks)."""
-        if not self.looks:
-            return None
-        look = looks_stream(scene_rng)
-        table_z = float(builder.options.room.table_height)
-        return lambda spec: dress_grasp_spec(spec, objects, look, table_z)
-
     def _model_cache(self, objects_name: str) -> GraspModelCache:
         """The compiled-model cache of the object set ``objects_name`` (one cache: a new set drops the old)."""
         builder = self._builder(objects_name)
@@ -278,14 +270,12 @@ class GraspTask:
         self._n_sub = max(1, int(round(CONTROL_DT / self.model.opt.timestep)))
 
     def _upload_looks(self, textures: list[int]) -> None:
-        """A kept model's looks changed (``textures`` written): upload them to the renderers' GL contexts, and
-        let the path tracer read the model anew at its next capture."""
-        if not textures:
-            return
-        for r in (self._renderer, self._tp_renderer):
+        """Upload the textures (ids) a kept model's looks slots took to the renderers; the path tracer reads
+        the model anew at its next capture."""
+        for r in (self._renderer, self._tp_renderer) if textures else ():
             if r is not None:
                 r.upload_textures(textures)
-        if self._pbr is not None:
+        if textures and self._pbr is not None:
             self._pbr.close()
             self._pbr = None
 
