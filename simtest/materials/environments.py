@@ -211,12 +211,13 @@ def light_summary(env: Environment, max_lights: int = 3, contrast: float = 6.0, 
         mask = _light_region(y, peak)
         if float((omega * mask).sum()) > max_solid_angle:
             break
-        power = (rad * (omega * mask)[..., None])                  # L dOmega per texel, RGB
-        weight = power @ LUMA
-        d = (dirs * weight[..., None]).sum(axis=(0, 1))
+        rows, cols = np.nonzero(mask)                               # the light's texels only
+        power = rad[rows, cols] * omega[rows]                       # L dOmega per texel, RGB
+        toward = dirs[rows, cols]
+        d = (toward * (power @ LUMA)[:, None]).sum(axis=0)
         d /= np.linalg.norm(d)
-        cos = np.clip(dirs @ d, 0.0, 1.0)
-        lights.append((d.astype(np.float32), (power * cos[..., None]).sum(axis=(0, 1)).astype(np.float32)))
+        cos = np.clip(toward @ d, 0.0, 1.0)
+        lights.append((d.astype(np.float32), (power * cos[:, None]).sum(axis=0).astype(np.float32)))
         ring = ndimage.binary_dilation(mask, iterations=2) & ~mask
         fill = rad[ring].mean(axis=0) if ring.any() else np.zeros(3)
         rad[mask] = np.minimum(fill, rad[mask])
