@@ -76,6 +76,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="probability that a training sample is corrupted at all (default: 0.8 keypoints, "
                         "0.5 segmentation)")
     p.add_argument("--max-images", type=int, metavar="N", help="segmentation and outlines: train on the first N images (outlines: of each dataset) only")
+    p.add_argument("--pose-priors", type=float, metavar="P",
+                   help="outlines: share of the samples whose prior is the silhouette at a perturbed pose (turned, "
+                        "moved in depth and across; default 0)")
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--init", metavar="CHECKPOINT",
@@ -191,7 +194,8 @@ def _run_outlines(args: argparse.Namespace) -> int:
     cfg = OutlineTrainConfig(data=args.data[0] if len(args.data) == 1 else tuple(args.data), out=args.out,
                              split=args.split, val=args.val, val_split=args.val_split, val_images=args.val_images,
                              max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
-                             **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size"))
+                             **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size",
+                                      pose_priors="pose_priors"))
     res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
     return _report(res, cfg.epochs, "val_iou", lambda b: f"val mask IoU {100 * b['val_iou']:.1f} %, the priors' "
                                                          f"{100 * b['val_prior_iou']:.1f} %")

@@ -7,7 +7,11 @@ the one the template estimator looks through (:func:`~simtest.estimators.templat
 amodal mask, margin 1.2, rolled up to +-20 degrees), then shifted by up to +-6 % of the window and scaled by
 up to exp(+-0.1), as a searched framing is off. The prior is the amodal mask in that crop moved by a similarity
 (+-4 % shift, exp(+-0.05) scale, +-6 degrees), as a found pose is off; the target is the visible mask in the
-crop. The crop is then blurred (Gaussian, sigma 0.2-1.8 pixels, 70 % of samples), its brightness, contrast,
+crop. With ``pose_priors`` (a share of the samples) the prior is instead the object's silhouette at its pose
+turned by up to :data:`POSE_TURN_DEG` about a random axis, moved along its viewing ray by up to exp(+-0.06) and
+across it by up to +-5 % of its diameter, and the crop is framed on that silhouette as
+:func:`~simtest.estimators.templates.outline.outline_fit` frames a found pose (rolled as above): a pose that is
+off shows another outline, not only a moved one. The crop is then blurred (Gaussian, sigma 0.2-1.8 pixels, 70 % of samples), its brightness, contrast,
 saturation and channel gains jittered and Gaussian noise added: real cameras are blurrier and noisier than
 renders. Every draw comes from ``SeedSequence(seed, spawn_key=(epoch, index))``, so a resumed run sees the
 same samples. Loss: binary cross-entropy plus the soft Dice loss of each crop's mask.
@@ -41,7 +45,7 @@ from simtest.training.fit import Plan, TrainResult, fit
 from simtest.training.segmentation import data_roots
 from simtest.training.settings import check_settings, settings_dict
 
-__all__ = ["OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "FORMAT"]
+__all__ = ["OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample", "FORMAT"]
 
 #: Margin of the crop around the object (the template estimator's, :class:`BankSettings.margin`).
 MARGIN = 1.2
@@ -60,6 +64,8 @@ class OutlineTrainConfig:
         max_images: Train on the first N images of each dataset only (None: all).
         device, seed, workers, threads: As ``simtest train segmentation``.
         augment_p: The share of samples given the camera's changes (blur, colour, noise; default all).
+        pose_priors: The share of samples whose prior is the silhouette at a perturbed pose (default 0: every
+            prior is the moved amodal mask).
         encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
@@ -81,6 +87,7 @@ class OutlineTrainConfig:
     workers: int = 0
     threads: int | None = None
     augment_p: float = 1.0
+    pose_priors: float = 0.0
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -88,6 +95,8 @@ class OutlineTrainConfig:
         check_settings(self, "outline training")
         if int(self.crop_size) < 32 or int(self.crop_size) % 32:
             raise ConfigError(f"outline training: crop_size must be a positive multiple of 32, got {self.crop_size!r}")
+        if not 0.0 <= float(self.pose_priors) <= 1.0:
+            raise ConfigError(f"outline training: pose_priors must be a share in [0, 1], got {self.pose_priors!r}")
         if not 0.0 <= float(self.min_visib) < 1.0:
             raise ConfigError(f"outline training: min_visib must be in [0, 1), got {self.min_visib!r}")
         if self.encoder_lr_scale != 0.0 or not self.freeze_encoder_bn:
@@ -143,16 +152,44 @@ def outline_sample(rgb: np.ndarray, K: np.ndarray, amodal: np.ndarray, visible: 
     return crop.rgb, prior, crop.mask.astype(np.uint8)
 
 
+#: Largest turn (degrees) of a pose prior's rotation, about a random axis.
+POSE_TURN_DEG = 12.0
+
+
+def pose_sample(rgb: np.ndarray, K: np.ndarray, obj, R: np.ndarray, t: np.ndarray, visible: np.ndarray, size: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One sample whose prior is ``obj``'s silhouette at its pose ``(R, t)`` (model to camera, metres) perturbed
+    (see the module doc): the crop (S, S, 3) uint8 framed on that silhouette, the prior and the visible mask
+    (S, S) uint8 in {0, 1}; None when the perturbed silhouette leaves the image."""
+    from simtest.render.silhouette import object_silhouette
+
+    axis = rng.normal(size=3)
+    turn = axis / np.linalg.norm(axis) * np.radians(rng.uniform(0.0, POSE_TURN_DEG))
+    R2 = np.asarray(R, np.float64) @ cv2.Rodrigues(turn)[0]
+    t2 = np.asarray(t, np.float64).reshape(3) * float(np.exp(rng.uniform(-0.06, 0.06)))
+    t2[:2] += rng.uniform(-0.05, 0.05, 2) * float(obj.diameter)
+    roll = float(np.radians(rng.uniform(-20.0, 20.0)))
+    H, W = rgb.shape[:2]
+    sil = object_silhouette(obj, R2, t2, K, W, H) if t2[2] > 0.05 else None
+    if sil is None or int(sil.sum()) < 50:
+        return None
+    crop = region_crop(rgb, sil, K, size, MARGIN, roll)
+    return crop.rgb, crop.mask.astype(np.uint8), mask_in_crop(visible, K, crop).astype(np.uint8)
+
+
 class OutlineCrops:
     """The samples of ``instances`` (see the module doc) as a map-style dataset: ``{"x": (4, S, S) float32,
     "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes."""
 
     def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
-                 augment_p: float = 1.0) -> None:
+                 augment_p: float = 1.0, objects=None, pose_priors: float = 0.0) -> None:
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
         self.augment_p = float(augment_p)
+        self.objects, self.pose_priors = objects, float(pose_priors)
+        if self.pose_priors > 0 and objects is None:
+            raise ConfigError("outline crops: pose priors need the dataset's objects")
         self.epoch = 0
-        self._cameras: dict[str, dict] = {}
+        self._scenes: dict[str, dict] = {}
 
     def __len__(self) -> int:
         return len(self.instances)
@@ -163,13 +200,20 @@ class OutlineCrops:
     def arrays(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sample ``i`` of the current epoch as uint8 arrays ``(crop, prior, visible)``."""
         scene, im, g = self.instances[i]
-        if scene not in self._cameras:
-            self._cameras[scene] = bop.read_scene_camera(scene)
-        K = np.asarray(self._cameras[scene][str(im)]["cam_K"], np.float64).reshape(3, 3)
+        if scene not in self._scenes:
+            self._scenes[scene] = bop.read_scene(scene)
+        d = self._scenes[scene][im]
+        K = d["K"]
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.epoch, i)))
         rgb = bop.read_image(scene, im)
-        crop, prior, visible = outline_sample(rgb, K, bop.read_mask(scene, im, g, visible=False),
-                                              bop.read_mask(scene, im, g, visible=True), self.size, rng)
+        visible = bop.read_mask(scene, im, g, visible=True)
+        sample = None
+        if self.pose_priors > 0 and rng.random() < self.pose_priors:  # no draw without pose priors
+            gt = d["gt"][g]
+            sample = pose_sample(rgb, K, self.objects.get(gt.obj_id), gt.T_cam_obj.R, gt.T_cam_obj.t, visible,
+                                 self.size, rng)
+        crop, prior, visible = sample or outline_sample(rgb, K, bop.read_mask(scene, im, g, visible=False), visible,
+                                                        self.size, rng)
         if self.photometric and (self.augment_p >= 1.0 or rng.random() < self.augment_p):  # no draw at 1
             crop = _photometric(crop, rng)
         return crop, prior, visible
@@ -228,13 +272,13 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
     for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
         check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
     train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True,
-                         cfg.augment_p)
+                         cfg.augment_p, objects, cfg.pose_priors)
     if not len(train):
         raise ConfigError(f"outline training: no instance with visib_fract >= {cfg.min_visib} in {roots}")
     val = None
     if cfg.val is not None:
         val = OutlineCrops(_instances([cfg.val], cfg.val_split, cfg.min_visib, cfg.val_images), cfg.crop_size,
-                           cfg.seed + 1, False)
+                           cfg.seed + 1, False, objects=objects, pose_priors=cfg.pose_priors)
     with torch.random.fork_rng(devices=[]):
         net = MaskNet(MaskNetConfig(crop_size=int(cfg.crop_size)))
     net.init_weights(torch.Generator().manual_seed(int(cfg.seed)))

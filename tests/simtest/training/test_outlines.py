@@ -50,6 +50,32 @@ def test_samples_are_seeded_per_epoch_and_their_prior_lies_near_the_visible_mask
     assert sample["x"].shape == (4, 64, 64) and sample["y"].shape == (1, 64, 64)
 
 
+def test_pose_priors_are_the_silhouette_of_a_perturbed_pose_framed_as_the_fit_frames_it(small_dataset):
+    from simtest.objects.loaders import load_dataset_objects
+
+    instances = _instances([str(small_dataset)], None, 0.8, None)
+    objects = load_dataset_objects(str(small_dataset))
+    plain = OutlineCrops(instances, 64, seed=1, photometric=True)
+    off = OutlineCrops(instances, 64, seed=1, photometric=True, objects=objects, pose_priors=0.0)
+    posed = OutlineCrops(instances, 64, seed=1, photometric=True, objects=objects, pose_priors=1.0)
+    ious = []
+    for i in range(len(instances)):
+        # no pose priors: the very samples of a run without them (no extra draw)
+        assert all(np.array_equal(a, b) for a, b in zip(plain.arrays(i), off.arrays(i)))
+        crop, prior, visible = posed.arrays(i)
+        assert all(np.array_equal(a, b) for a, b in zip((crop, prior, visible), posed.arrays(i)))
+        assert crop.shape == (64, 64, 3) and set(np.unique(prior)) <= {0, 1} and visible.any()
+        # framed on the prior as outline_fit frames a found pose: margin 1.2 around it
+        ys, xs = np.nonzero(prior)
+        assert max(ys.max() - ys.min(), xs.max() - xs.min()) + 1 >= 64 / 1.2 - 3
+        ious.append(np.count_nonzero(prior & visible) / np.count_nonzero(prior | visible))
+    assert 0.5 < np.mean(ious) < 0.99, ious  # near the object, yet another outline
+    with pytest.raises(ConfigError, match="objects"):
+        OutlineCrops(instances, 64, seed=1, photometric=True, pose_priors=0.5)
+    with pytest.raises(ConfigError, match="pose_priors"):
+        OutlineTrainConfig(data="x", out="y", pose_priors=1.5)
+
+
 def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
     _resume_equals_uninterrupted(train_outlines, OutlineTrainConfig, tmp_path, data=str(small_dataset), epochs=2,
                                  batch_size=4, crop_size=32, max_images=2, seed=5, threads=1)
