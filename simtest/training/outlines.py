@@ -66,6 +66,9 @@ class OutlineTrainConfig:
         augment_p: The share of samples given the camera's changes (blur, colour, noise; default all).
         pose_priors: The share of samples whose prior is the silhouette at a perturbed pose (default 0: every
             prior is the moved amodal mask).
+        camera_scale: Where the camera's changes apply: ``"crop"`` (to the crop, as the shipped network was
+            trained) or ``"image"`` (to the image around the object before it is cropped, blur sigma 0.5-1.8
+            image pixels: a camera blurs in its own pixels, so a small object's crop is blurrier).
         encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
@@ -88,6 +91,7 @@ class OutlineTrainConfig:
     threads: int | None = None
     augment_p: float = 1.0
     pose_priors: float = 0.0
+    camera_scale: str = "crop"
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -95,6 +99,9 @@ class OutlineTrainConfig:
         check_settings(self, "outline training")
         if int(self.crop_size) < 32 or int(self.crop_size) % 32:
             raise ConfigError(f"outline training: crop_size must be a positive multiple of 32, got {self.crop_size!r}")
+        if self.camera_scale not in _BLUR:
+            raise ConfigError(f"outline training: camera_scale must be one of {', '.join(_BLUR)}, got "
+                              f"{self.camera_scale!r}")
         if not 0.0 <= float(self.pose_priors) <= 1.0:
             raise ConfigError(f"outline training: pose_priors must be a share in [0, 1], got {self.pose_priors!r}")
         if not 0.0 <= float(self.min_visib) < 1.0:
@@ -121,11 +128,17 @@ def _instances(roots: list[str], split: str | None, min_visib: float, max_images
     return out
 
 
-def _photometric(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+#: Blur of the camera's changes: (share of samples, sigma range in pixels) at the crop's scale and, with
+#: ``camera_scale = "image"``, at the image's.
+_BLUR = {"crop": (0.7, (0.2, 1.8)), "image": (0.85, (0.5, 1.8))}
+
+
+def _photometric(rgb: np.ndarray, rng: np.random.Generator, scale: str = "crop") -> np.ndarray:
     """Blur, brightness, contrast, saturation, channel gains and noise (see the module doc), uint8."""
     x = rgb.astype(np.float32)
-    if rng.random() < 0.7:
-        x = cv2.GaussianBlur(x, (0, 0), float(rng.uniform(0.2, 1.8)))
+    share, sigma = _BLUR[scale]
+    if rng.random() < share:
+        x = cv2.GaussianBlur(x, (0, 0), float(rng.uniform(*sigma)))
     x = x * rng.uniform(0.6, 1.4) + rng.uniform(-30, 30)
     grey = x.mean(2, keepdims=True)
     x = grey + (x - grey) * rng.uniform(0.5, 1.5)
@@ -177,14 +190,28 @@ def pose_sample(rgb: np.ndarray, K: np.ndarray, obj, R: np.ndarray, t: np.ndarra
     return crop.rgb, crop.mask.astype(np.uint8), mask_in_crop(visible, K, crop).astype(np.uint8)
 
 
+def _around(box, K: np.ndarray, *images: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """``images`` cut to a window twice the object's box ``[x, y, w, h]`` (pixels) around its centre (at least
+    64 pixels more a side; clipped to the image), and the intrinsics of that window."""
+    x, y, w, h = (float(v) for v in box)
+    half = max(w, h) + 32.0
+    H, W = images[0].shape[:2]
+    x0, y0 = int(max(0, np.floor(x + w / 2 - half))), int(max(0, np.floor(y + h / 2 - half)))
+    x1, y1 = int(min(W, np.ceil(x + w / 2 + half))), int(min(H, np.ceil(y + h / 2 + half)))
+    K2 = np.array(K, np.float64)
+    K2[0, 2] -= x0
+    K2[1, 2] -= y0
+    return [np.ascontiguousarray(im[y0:y1, x0:x1]) for im in images], K2
+
+
 class OutlineCrops:
     """The samples of ``instances`` (see the module doc) as a map-style dataset: ``{"x": (4, S, S) float32,
     "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes."""
 
     def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
-                 augment_p: float = 1.0, objects=None, pose_priors: float = 0.0) -> None:
+                 augment_p: float = 1.0, objects=None, pose_priors: float = 0.0, camera_scale: str = "crop") -> None:
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
-        self.augment_p = float(augment_p)
+        self.augment_p, self.camera_scale = float(augment_p), camera_scale
         self.objects, self.pose_priors = objects, float(pose_priors)
         if self.pose_priors > 0 and objects is None:
             raise ConfigError("outline crops: pose priors need the dataset's objects")
@@ -206,15 +233,18 @@ class OutlineCrops:
         K = d["K"]
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.epoch, i)))
         rgb = bop.read_image(scene, im)
-        visible = bop.read_mask(scene, im, g, visible=True)
+        visible, amodal = bop.read_mask(scene, im, g, visible=True), bop.read_mask(scene, im, g, visible=False)
+        gt = d["gt"][g]
+        changed = self.photometric and (self.augment_p >= 1.0 or rng.random() < self.augment_p)  # no draw at 1
+        if changed and self.camera_scale == "image":  # the camera's changes around the object, then the crop
+            (rgb, visible, amodal), K = _around(gt.bbox_obj, K, rgb, visible, amodal)
+            rgb = _photometric(rgb, rng, "image")
         sample = None
         if self.pose_priors > 0 and rng.random() < self.pose_priors:  # no draw without pose priors
-            gt = d["gt"][g]
             sample = pose_sample(rgb, K, self.objects.get(gt.obj_id), gt.T_cam_obj.R, gt.T_cam_obj.t, visible,
                                  self.size, rng)
-        crop, prior, visible = sample or outline_sample(rgb, K, bop.read_mask(scene, im, g, visible=False), visible,
-                                                        self.size, rng)
-        if self.photometric and (self.augment_p >= 1.0 or rng.random() < self.augment_p):  # no draw at 1
+        crop, prior, visible = sample or outline_sample(rgb, K, amodal, visible, self.size, rng)
+        if changed and self.camera_scale == "crop":
             crop = _photometric(crop, rng)
         return crop, prior, visible
 
@@ -272,7 +302,7 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
     for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
         check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
     train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True,
-                         cfg.augment_p, objects, cfg.pose_priors)
+                         cfg.augment_p, objects, cfg.pose_priors, cfg.camera_scale)
     if not len(train):
         raise ConfigError(f"outline training: no instance with visib_fract >= {cfg.min_visib} in {roots}")
     val = None

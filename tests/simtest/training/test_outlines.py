@@ -76,6 +76,34 @@ def test_pose_priors_are_the_silhouette_of_a_perturbed_pose_framed_as_the_fit_fr
         OutlineTrainConfig(data="x", out="y", pose_priors=1.5)
 
 
+def test_camera_changes_at_the_image_scale_are_seeded_and_keep_the_masks(small_dataset):
+    instances = _instances([str(small_dataset)], None, 0.8, None)
+    at_crop = OutlineCrops(instances, 64, seed=2, photometric=True)
+    at_image = OutlineCrops(instances, 64, seed=2, photometric=True, camera_scale="image")
+    for i in range(len(instances)):
+        crop, prior, visible = at_image.arrays(i)
+        assert all(np.array_equal(a, b) for a, b in zip((crop, prior, visible), at_image.arrays(i)))
+        assert crop.shape == (64, 64, 3) and visible.any()
+        assert not np.array_equal(crop, at_crop.arrays(i)[0])
+    # the window cut around the object moves nothing: a sample drawn from it (its intrinsics shifted) is the
+    # sample drawn from the whole image
+    from simtest.io import bop
+    from simtest.training.outlines import _around, outline_sample
+
+    scene, im, g = instances[0]
+    d = bop.read_scene(scene)[im]
+    images = (bop.read_image(scene, im), bop.read_mask(scene, im, g, visible=True),
+              bop.read_mask(scene, im, g, visible=False))
+    (rgb, visible, amodal), K2 = _around(d["gt"][g].bbox_obj, d["K"], *images)
+    assert rgb.shape[0] < images[0].shape[0] or rgb.shape[1] < images[0].shape[1]
+    cut = outline_sample(rgb, K2, amodal, visible, 64, np.random.default_rng(4))
+    whole = outline_sample(images[0], d["K"], images[2], images[1], 64, np.random.default_rng(4))
+    for a, b in zip(cut, whole):
+        assert np.mean(a == b) > 0.99
+    with pytest.raises(ConfigError, match="camera_scale"):
+        OutlineTrainConfig(data="x", out="y", camera_scale="sensor")
+
+
 def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
     _resume_equals_uninterrupted(train_outlines, OutlineTrainConfig, tmp_path, data=str(small_dataset), epochs=2,
                                  batch_size=4, crop_size=32, max_images=2, seed=5, threads=1)
