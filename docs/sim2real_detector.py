@@ -9,6 +9,7 @@ class IoU of the whole class map, per object. Run from the repository root::
 
     simtest masks --data LMO --out LMO-masked          # real sets ship without masks
     python docs/sim2real_detector.py simtest/estimators/weights/keypoints_detector_lmo_640x480.onnx LMO-masked
+    python docs/sim2real_detector.py "FIRST.onnx+SECOND.onnx" LMO-masked [--threshold 0.1]   # pooled regions
 """
 
 from __future__ import annotations
@@ -35,43 +36,51 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def score(detector: str, data: Path, max_images: int | None, threads: int, threshold: float = 0.0) -> dict:
-    """``{"targets": n, "hits": {rule: count}, "class_iou": {obj_id: iou}}`` over the dataset's images."""
-    seg = Segmenter(detector, "cpu", 40, threads, runtime="auto")
+    """``{"targets": n, "hits": {rule: count}, "class_iou": {obj_id: iou}}`` over the dataset's images.
+    ``detector``: one checkpoint, or several joined by ``+`` (as the estimators pool them): ``prob3`` is then
+    any of the three most probable regions of each, the other rules and the class IoU are the first's."""
+    segs = [Segmenter(d, "cpu", 40, threads, runtime="auto") for d in detector.split("+")]
     hits, n = dict.fromkeys(RULES, 0), 0
     inter: dict[int, int] = {}
     union: dict[int, int] = {}
     images = [(s, im, d) for s in scene_dirs(dataset_split_dir(data)) for im, d in sorted(bop.read_scene(s).items())]
     for scene, im, d in images[:max_images]:
         rgb = bop.read_image(scene, im)
-        prob = seg.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), d["K"])
-        label = prob.argmax(0)
+        probs = [seg.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), d["K"]) for seg in segs]
         for k, g in enumerate(d["gt"]):
-            if g.visib_fract < 0.1 or g.obj_id not in seg.class_ids:
+            if g.visib_fract < 0.1 or g.obj_id not in segs[0].class_ids:
                 continue
-            c = seg.class_ids.index(g.obj_id) + 1
             m = bop.read_mask(scene, im, k)
-            p = label == c if threshold <= 0 else prob[c] > threshold  # as the estimator's region_threshold
+            n += 1
+            found = [_regions(seg, prob, seg.class_ids.index(g.obj_id) + 1, threshold) for seg, prob in zip(segs, probs)]
+            p = found[0][0]
             inter[g.obj_id] = inter.get(g.obj_id, 0) + int((p & m).sum())
             union[g.obj_id] = union.get(g.obj_id, 0) + int((p | m).sum())
-            n += 1
-            count, comp, stats, _ = cv2.connectedComponentsWithStats(p.astype(np.uint8), connectivity=8)
-            regions = [comp == i for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= seg.min_region_pixels]
+            hits["prob3"] += any(_iou(r, m) >= HIT_IOU for _, regions, probs_ in found
+                                 for r in [regions[i] for i in np.argsort(-np.asarray(probs_), kind="stable")[:3]])
+            _, regions, region_probs = found[0]
             if not regions:
                 continue
             ious = [_iou(r, m) for r in regions]
             by_area = np.argsort([-r.sum() for r in regions], kind="stable")
-            probs = [prob[c][r].mean() for r in regions]
-            by_prob = int(np.argmax(probs))
             hits["area"] += ious[by_area[0]] >= HIT_IOU
-            hits["prob"] += ious[by_prob] >= HIT_IOU
+            hits["prob"] += ious[int(np.argmax(region_probs))] >= HIT_IOU
             hits["top3"] += max(ious[i] for i in by_area[:3]) >= HIT_IOU
-            hits["prob3"] += max(ious[i] for i in np.argsort(-np.asarray(probs), kind="stable")[:3]) >= HIT_IOU
     return {"targets": n, "hits": hits, "class_iou": {o: inter[o] / max(union[o], 1) for o in sorted(inter)}}
+
+
+def _regions(seg: Segmenter, prob: np.ndarray, c: int, threshold: float) -> tuple[np.ndarray, list, list]:
+    """Class ``c``'s pixels (the class map, or probability > ``threshold``), its connected regions of at least
+    ``min_region_pixels`` and their mean class probabilities."""
+    p = prob.argmax(0) == c if threshold <= 0 else prob[c] > threshold  # as the estimator's region_threshold
+    count, comp, stats, _ = cv2.connectedComponentsWithStats(p.astype(np.uint8), connectivity=8)
+    regions = [comp == i for i in range(1, count) if stats[i, cv2.CC_STAT_AREA] >= seg.min_region_pixels]
+    return p, regions, [float(prob[c][r].mean()) for r in regions]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("detector", help="segmentation checkpoint (.pt or .onnx)")
+    ap.add_argument("detector", help="segmentation checkpoint (.pt or .onnx), or several joined by +")
     ap.add_argument("data", type=Path, help="BOP dataset with mask_visib/")
     ap.add_argument("--max-images", type=int, default=None)
     ap.add_argument("--threads", type=int, default=2)
