@@ -52,7 +52,8 @@ def score(detector: str, data: Path, max_images: int | None, threads: int, thres
                 continue
             m = bop.read_mask(scene, im, k)
             n += 1
-            found = [_regions(seg, prob, seg.class_ids.index(g.obj_id) + 1, threshold) for seg, prob in zip(segs, probs)]
+            found = [_regions(seg, prob, seg.class_ids.index(g.obj_id) + 1, threshold)
+                     for seg, prob in zip(segs, probs)]
             p = found[0][0]
             inter[g.obj_id] = inter.get(g.obj_id, 0) + int((p & m).sum())
             union[g.obj_id] = union.get(g.obj_id, 0) + int((p | m).sum())

@@ -190,7 +190,8 @@ def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str],
         m.mat_specular[mat], m.mat_shininess[mat], m.mat_reflectance[mat] = p.specular, p.shininess, p.reflectance
     for j, dis in enumerate(spec.distractors):  # an image or material is not tinted (as the builder draws it)
         textured = dis.image is not None or dis.material is not None
-        m.geom_rgba[_id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")] = _WHITE + (1.0,) if textured else dis.rgba
+        geom = _id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")
+        m.geom_rgba[geom] = (*_WHITE, 1.0) if textured else dis.rgba
     if spec.environment is None:  # else the environment's lights and ambient term are compiled (its structure)
         for k, light in enumerate(spec.lights):
             lid = _id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"light_{k}")

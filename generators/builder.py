@@ -23,7 +23,8 @@ from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
 
-__all__ = ["SimScene", "SceneState", "SceneBuilder", "LightValue", "texture_pixels", "library_values", "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
+__all__ = ["SimScene", "SceneState", "SceneBuilder", "LightValue", "texture_pixels", "library_values", "VISUAL_GROUP",
+           "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
 
 VISUAL_GROUP = 1
 COLLISION_GROUP = 3

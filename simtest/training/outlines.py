@@ -11,9 +11,10 @@ crop. With ``pose_priors`` (a share of the samples) the prior is instead the obj
 turned by up to :data:`POSE_TURN_DEG` about a random axis, moved along its viewing ray by up to exp(+-0.06) and
 across it by up to +-5 % of its diameter, and the crop is framed on that silhouette as
 :func:`~simtest.estimators.templates.outline.outline_fit` frames a found pose (rolled as above): a pose that is
-off shows another outline, not only a moved one. The crop is then blurred (Gaussian, sigma 0.2-1.8 pixels, 70 % of samples), its brightness, contrast,
-saturation and channel gains jittered and Gaussian noise added: real cameras are blurrier and noisier than
-renders. Every draw comes from ``SeedSequence(seed, spawn_key=(epoch, index))``, so a resumed run sees the
+off shows another outline, not only a moved one. The crop is then blurred (Gaussian, sigma 0.2-1.8 pixels, 70 %
+of samples; with ``camera_scale = "image"`` the image around the object, before cropping, sigma 0.5-1.8 image
+pixels, 85 %), its brightness, contrast, saturation and channel gains jittered and Gaussian noise added: real
+cameras are blurrier and noisier than renders. Every draw comes from ``SeedSequence(seed, spawn_key=(epoch, index))``, so a resumed run sees the
 same samples. Loss: binary cross-entropy plus the soft Dice loss of each crop's mask.
 
 Checkpoints (:func:`~simtest.training.fit.fit`'s run folder)::
