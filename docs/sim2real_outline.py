@@ -4,9 +4,9 @@ Reads a run's kept poses (``RUN/results.csv`` of ``simtest eval``, before or aft
 dataset with visible masks (``simtest masks`` makes them for a real set). For every pose whose silhouette lies
 on its object (IoU >= 0.3 with the object's visible mask in the fit's crop), it reports the mean IoU with the
 visible mask of the pose's own silhouette (the prior) and of each network's mask, per object. With
-``--oracle OUT.csv`` it also writes the run's poses fitted as :func:`simtest.estimators.templates.outline.
-outline_fit` fits them, but to the object's exact visible mask instead of a network's (a pose on another
-object than its own keeps its place): the most a perfect outline network could give these poses; score it with
+``--oracle OUT.csv`` it also writes the run's poses fitted as the outline stage fits them
+(:func:`simtest.estimators.templates.outline.fit_to_mask` with its settings), but to the object's exact visible
+mask instead of a network's (a pose of an object not in the image keeps its place): the most a perfect outline network could give these poses; score it with
 ``simtest eval --data DATA --results OUT.csv``. Run from the repository root::
 
     python docs/sim2real_outline.py runs/lmo-default LMO-masked \\
@@ -24,13 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from simtest.estimators.silhouette import fit_translation  # noqa: E402
-from simtest.estimators.templates.crops import mask_in_crop, region_crop  # noqa: E402
-from simtest.estimators.templates.outline import MARGIN, OutlineNet  # noqa: E402
+from simtest.estimators.templates.crops import mask_in_crop  # noqa: E402
+from simtest.estimators.templates.outline import OutlineNet, fit_to_mask  # noqa: E402
 from simtest.io import bop  # noqa: E402
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
 from simtest.objects.loaders import load_dataset_objects  # noqa: E402
-from simtest.render.silhouette import object_silhouette  # noqa: E402
 
 ON_OBJECT_IOU = 0.3
 
@@ -65,20 +63,20 @@ def main() -> None:
         d = annotations[scene][im]
         mine = [k for k, g in enumerate(d["gt"]) if g.obj_id == oid]
         rgb = bop.read_image(scenes[scene], im)
-        sil = object_silhouette(obj, R, t, d["K"], rgb.shape[1], rgb.shape[0]) if t[2] > 0 else None
-        if mine and sil is not None and sil.sum() >= 50:
-            crop = region_crop(rgb, sil, d["K"], args.size, MARGIN)
-            exact = mask_in_crop(bop.read_mask(scenes[scene], im, mine[0], visible=True), d["K"], crop) > 0
-            prior = crop.mask > 0
-            if _iou(prior, exact) >= ON_OBJECT_IOU:
-                per_object.setdefault(oid, []).append([_iou(prior, exact)] + [
-                    _iou(net.mask(crop.rgb, crop.mask), exact) for net in nets])
-            if args.oracle is not None:
-                Rv = crop.R_virt
-                fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, exact.astype(np.float64), crop.valid,
-                                      max_scale=0.1, step_deg=2.0)
-                if fit.applied:
-                    R, t = Rv.T @ fit.R, Rv.T @ fit.t
+        visible = bop.read_mask(scenes[scene], im, mine[0], visible=True) if mine else None
+        exact = (lambda crop: mask_in_crop(visible, d["K"], crop) > 0) if mine else None
+
+        def measured(crop, exact=exact):
+            """The exact mask in the fit's crop, after the priors' and networks' IoU with it (on-object poses)."""
+            truth, prior = exact(crop), crop.mask > 0
+            if _iou(prior, truth) >= ON_OBJECT_IOU:
+                per_object.setdefault(oid, []).append([_iou(prior, truth)] + [
+                    _iou(net.mask(crop.rgb, crop.mask), truth) for net in nets])
+            return truth
+
+        if exact is not None:  # a pose on another object than its own keeps its place
+            fit = fit_to_mask(obj, rgb, d["K"], R, t, measured, args.size)  # the estimator's fit settings
+            R, t = fit.R, fit.t
         fitted.append({**row, "R": " ".join(repr(float(v)) for v in R.reshape(-1)),
                        "t": " ".join(repr(float(v) * 1000.0) for v in t)})
     names = ["prior"] + [Path(p).name for p in args.net]

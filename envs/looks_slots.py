@@ -16,8 +16,8 @@ surface and the occluder box with a library material, every printed object copy 
   term.
 
 The values come from the same functions the builder compiles a dressed spec with
-(:func:`~simtest.generators.builder.library_values`, :func:`~simtest.generators.builder.texture_pixels`,
-``light_values``), so a scene on the slots looks like the scene compiled from its spec. The GL textures written
+(:func:`~simtest.generators.builder.library_values`, :func:`~simtest.generators.builder.skin_values`,
+:func:`~simtest.generators.builder.texture_pixels`, ``light_values``), so a scene on the slots looks like the scene compiled from its spec. The GL textures written
 must then be uploaded again (``mjr_uploadTexture``): :func:`write_looks` returns their ids.
 
 Specs whose looks do not fit the slots (builtin patterns or image files on a surface, a ceiling panel,
@@ -33,7 +33,7 @@ import numpy as np
 import simtest  # noqa: F401  (GL backend before mujoco)
 import mujoco
 
-from simtest.generators.builder import SceneBuilder, SimScene, library_values, texture_pixels
+from simtest.generators.builder import SceneBuilder, SimScene, library_values, skin_values, texture_pixels
 from simtest.generators.looks import material_maps, skin_of
 from simtest.generators.scene_spec import LightSpec, SceneSpec, SurfaceSpec
 
@@ -171,9 +171,9 @@ def _object_material(m: mujoco.MjModel, p, skinned, material: str) -> None:
     (a tint of it) or no texture (plain or untextured), with the builder's values."""
     mat = _id(m, mujoco.mjtObj.mjOBJ_MATERIAL, material)
     if skinned is not None:
-        m.mat_specular[mat] = float(skinned.specular)
-        m.mat_roughness[mat] = float(skinned.roughness.mean() / 255.0)
-        m.mat_metallic[mat] = float(skinned.metallic.mean() / 255.0)
+        vals = skin_values(skinned)
+        m.mat_specular[mat], m.mat_roughness[mat], m.mat_metallic[mat] = (vals["specular"], vals["roughness"],
+                                                                          vals["metallic"])
         return
     m.mat_texid[mat] = -1
     m.mat_roughness[mat] = m.mat_metallic[mat] = -1.0  # unset, as an MjSpec material without them

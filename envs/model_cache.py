@@ -192,7 +192,8 @@ def _write_episode(scene: SimScene, spec: SceneSpec, materials: list[str],
         textured = dis.image is not None or dis.material is not None
         geom = _id(m, mujoco.mjtObj.mjOBJ_GEOM, f"distractor_{j}_geom")
         m.geom_rgba[geom] = (*_WHITE, 1.0) if textured else dis.rgba
-    if spec.environment is None:  # else the environment's lights and ambient term are compiled (its structure)
+    # With an environment its lights and ambient term are compiled (its structure); looks slots write their own.
+    if spec.environment is None and looks is None:
         for k, light in enumerate(spec.lights):
             lid = _id(m, mujoco.mjtObj.mjOBJ_LIGHT, f"light_{k}")
             m.light_pos[lid], m.light_dir[lid] = light.position, _unit(light.direction)

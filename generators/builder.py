@@ -23,8 +23,8 @@ from simtest.generators.scene_spec import SceneSpec, SurfaceSpec
 from simtest.objects import ObjectModel, ObjectSet
 from simtest.objects.appearance import add_object_visual, texture_roles
 
-__all__ = ["SimScene", "SceneState", "SceneBuilder", "LightValue", "texture_pixels", "library_values", "VISUAL_GROUP",
-           "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
+__all__ = ["SimScene", "SceneState", "SceneBuilder", "LightValue", "texture_pixels", "library_values", "skin_values",
+           "VISUAL_GROUP", "COLLISION_GROUP", "DRAWN_GROUPS", "CAMERA_NAME"]
 
 VISUAL_GROUP = 1
 COLLISION_GROUP = 3
@@ -319,10 +319,9 @@ class SceneBuilder:
     def _skin_material(self, ms: mujoco.MjSpec, mat, name: str, skin) -> None:
         """Show an instance's print ``skin`` (:class:`simtest.objects.skins.Skin`) on material ``mat``."""
         self._add_map(ms, f"{name}_skin", skin.albedo)
-        mat.specular = float(skin.specular)
         mat.textures = self._pbr_roles(ms, f"{name}_skin", f"{name}_skin", skin.roughness, None, skin.metallic)
-        mat.roughness = float(skin.roughness.mean() / 255.0)
-        mat.metallic = float(skin.metallic.mean() / 255.0)
+        for key, value in skin_values(skin).items():
+            setattr(mat, key, value)
 
     def _distractor_objects(self, ms: mujoco.MjSpec, spec: SceneSpec) -> None:
         """The scene's distractor objects (:mod:`simtest.generators.distractor_objects`): free bodies whose
@@ -452,6 +451,13 @@ def library_values(maps) -> dict[str, float]:
     rough = float(maps.roughness.mean() / 255.0)
     return {"specular": float(maps.specular), "shininess": 1.0 - rough, "metallic": float(maps.metallic),
             "roughness": rough}
+
+
+def skin_values(skin) -> dict[str, float]:
+    """The material values of a print (:class:`simtest.objects.skins.Skin`): specular, and roughness and metallic
+    as its maps' means (the rasterizer's; pbr reads the maps)."""
+    return {"specular": float(skin.specular), "roughness": float(skin.roughness.mean() / 255.0),
+            "metallic": float(skin.metallic.mean() / 255.0)}
 
 
 #: Longest side (pixels) of an image texture; larger images are downsampled.

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -22,7 +22,8 @@ from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
 from simtest.estimators.templates.crops import region_crop
 from simtest.render.silhouette import object_silhouette
 
-__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "shipped_outline", "MARGIN", "MIN_SILHOUETTE_PX"]
+__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
+           "MIN_SILHOUETTE_PX"]
 
 #: The ``format`` entry of outline-network checkpoints and ONNX files.
 FORMAT = "simtest-outline/1"
@@ -102,6 +103,16 @@ def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndar
     """The pose ``(R, t)`` of ``obj`` in image ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` refined by the
     outline network's mask (see the module doc); ``max_scale`` bounds the depth change ``|s - 1|``, ``step_deg``
     is the first rotation step (degrees; 0: the rotation stays)."""
+    return fit_to_mask(obj, rgb, K, R, t, lambda crop: net.mask(crop.rgb, crop.mask), net.size, max_scale,
+                       step_deg)
+
+
+def fit_to_mask(obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                mask_of: Callable[[Any], np.ndarray], size: int, max_scale: float = 0.1,
+                step_deg: float = 2.0) -> OutlineFit:
+    """:func:`outline_fit` with the mask drawn by ``mask_of(crop)`` ((size, size) bool) for the crop
+    (:class:`~simtest.estimators.templates.crops.Crop`) framed on the pose's silhouette: the network's, or an
+    exact visible mask warped into the crop (docs/sim2real_outline.py)."""
     from simtest.estimators.silhouette import fit_translation
 
     R, t, K = np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3), np.asarray(K, np.float64)
@@ -109,8 +120,8 @@ def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndar
     sil = object_silhouette(obj, R, t, K, W, H) if t[2] > 0 else np.zeros((H, W), bool)
     if int(sil.sum()) < MIN_SILHOUETTE_PX:
         return OutlineFit(R, t, False, 0.0, 0.0, 1.0)
-    crop = region_crop(rgb, sil, K, net.size, MARGIN)
-    mask = net.mask(crop.rgb, crop.mask)
+    crop = region_crop(rgb, sil, K, size, MARGIN)
+    mask = mask_of(crop)
     Rv = crop.R_virt
     fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale,
                           step_deg=step_deg)
