@@ -6,7 +6,9 @@ the command's parameters, the machine's cores and load average). ``simtest bench
 measurement again (or reads a fresh ``--json`` file) and prints, for every recorded profile and image size,
 fresh / recorded seconds per frame (wall and CPU); a ratio above the tolerance is a slow-down. A shared machine's
 load moves wall time most: compare runs made under similar load (both are printed), and re-record after a
-deliberate change (``--json simtest/benchmarks/recorded.json``).
+deliberate change (``--json simtest/benchmarks/recorded.json``). Each record names its processor
+(:func:`cpu_name`); when the two differ the table says so, since the ratios then compare machines, not code (the
+same code ran 0.6x as long on a Zen 5 EPYC as on the host its first figures were recorded on).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from pathlib import Path
 
 from simtest.errors import ConfigError
 
-__all__ = ["RECORDED", "CheckRow", "bench_record", "compare", "check_table", "read_record", "fresh_record"]
+__all__ = ["RECORDED", "CheckRow", "bench_record", "compare", "check_table", "read_record", "fresh_record",
+           "cpu_name"]
 
 #: The figures recorded in the repository (a :func:`bench_record` of the pbr profile at 320x240 and 640x480).
 RECORDED = Path(__file__).with_name("recorded.json")
@@ -52,14 +55,36 @@ class CheckRow:
         return None if self.fresh_cpu is None else self.fresh_cpu / self.recorded_cpu
 
 
+def cpu_name(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
+    """The processor, as ``/proc/cpuinfo`` names it: its model name with the vendor's family and model numbers
+    (``"AMD EPYC (family 26, model 2)"``; virtual machines often hide the full name, the numbers tell the
+    generation apart); :func:`platform.processor` or ``"unknown"`` where that file is absent."""
+    import platform
+
+    fields: dict[str, str] = {}
+    try:
+        for line in Path(cpuinfo).read_text().splitlines():
+            if not line.strip():
+                break  # the first processor's block is enough
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
+    except OSError:
+        return platform.processor() or "unknown"
+    name = fields.get("model name") or fields.get("Processor") or platform.processor() or "unknown"
+    if "cpu family" in fields and "model" in fields:
+        name += f" (family {fields['cpu family']}, model {fields['model']})"
+    return name
+
+
 def bench_record(table: dict, command: str = "") -> dict:
     """``table`` (a :meth:`ProfileBench.to_dict` or :meth:`GenerateBench.to_dict`) with what the run saw: the
-    command, cores, the load averages (1, 5 and 15 minutes) when it is written and the time (UTC)."""
+    command, the processor (:func:`cpu_name`), cores, the load averages (1, 5 and 15 minutes) when it is written
+    and the time (UTC)."""
     from simtest.backend.threads import available_cores
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     return {**table, "command": command, "machine": {
-        "cores": available_cores(), "load_average_1_5_15": [round(x, 2) for x in load],
+        "cpu": cpu_name(), "cores": available_cores(), "load_average_1_5_15": [round(x, 2) for x in load],
         "recorded_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}}
 
 
@@ -121,7 +146,13 @@ def check_table(rows: list[CheckRow], recorded: dict, fresh: dict, tolerance: fl
                      f"{fmt(r.fresh_wall)}; {fmt(r.fresh_cpu)} | {fmt(r.wall_ratio)} | {fmt(r.cpu_ratio)} | "
                      f"{verdict} |")
     loads = [d.get("machine", {}).get("load_average_1_5_15") for d in (recorded, fresh)]
-    lines += ["", f"load average (1, 5, 15 min) when written: recorded {loads[0]}, fresh {loads[1]}"]
+    cpus = [d.get("machine", {}).get("cpu") for d in (recorded, fresh)]
+    lines += ["", f"load average (1, 5, 15 min) when written: recorded {loads[0]}, fresh {loads[1]}",
+              f"processor: recorded {cpus[0] or 'not recorded'}, fresh {cpus[1] or 'not recorded'}"]
+    if cpus[0] != cpus[1]:
+        lines.append("NOTE: the runs are not known to be on the same processor, so the ratios compare machines as "
+                     "well as code; re-record on this machine (`simtest bench generate ... --json "
+                     "simtest/benchmarks/recorded.json`) before reading them as a change of the code")
     return "\n".join(lines)
 
 

@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from simtest.benchmarks.check import RECORDED, compare, read_record
+from simtest.benchmarks.check import RECORDED, check_table, compare, cpu_name, read_record
 from simtest.cli import main
 from simtest.errors import ConfigError
 
@@ -31,11 +31,13 @@ def test_profiles_json_and_the_check_against_it(tmp_path, capsys):
     assert row["stages"]["trace"] > 0 and row["scene_loads"] == 1
     assert sum(row["stages"].values()) == pytest.approx(row["wall"], rel=0.02, abs=2e-3)
     assert rec["machine"]["cores"] >= 1 and len(rec["machine"]["load_average_1_5_15"]) == 3
+    assert rec["machine"]["cpu"] == cpu_name()
     assert rec["command"].startswith("simtest bench generate --profiles pbr")
 
     assert main(["bench", "check", "--recorded", str(out), "--fresh", str(out)]) == 0
     text = capsys.readouterr().out
     assert "| pbr | 64x48 |" in text and "| 1.00 | 1.00 | yes |" in text
+    assert f"processor: recorded {cpu_name()}, fresh {cpu_name()}" in text and "NOTE" not in text
 
     fast = dict(rec, rows=[dict(row, wall=row["wall"] / 2, cpu=row["cpu"] / 2)])
     faster = tmp_path / "faster.json"
@@ -71,3 +73,22 @@ def test_the_recorded_figures_are_a_profiles_table_of_the_pbr_profile():
     sizes = {(r["width"], r["height"]) for r in rec["rows"] if r["profile"] == "pbr"}
     assert {(320, 240), (640, 480)} <= sizes
     assert all(r["wall"] > 0 and r["cpu"] > 0 for r in rec["rows"])
+
+
+def test_the_processor_is_read_and_a_change_of_it_is_said(tmp_path):
+    """``cpu_name`` reads the first processor's model name and family / model numbers from a cpuinfo file; the
+    check's table names both runs' processors and warns when they differ (or one is not recorded)."""
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 26\nmodel\t\t: 2\n"
+                    "model name\t: AMD EPYC\n\nprocessor\t: 1\nmodel name\t: other\n")
+    assert cpu_name(info) == "AMD EPYC (family 26, model 2)"
+    assert cpu_name(tmp_path / "absent") != ""
+    row = {"profile": "pbr", "width": 320, "height": 240, "wall": 0.5, "cpu": 1.0}
+    old = {"kind": "profiles", "rows": [row], "machine": {"cpu": "AMD EPYC (family 25, model 1)"}}
+    new = {"kind": "profiles", "rows": [row], "machine": {"cpu": "AMD EPYC (family 26, model 2)"}}
+    text = check_table(compare(old, new), old, new, 1.3, "cpu")
+    assert "processor: recorded AMD EPYC (family 25, model 1), fresh AMD EPYC (family 26, model 2)" in text
+    assert "NOTE: the runs are not known to be on the same processor" in text
+    assert "NOTE" not in check_table(compare(new, new), new, new, 1.3, "cpu")
+    bare = {"kind": "profiles", "rows": [row]}
+    assert "recorded not recorded" in check_table(compare(bare, new), bare, new, 1.3, "cpu")
