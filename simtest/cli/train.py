@@ -82,6 +82,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-scale", choices=("crop", "image"),
                    help="outlines: apply the camera's blur, colour and noise to the crop (default) or to the image "
                         "around the object before cropping")
+    p.add_argument("--no-image-skip", dest="image_skip", action="store_false", default=None,
+                   help="outlines: the network's last stage reads the pretrained features and the prior only, not "
+                        "the crop's pixels")
     p.add_argument("--decoder", default="64,48", metavar="A,B", help="decoder channels at strides 8, 4 (default: 64,48)")
     p.add_argument("--keypoints", default="bbox", choices=("bbox", "fps"), help="keypoint set (default: bbox)")
     p.add_argument("--init", metavar="CHECKPOINT",
@@ -198,7 +201,8 @@ def _run_outlines(args: argparse.Namespace) -> int:
                              split=args.split, val=args.val, val_split=args.val_split, val_images=args.val_images,
                              max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
                              **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size",
-                                      pose_priors="pose_priors", camera_scale="camera_scale"))
+                                      pose_priors="pose_priors", camera_scale="camera_scale",
+                                      image_skip="image_skip"))
     res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
     return _report(res, cfg.epochs, "val_iou", lambda b: f"val mask IoU {100 * b['val_iou']:.1f} %, the priors' "
                                                          f"{100 * b['val_prior_iou']:.1f} %")

@@ -70,6 +70,7 @@ class OutlineTrainConfig:
         camera_scale: Where the camera's changes apply: ``"crop"`` (to the crop, as the shipped network was
             trained) or ``"image"`` (to the image around the object before it is cropped, blur sigma 0.5-1.8
             image pixels: a camera blurs in its own pixels, so a small object's crop is blurrier).
+        image_skip: The network's last stage also reads the crop's pixels (:class:`MaskNetConfig`; default on).
         encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
@@ -93,6 +94,7 @@ class OutlineTrainConfig:
     augment_p: float = 1.0
     pose_priors: float = 0.0
     camera_scale: str = "crop"
+    image_skip: bool = True
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -311,7 +313,7 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
         val = OutlineCrops(_instances([cfg.val], cfg.val_split, cfg.min_visib, cfg.val_images), cfg.crop_size,
                            cfg.seed + 1, False, objects=objects, pose_priors=cfg.pose_priors)
     with torch.random.fork_rng(devices=[]):
-        net = MaskNet(MaskNetConfig(crop_size=int(cfg.crop_size)))
+        net = MaskNet(MaskNetConfig(crop_size=int(cfg.crop_size), image_skip=bool(cfg.image_skip)))
     net.init_weights(torch.Generator().manual_seed(int(cfg.seed)))
     return Plan(fmt=FORMAT, net=net.to(cfg.device), record=record, objects=objects, dataset=train,
                 losses=lambda n, b: outline_loss(n(b["x"].to(cfg.device)), b["y"].to(cfg.device)),

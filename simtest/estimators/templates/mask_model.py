@@ -35,10 +35,14 @@ class MaskNetConfig:
     Attributes:
         crop_size: Side of the square crops (pixels, a multiple of 32).
         widths: Decoder channels at strides 16, 8, 4, 2 and 1.
+        image_skip: The decoder's last stage sees the crop's own pixels beside the upsampled decoder and the
+            prior (as the shipped network). Off, it sees the pretrained features only: no trained layer then
+            reads raw pixel values, which differ most between renders and a camera's images.
     """
 
     crop_size: int = 128
     widths: tuple[int, int, int, int, int] = (64, 48, 32, 24, 16)
+    image_skip: bool = True
 
     def __post_init__(self) -> None:
         if int(self.crop_size) < 32 or int(self.crop_size) % 32:
@@ -78,7 +82,7 @@ class MaskNet(nn.Module):
         self.d8 = _block(w16 + c8 + 1, w8)
         self.d4 = _block(w8 + c4 + 1, w4)
         self.d2 = _block(w4 + c2 + 1, w2)
-        self.d1 = _block(w2 + 3 + 1, w1)
+        self.d1 = _block(w2 + (3 if cfg.image_skip else 0) + 1, w1)
         self.head = nn.Conv2d(w1, 1, 1)
 
     def init_weights(self, generator: torch.Generator) -> None:
@@ -101,4 +105,5 @@ class MaskNet(nn.Module):
             y = F.interpolate(y, size=f.shape[-2:], mode="bilinear", align_corners=False)
             y = block(torch.cat([y, f, F.avg_pool2d(prior, stride)], 1))
         y = F.interpolate(y, size=x.shape[-2:], mode="bilinear", align_corners=False)
-        return self.head(self.d1(torch.cat([y, rgb, prior], 1)))
+        last = [y, rgb, prior] if self.cfg.image_skip else [y, prior]
+        return self.head(self.d1(torch.cat(last, 1)))

@@ -171,3 +171,28 @@ def test_the_template_estimator_fits_its_kept_poses_with_an_outline_network(outl
         TemplateEstimator(outline_max_scale=1.5)
     with pytest.raises(ConfigError, match="outline_deg"):
         TemplateEstimator(outline_deg=-1.0)
+
+
+def test_without_the_image_skip_the_last_stage_reads_no_pixels_and_old_checkpoints_keep_it():
+    """``image_skip=False`` drops the crop's pixels from the last decoder stage, which then reads the upsampled
+    decoder and the prior only; a network record without the field (checkpoints made before it) keeps the
+    skip."""
+    from simtest.estimators.templates.mask_model import MaskNet, MaskNetConfig
+
+    assert MaskNetConfig.from_dict({"crop_size": 64, "widths": [8, 8, 8, 8, 8]}).image_skip is True
+    cfg = MaskNetConfig(crop_size=64, widths=(8, 8, 8, 8, 8), image_skip=False)
+    assert MaskNetConfig.from_dict(cfg.to_dict()) == cfg
+    x = torch.rand(1, 4, 64, 64, generator=torch.Generator().manual_seed(1))
+    x[:, 3] = (x[:, 3] > 0.5).float()
+    for skip in (True, False):
+        net = MaskNet(MaskNetConfig(crop_size=64, widths=(8, 8, 8, 8, 8), image_skip=skip))
+        net.init_weights(torch.Generator().manual_seed(0))
+        seen = []
+        net.d1.register_forward_hook(lambda mod, inp, out: seen.append(inp[0]))
+        with torch.no_grad():
+            assert net.eval()(x).shape == (1, 1, 64, 64)
+        (inp,) = seen
+        assert inp.shape[1] == 8 + (3 if skip else 0) + 1 and torch.equal(inp[:, -1], x[:, 3])
+        assert torch.equal(inp[:, 8:11], x[:, :3]) is skip
+    with pytest.raises(ConfigError):
+        OutlineTrainConfig(data="x", out="y", crop_size=100, image_skip=False)
