@@ -86,9 +86,10 @@ POSES = ("network", "templates")
 #: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
 #: ``candidates`` is given, no silhouette fit to the detector's coarse regions, the framing search that
 #: frees the pose from the region's outline, and the local template search around the best match (first step
-#: in degrees) on the searched framing (chosen on the real LM-O frames, docs/sim2real.md).
+#: in degrees) on the searched framing, and the outline fit to the network's probability averaged with its mirror
+#: image's (chosen on the real LM-O frames, docs/sim2real.md).
 TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
-TEMPLATE_LOCAL_DEG = 4.0
+TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK = 4.0, "soft+flip"
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -421,7 +422,8 @@ class CropKeypointEstimator:
                 candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
                 framing=TEMPLATE_FRAMING and self.detect == "rgb",
-                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline)
+                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline,
+                outline_mask=TEMPLATE_OUTLINE_MASK)
             self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

@@ -53,7 +53,7 @@ from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
-from simtest.estimators.templates.outline import OutlineNet, outline_fit
+from simtest.estimators.templates.outline import MASK_MODES, OutlineNet, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
@@ -108,7 +108,9 @@ class TemplateEstimator:
         outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
             change of that fit; outline_deg: its first rotation step in degrees (0: the rotation stays; 2 chosen
-            on held-out renders, docs/sim2real.md, eighth round).
+            on held-out renders, docs/sim2real.md, eighth round); outline_mask: how the fit reads the network's
+            output (:data:`~simtest.estimators.templates.outline.MASK_MODES`: ``hard``, ``soft`` or
+            ``soft+flip``; docs/sim2real.md, tenth round).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -121,7 +123,7 @@ class TemplateEstimator:
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
-                 outline_max_scale: float = 0.1, outline_deg: float = 2.0) -> None:
+                 outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard") -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -180,9 +182,12 @@ class TemplateEstimator:
         if not 0.0 < float(outline_max_scale) < 1.0 or not 0.0 <= float(outline_deg) <= 10.0:
             raise ConfigError(f"templates: need outline_max_scale in (0, 1) and outline_deg in [0, 10] degrees, got "
                               f"{outline_max_scale!r}, {outline_deg!r}")
+        if outline_mask not in MASK_MODES:
+            raise ConfigError(f"templates: outline_mask {outline_mask!r} is unknown; allowed: {', '.join(MASK_MODES)}")
         #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
         self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)
         self.outline_max_scale, self.outline_deg = float(outline_max_scale), float(outline_deg)
+        self.outline_mask = str(outline_mask)
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -248,7 +253,7 @@ class TemplateEstimator:
         rgb, out = np.asarray(obs.rgb), []
         for e in found:
             fit = outline_fit(self.outline, obs.objects.get(e.obj_id), rgb, K, e.R, e.t, self.outline_max_scale,
-                              self.outline_deg)
+                              self.outline_deg, self.outline_mask)
             out.append(replace(e, R=fit.R, t=fit.t, info={**e.info, "outline": fit.info()}))
         return out
 

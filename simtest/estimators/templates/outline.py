@@ -5,7 +5,10 @@ fitted to that mask.
 :func:`outline_fit` looks at the pose through the crop the templates use (the pose's own silhouette framed with
 margin 1.2), asks the network for the visible mask with the silhouette as its prior, and moves the object
 along its viewing ray and across the image (depth by at most ``max_scale``) until its silhouette agrees with
-that mask best (:func:`simtest.estimators.silhouette.fit_translation`); the rotation stays. Inference runs
+that mask best (:func:`simtest.estimators.silhouette.fit_translation`); small turns follow (``step_deg``). The mask
+is read one of three ways (``mask_mode``, :data:`MASK_MODES`): ``"hard"`` the pixels whose logit is positive;
+``"soft"`` the network's probability, so that pixels it is unsure of weigh less in the fit's IoU; ``"soft+flip"``
+the mean probability of the crop and of its mirror image (the network run twice). Inference runs
 through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through torch from a ``.pt``.
 """
 
@@ -23,7 +26,7 @@ from simtest.estimators.templates.crops import region_crop
 from simtest.render.silhouette import object_silhouette
 
 __all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
-           "MIN_SILHOUETTE_PX"]
+           "MIN_SILHOUETTE_PX", "MASK_MODES"]
 
 #: The ``format`` entry of outline-network checkpoints and ONNX files.
 FORMAT = "simtest-outline/1"
@@ -31,6 +34,8 @@ FORMAT = "simtest-outline/1"
 MARGIN = 1.2
 #: A pose whose silhouette covers fewer image pixels is left as it is.
 MIN_SILHOUETTE_PX = 50
+#: How :func:`outline_fit` reads the network's output (see the module doc).
+MASK_MODES = ("hard", "soft", "soft+flip")
 
 
 class OutlineNet:
@@ -65,8 +70,8 @@ class OutlineNet:
             self._torch = torch
         self.size = int(cfg["crop_size"])
 
-    def mask(self, crop_rgb: np.ndarray, prior: np.ndarray) -> np.ndarray:
-        """The visible mask (S, S) bool of a crop (S, S, 3) uint8 given the prior silhouette (S, S) bool."""
+    def logits(self, crop_rgb: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """The mask logits (S, S) float32 of a crop (S, S, 3) uint8 given the prior silhouette (S, S) bool."""
         S = self.size
         if crop_rgb.shape != (S, S, 3) or prior.shape != (S, S):
             raise ConfigError(f"outline network: needs a ({S}, {S}, 3) crop and a ({S}, {S}) prior, got "
@@ -78,7 +83,37 @@ class OutlineNet:
         else:
             with self._torch.inference_mode():
                 logits = self.model(self._torch.from_numpy(x)).numpy()
-        return logits[0, 0] > 0
+        return logits[0, 0]
+
+    def mask(self, crop_rgb: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """The visible mask (S, S) bool of a crop (S, S, 3) uint8 given the prior silhouette (S, S) bool."""
+        return self.logits(crop_rgb, prior) > 0
+
+    def probability(self, crop_rgb: np.ndarray, prior: np.ndarray, flip: bool = False) -> np.ndarray:
+        """The probability (S, S) float64 in [0, 1] that each pixel of the crop is one of the object's visible
+        pixels; with ``flip`` the mean of the crop's and of its mirror image's (mirrored back)."""
+        p = _sigmoid(self.logits(crop_rgb, prior))
+        if flip:
+            mirrored = self.logits(np.ascontiguousarray(crop_rgb[:, ::-1]), np.ascontiguousarray(prior[:, ::-1]))
+            p = 0.5 * (p + _sigmoid(mirrored)[:, ::-1])
+        return p
+
+    def read(self, crop_rgb: np.ndarray, prior: np.ndarray, mode: str = "hard") -> np.ndarray:
+        """The mask the fit uses, read as ``mode`` says (:data:`MASK_MODES`): bool for ``"hard"``, else the
+        probability (float64).
+
+        Raises:
+            ConfigError: An unknown ``mode``, naming the allowed ones.
+        """
+        if mode == "hard":
+            return self.mask(crop_rgb, prior)
+        if mode not in MASK_MODES:
+            raise ConfigError(f"outline network: mask mode {mode!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+        return self.probability(crop_rgb, prior, flip=mode == "soft+flip")
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-np.asarray(z, np.float64)))
 
 
 @dataclass
@@ -99,18 +134,26 @@ class OutlineFit:
 
 
 def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                max_scale: float = 0.1, step_deg: float = 2.0) -> OutlineFit:
+                max_scale: float = 0.1, step_deg: float = 2.0, mask_mode: str = "hard") -> OutlineFit:
     """The pose ``(R, t)`` of ``obj`` in image ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` refined by the
     outline network's mask (see the module doc); ``max_scale`` bounds the depth change ``|s - 1|``, ``step_deg``
-    is the first rotation step (degrees; 0: the rotation stays)."""
-    return fit_to_mask(obj, rgb, K, R, t, lambda crop: net.mask(crop.rgb, crop.mask), net.size, max_scale,
-                       step_deg)
+    is the first rotation step (degrees; 0: the rotation stays), ``mask_mode`` how the network's output is read
+    (:data:`MASK_MODES`).
+
+    Raises:
+        ConfigError: An unknown ``mask_mode``.
+    """
+    if mask_mode not in MASK_MODES:
+        raise ConfigError(f"outline fit: mask_mode {mask_mode!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+    return fit_to_mask(obj, rgb, K, R, t, lambda crop: net.read(crop.rgb, crop.mask, mask_mode), net.size,
+                       max_scale, step_deg)
 
 
 def fit_to_mask(obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                 mask_of: Callable[[Any], np.ndarray], size: int, max_scale: float = 0.1,
                 step_deg: float = 2.0) -> OutlineFit:
-    """:func:`outline_fit` with the mask drawn by ``mask_of(crop)`` ((size, size) bool) for the crop
+    """:func:`outline_fit` with the mask drawn by ``mask_of(crop)`` ((size, size) bool, or a probability in
+    [0, 1]) for the crop
     (:class:`~simtest.estimators.templates.crops.Crop`) framed on the pose's silhouette: the network's, or an
     exact visible mask warped into the crop (docs/sim2real_outline.py)."""
     from simtest.estimators.silhouette import fit_translation

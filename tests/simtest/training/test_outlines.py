@@ -171,6 +171,12 @@ def test_the_template_estimator_fits_its_kept_poses_with_an_outline_network(outl
         TemplateEstimator(outline_max_scale=1.5)
     with pytest.raises(ConfigError, match="outline_deg"):
         TemplateEstimator(outline_deg=-1.0)
+    with pytest.raises(ConfigError, match="outline_mask 'fuzzy' is unknown; allowed: hard, soft, soft\\+flip"):
+        TemplateEstimator(outline_mask="fuzzy")
+    soft = TemplateEstimator(detect="gt", views=60, refine="none", outline=str(outline_run.model_path),
+                             outline_max_scale=0.05, outline_deg=0.0, outline_mask="soft+flip")
+    (c,) = soft.estimate(obs)
+    assert abs(c.t[2] / a.t[2] - 1.0) <= 0.06 and set(c.info["outline"]) == set(b.info["outline"])
 
 
 def test_without_the_image_skip_the_last_stage_reads_no_pixels_and_old_checkpoints_keep_it():
@@ -196,3 +202,38 @@ def test_without_the_image_skip_the_last_stage_reads_no_pixels_and_old_checkpoin
         assert torch.equal(inp[:, 8:11], x[:, :3]) is skip
     with pytest.raises(ConfigError):
         OutlineTrainConfig(data="x", out="y", crop_size=100, image_skip=False)
+
+
+def test_the_mask_is_read_hard_soft_or_soft_with_its_mirror_image(outline_run):
+    """``soft`` is the network's probability (its pixels above 0.5 are the hard mask), ``soft+flip`` the mean of
+    the crop's and of its mirror image's probabilities (mirrored back: for a mirror-symmetric crop and prior the
+    mask is mirror-symmetric); the fit takes each mode and refuses an unknown one by name."""
+    net = OutlineNet(outline_run.model_path.with_suffix(".onnx"))
+    rng = np.random.default_rng(2)
+    crop = rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    prior = np.zeros((64, 64), bool)
+    prior[16:48, 20:40] = True
+    hard, soft = net.read(crop, prior, "hard"), net.read(crop, prior, "soft")
+    assert hard.dtype == bool and soft.dtype == np.float64 and 0.0 <= soft.min() and soft.max() <= 1.0
+    assert np.array_equal(soft > 0.5, hard)
+    mirror = net.probability(np.ascontiguousarray(crop[:, ::-1]), np.ascontiguousarray(prior[:, ::-1]))[:, ::-1]
+    assert np.allclose(net.read(crop, prior, "soft+flip"), 0.5 * (soft + mirror))
+    sym = np.concatenate([crop[:, :32], crop[:, :32][:, ::-1]], 1)
+    sym_prior = np.concatenate([prior[:, :32], prior[:, :32][:, ::-1]], 1)
+    both = net.read(sym, sym_prior, "soft+flip")
+    assert np.allclose(both, both[:, ::-1], atol=1e-6)
+    with pytest.raises(ConfigError, match="allowed: hard, soft, soft\\+flip"):
+        net.read(crop, prior, "fuzzy")
+
+    from simtest.estimators.templates.render import ObjectRenderer
+    from simtest.estimators.templates.views import view_rotation
+
+    obj = load_object_set("builtin-small").by_name("mug_0")
+    R, t = view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, 640, 480) as renderer:
+        rgb, _ = renderer.render(R, t)
+    for mode in ("soft", "soft+flip"):
+        fit = outline_fit(net, obj, rgb, K, R, t, max_scale=0.1, step_deg=0.0, mask_mode=mode)
+        assert abs(fit.scale - 1.0) <= 0.11 and np.allclose(fit.R, R, atol=1e-12)
+    with pytest.raises(ConfigError, match="mask_mode 'fuzzy'"):
+        outline_fit(net, obj, rgb, K, R, t, mask_mode="fuzzy")
