@@ -176,7 +176,8 @@ class CropKeypointEstimator:
             ``templates`` for LM-O), else ``network``.
         outline: ``pose=templates`` with ``detect=rgb``: the outline network that fits each kept pose to the
             object's visible mask (:mod:`simtest.estimators.templates.outline`); None: the shipped one trained
-            for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit.
+            for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit. outline_mask: how
+            that fit reads the network (:data:`~simtest.estimators.templates.outline.MASK_MODES`; ``soft+flip``).
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class
             probability first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md):
             the detector's region holds the object for 44.9 % of 761 real targets ranked by probability,
@@ -198,10 +199,13 @@ class CropKeypointEstimator:
                  dense_keep: float = 0.5, ransac_px: float = 3.0, recrop: int | None = None,
                  refine: str | None = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.15,
                  refine_coverage: float = 0.2, candidates: int | None = None, region_rank: str = "prob",
-                 pose: str | None = None, outline: str | bool | None = None, *, model: Any = None,
+                 pose: str | None = None, outline: str | bool | None = None,
+                 outline_mask: str = TEMPLATE_OUTLINE_MASK, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
+        from simtest.estimators.templates.outline import MASK_MODES  # local: templates import this package
+
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
-                              ("solver", solver, SOLVERS)):
+                              ("solver", solver, SOLVERS), ("outline_mask", outline_mask, MASK_MODES)):
             if val not in ok:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
         if int(top_n) < 1:
@@ -248,7 +252,7 @@ class CropKeypointEstimator:
         self.net = self.model = None
         self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
                          "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
-                         "candidates": candidates, "outline": outline}
+                         "candidates": candidates, "outline": outline, "outline_mask": outline_mask}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:
@@ -423,7 +427,7 @@ class CropKeypointEstimator:
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
                 framing=TEMPLATE_FRAMING and self.detect == "rgb",
                 local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline,
-                outline_mask=TEMPLATE_OUTLINE_MASK)
+                outline_mask=self._options["outline_mask"])
             self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)
