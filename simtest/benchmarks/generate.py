@@ -386,8 +386,10 @@ class ProfileBench:
             lines.append(f"| {name} | {r.width}x{r.height} | {r.wall:.2f} | {r.cpu:.2f} | {two[0]} | {two[1]} |")
         variants = sorted({r.variant for r in self.rows if r.variant})
         if variants:
+            from simtest.benchmarks.check import cpu_name
+
             lines += ["", f"pbr path tracer: {'; '.join(variants)}; {self.scenes} scenes x {self.frames_per_scene} "
-                          f"views per measurement"]
+                          f"views per measurement; processor: {cpu_name()}"]
         staged = [r for r in self.rows if r.stages]
         if staged:
             names = list(staged[0].stages)
