@@ -10,8 +10,9 @@ Back ends:
 ``local``
     ``workers`` processes on this machine (``multiprocessing`` *spawn*: GL contexts do not survive fork; one
     unit in flight per worker), or this process when ``workers`` is 1. A worker process that dies without an
-    exception (killed, out of memory, a native library aborting) breaks the pool: the units in flight are
-    submitted again on a new pool, up to ``retries`` times each, as on Ray; the run never waits on a dead
+    exception (killed, out of memory, a native library aborting) breaks the pool: the unit it held is
+    submitted again on a new pool, up to ``retries`` times, as on Ray (when the pool held several, each runs
+    again alone first, so that only the unit whose worker died is charged); the run never waits on a dead
     worker.
 ``ray``
     Ray tasks (the ``ray`` extra, imported lazily). Without an address a local Ray instance is started with

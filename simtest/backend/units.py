@@ -57,40 +57,50 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], backend: Backend, 
 def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend, init, init_args: tuple,
                     stats: RunStats) -> Iterator[Any]:
     """The units on ``backend.workers`` spawned processes, at most one unit in flight per worker. A worker that
-    dies without an exception (killed, out of memory, a native library aborting) breaks the pool: the units it
-    and the other workers held are charged one loss each and submitted again on a new pool, up to
-    ``backend.retries`` losses per unit (then a :class:`UnitFailure`); the finished ones are kept."""
+    dies without an exception (killed, out of memory, a native library aborting) breaks the pool, and the pool
+    does not say whose unit it was: when it held one unit, that unit is charged a loss and submitted again, up to
+    ``backend.retries`` losses (then a :class:`UnitFailure`); when it held several, none is charged and each is
+    submitted again alone, one at a time, so that the next break names its unit. The finished ones are kept."""
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")  # GL contexts do not survive fork
-    todo = list(range(len(units)))
+    todo, alone = list(range(len(units))), []  # alone: suspects of a break, run one at a time
     losses: dict[int, int] = {}
-    while todo:
-        with ProcessPoolExecutor(min(backend.workers, len(todo)), mp_context=ctx, initializer=_init_worker,
+    while todo or alone:
+        solo = bool(alone)
+        workers = 1 if solo else min(backend.workers, len(todo))
+        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                  initargs=(init, init_args)) as pool:
-            queue, todo = todo, []
+            queue = alone if solo else todo
+            if solo:
+                alone = []
+            else:
+                todo = []
             in_flight: dict[Any, int] = {}
             while queue or in_flight:
-                while queue and len(in_flight) < backend.workers:
+                while queue and len(in_flight) < workers:
                     i = queue.pop(0)
                     in_flight[pool.submit(_run_unit, fn, units[i])] = i
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                broken = None
+                broken, held = None, []
                 for future in done:
                     i = in_flight.pop(future)
                     try:
                         result = future.result()
                     except BrokenProcessPool as exc:
                         broken = exc
-                        _lost(units, i, exc, losses, backend.retries, todo, stats)
+                        held.append(i)
                         continue
                     stats.finished += 1
                     yield result
                 if broken is not None:  # the pool is gone: what it held and what was left go to a new one
-                    for future, i in in_flight.items():
-                        _lost(units, i, broken, losses, backend.retries, todo, stats)
-                    todo += queue
+                    held += list(in_flight.values())
+                    if len(held) == 1:
+                        _lost(units, held[0], broken, losses, backend.retries, todo, stats)
+                    else:
+                        _suspects(units, held, alone, stats)
+                    (alone if solo else todo).extend(queue)
                     break
 
 
@@ -124,6 +134,15 @@ def _lost(units: list[Any], i: int, exc: BaseException, losses: dict[int, int], 
         todo.append(i)
         logging.getLogger(__name__).warning(f"unit {units[i]!r} lost its worker process (it died without an "
                                             f"exception); submitted again ({losses[i]} of {retries} retries)")
+
+
+def _suspects(units: list[Any], held: list[int], alone: list[int], stats: RunStats) -> None:
+    """Units ``held`` by a pool that broke: one of them, unknown which, lost its worker; each runs again alone."""
+    for i in held:
+        stats.retried += 1
+        alone.append(i)
+        logging.getLogger(__name__).warning(f"unit {units[i]!r} lost its worker process with {len(held) - 1} other "
+                                            f"unit(s) in flight; submitted again alone to find whose it was")
 
 
 def preflight(backend: Backend) -> None:
