@@ -7,7 +7,7 @@ measurement again (or reads a fresh ``--json`` file) and prints, for every recor
 fresh / recorded seconds per frame (wall and CPU); a ratio above the tolerance is a slow-down. A shared machine's
 load moves wall time most: compare runs made under similar load (both are printed), and re-record after a
 deliberate change (``--json simtest/benchmarks/recorded.json``). Each record names its processor
-(:func:`cpu_name`); when the two differ the table says so, since the ratios then compare machines, not code (the
+(:func:`simtest.benchmarks.machine.cpu_name`); when the two differ the table says so, since the ratios then compare machines, not code (the
 same code ran 0.6x as long on a Zen 5 EPYC as on the host its first figures were recorded on).
 """
 
@@ -19,10 +19,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from simtest.benchmarks.machine import cpu_name
 from simtest.errors import ConfigError
 
-__all__ = ["RECORDED", "CheckRow", "bench_record", "compare", "check_table", "read_record", "fresh_record",
-           "cpu_name"]
+__all__ = ["RECORDED", "CheckRow", "bench_record", "compare", "check_table", "read_record", "fresh_record"]
 
 #: The figures recorded in the repository (a :func:`bench_record` of the pbr profile at 320x240 and 640x480).
 RECORDED = Path(__file__).with_name("recorded.json")
@@ -55,30 +55,9 @@ class CheckRow:
         return None if self.fresh_cpu is None else self.fresh_cpu / self.recorded_cpu
 
 
-def cpu_name(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
-    """The processor, as ``/proc/cpuinfo`` names it: its model name with the vendor's family and model numbers
-    (``"AMD EPYC (family 26, model 2)"``; virtual machines often hide the full name, the numbers tell the
-    generation apart); :func:`platform.processor` or ``"unknown"`` where that file is absent."""
-    import platform
-
-    fields: dict[str, str] = {}
-    try:
-        for line in Path(cpuinfo).read_text().splitlines():
-            if not line.strip():
-                break  # the first processor's block is enough
-            key, _, value = line.partition(":")
-            fields.setdefault(key.strip(), value.strip())
-    except OSError:
-        return platform.processor() or "unknown"
-    name = fields.get("model name") or fields.get("Processor") or platform.processor() or "unknown"
-    if "cpu family" in fields and "model" in fields:
-        name += f" (family {fields['cpu family']}, model {fields['model']})"
-    return name
-
-
 def bench_record(table: dict, command: str = "") -> dict:
     """``table`` (a :meth:`ProfileBench.to_dict` or :meth:`GenerateBench.to_dict`) with what the run saw: the
-    command, the processor (:func:`cpu_name`), cores, the load averages (1, 5 and 15 minutes) when it is written
+    command, the processor (:func:`simtest.benchmarks.machine.cpu_name`), cores, the load averages (1, 5 and 15 minutes) when it is written
     and the time (UTC)."""
     from simtest.backend.threads import available_cores
 

@@ -386,7 +386,7 @@ class ProfileBench:
             lines.append(f"| {name} | {r.width}x{r.height} | {r.wall:.2f} | {r.cpu:.2f} | {two[0]} | {two[1]} |")
         variants = sorted({r.variant for r in self.rows if r.variant})
         if variants:
-            from simtest.benchmarks.check import cpu_name
+            from simtest.benchmarks.machine import cpu_name
 
             lines += ["", f"pbr path tracer: {'; '.join(variants)}; {self.scenes} scenes x {self.frames_per_scene} "
                           f"views per measurement; processor: {cpu_name()}"]

@@ -309,7 +309,7 @@ def test_bench_profiles_reports_each_profile_and_size():
     table = res.table()
     assert "| pbr (2 spp, denoised) | 48x36 |" in table and "2 workers / 1 worker" in table
     assert "pbr path tracer: scalar_rgb; 2 scenes x 1 views" in table
-    from simtest.benchmarks.check import cpu_name
+    from simtest.benchmarks.machine import cpu_name
 
     assert f"views per measurement; processor: {cpu_name()}" in table  # a machine's change is seen in the table
     one = bench_profiles(["pbr"], [(48, 36)], objects_per_scene=1, scenes=1, frames_per_scene=1,

@@ -8,7 +8,8 @@ import json
 
 import pytest
 
-from simtest.benchmarks.check import RECORDED, check_table, compare, cpu_name, read_record
+from simtest.benchmarks.check import RECORDED, check_table, compare, read_record
+from simtest.benchmarks.machine import cpu_name
 from simtest.cli import main
 from simtest.errors import ConfigError
 
