@@ -72,11 +72,7 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
         workers = 1 if solo else min(backend.workers, len(todo))
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                  initargs=(init, init_args)) as pool:
-            queue = alone if solo else todo
-            if solo:
-                alone = []
-            else:
-                todo = []
+            queue, alone, todo = (alone, [], todo) if solo else (todo, alone, [])
             in_flight: dict[Any, int] = {}
             while queue or in_flight:
                 while queue and len(in_flight) < workers:

@@ -7,8 +7,9 @@ measurement again (or reads a fresh ``--json`` file) and prints, for every recor
 fresh / recorded seconds per frame (wall and CPU); a ratio above the tolerance is a slow-down. A shared machine's
 load moves wall time most: compare runs made under similar load (both are printed), and re-record after a
 deliberate change (``--json simtest/benchmarks/recorded.json``). Each record names its processor
-(:func:`simtest.benchmarks.machine.cpu_name`); when the two differ the table says so, since the ratios then compare machines, not code (the
-same code ran 0.6x as long on a Zen 5 EPYC as on the host its first figures were recorded on).
+(:func:`simtest.benchmarks.machine.cpu_name`); when the two differ the table says so, since the ratios then
+compare machines, not code (the same code ran 0.6x as long on a Zen 5 EPYC as on the host its first figures
+were recorded on).
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ class CheckRow:
 
 def bench_record(table: dict, command: str = "") -> dict:
     """``table`` (a :meth:`ProfileBench.to_dict` or :meth:`GenerateBench.to_dict`) with what the run saw: the
-    command, the processor (:func:`simtest.benchmarks.machine.cpu_name`), cores, the load averages (1, 5 and 15 minutes) when it is written
-    and the time (UTC)."""
+    command, the processor (:func:`simtest.benchmarks.machine.cpu_name`), cores, the load averages (1, 5 and 15
+    minutes) when it is written and the time (UTC)."""
     from simtest.backend.threads import available_cores
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
