@@ -86,10 +86,10 @@ POSES = ("network", "templates")
 #: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
 #: ``candidates`` is given, no silhouette fit to the detector's coarse regions, the framing search that
 #: frees the pose from the region's outline, and the local template search around the best match (first step
-#: in degrees) on the searched framing, and the outline fit to the network's probability averaged with its mirror
-#: image's (chosen on the real LM-O frames, docs/sim2real.md).
+#: in degrees) on the searched framing, and the outline fit to the network's probability at temperature 2 averaged
+#: with its mirror image's (chosen on the real LM-O frames, docs/sim2real.md).
 TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
-TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK = 4.0, "soft+flip"
+TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE = 4.0, "soft+flip", 2.0
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -176,13 +176,12 @@ class CropKeypointEstimator:
             ``templates`` for LM-O), else ``network``.
         outline: ``pose=templates`` with ``detect=rgb``: the outline network that fits each kept pose to the
             object's visible mask (:mod:`simtest.estimators.templates.outline`); None: the shipped one trained
-            for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit. outline_mask: how
-            that fit reads the network (:data:`~simtest.estimators.templates.outline.MASK_MODES`; ``soft+flip``).
-        region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class
-            probability first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md):
-            the detector's region holds the object for 44.9 % of 761 real targets ranked by probability,
-            36.4 % by area; on held-out renders the two are equal (67.1 / 67.6 % LM-O, 66.7 / 66.7 %
-            builtin-small).
+            for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit. outline_mask /
+            outline_temperature: how that fit reads the network (``soft+flip``) and the divisor of its logits (2).
+        region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class probability
+            first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md): the detector's
+            region holds the object for 44.9 % of 761 real targets ranked by probability, 36.4 % by area; on
+            held-out renders the two are equal (67.1 / 67.6 % LM-O, 66.7 / 66.7 % builtin-small).
 
     Raises:
         ConfigError: Bad options, a missing or unreadable checkpoint; at :meth:`estimate`, an object set other
@@ -200,14 +199,16 @@ class CropKeypointEstimator:
                  refine: str | None = "silhouette", refine_deg: float = 2.0, refine_max_scale: float = 0.15,
                  refine_coverage: float = 0.2, candidates: int | None = None, region_rank: str = "prob",
                  pose: str | None = None, outline: str | bool | None = None,
-                 outline_mask: str = TEMPLATE_OUTLINE_MASK, *, model: Any = None,
+                 outline_mask: str = TEMPLATE_OUTLINE_MASK,
+                 outline_temperature: float = TEMPLATE_OUTLINE_TEMPERATURE, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
-        from simtest.estimators.templates.outline import MASK_MODES  # local: templates import this package
+        from simtest.estimators.templates.outline import MASK_MODES, check_temperature  # local: templates import this
 
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS), ("outline_mask", outline_mask, MASK_MODES)):
             if val not in ok:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
+        check_temperature(outline_temperature, "keypoints: outline_temperature")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
         if candidates is not None and not (isinstance(candidates, int) and not isinstance(candidates, bool)
@@ -252,7 +253,8 @@ class CropKeypointEstimator:
         self.net = self.model = None
         self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
                          "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
-                         "candidates": candidates, "outline": outline, "outline_mask": outline_mask}
+                         "candidates": candidates, "outline": outline, "outline_mask": outline_mask,
+                         "outline_temperature": float(outline_temperature)}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:
@@ -415,7 +417,6 @@ class CropKeypointEstimator:
         if self.templates is None:
             # local: the templates package imports this package's crop geometry
             from simtest.estimators.templates.estimator import TemplateEstimator
-
             from simtest.estimators.templates.outline import shipped_outline
 
             given, outline = self._options["candidates"], self._options["outline"]
@@ -427,7 +428,7 @@ class CropKeypointEstimator:
                 refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
                 framing=TEMPLATE_FRAMING and self.detect == "rgb",
                 local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline,
-                outline_mask=self._options["outline_mask"])
+                outline_mask=self._options["outline_mask"], outline_temperature=self._options["outline_temperature"])
             self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

@@ -53,7 +53,7 @@ from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
-from simtest.estimators.templates.outline import MASK_MODES, OutlineNet, outline_fit
+from simtest.estimators.templates.outline import MASK_MODES, OutlineNet, check_temperature, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
@@ -110,7 +110,8 @@ class TemplateEstimator:
             change of that fit; outline_deg: its first rotation step in degrees (0: the rotation stays; 2 chosen
             on held-out renders, docs/sim2real.md, eighth round); outline_mask: how the fit reads the network's
             output (:data:`~simtest.estimators.templates.outline.MASK_MODES`: ``hard``, ``soft`` or
-            ``soft+flip``; docs/sim2real.md, tenth round).
+            ``soft+flip``; docs/sim2real.md, tenth round); outline_temperature: the logits' divisor before the
+            sigmoid in the soft modes (> 1: flatter; LM-O's shipped choice 2, eleventh round).
         threads: CPU threads of the encoder. encoder: an ONNX file of the encoder (None: the shipped
             ``weights/templates_encoder_lite0.onnx``, or torch where it is missing).
     """
@@ -123,7 +124,8 @@ class TemplateEstimator:
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
-                 outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard") -> None:
+                 outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard",
+                 outline_temperature: float = 1.0) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -184,10 +186,11 @@ class TemplateEstimator:
                               f"{outline_max_scale!r}, {outline_deg!r}")
         if outline_mask not in MASK_MODES:
             raise ConfigError(f"templates: outline_mask {outline_mask!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+        check_temperature(outline_temperature, "templates: outline_temperature")
         #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
         self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)
         self.outline_max_scale, self.outline_deg = float(outline_max_scale), float(outline_deg)
-        self.outline_mask = str(outline_mask)
+        self.outline_mask, self.outline_temperature = str(outline_mask), float(outline_temperature)
 
     def __repr__(self) -> str:
         return f"TemplateEstimator(detect={self.detect!r}, settings={self.settings!r}, refine={self.refine!r})"
@@ -253,7 +256,7 @@ class TemplateEstimator:
         rgb, out = np.asarray(obs.rgb), []
         for e in found:
             fit = outline_fit(self.outline, obs.objects.get(e.obj_id), rgb, K, e.R, e.t, self.outline_max_scale,
-                              self.outline_deg, self.outline_mask)
+                              self.outline_deg, self.outline_mask, self.outline_temperature)
             out.append(replace(e, R=fit.R, t=fit.t, info={**e.info, "outline": fit.info()}))
         return out
 

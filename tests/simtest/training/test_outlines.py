@@ -237,3 +237,39 @@ def test_the_mask_is_read_hard_soft_or_soft_with_its_mirror_image(outline_run):
         assert abs(fit.scale - 1.0) <= 0.11 and np.allclose(fit.R, R, atol=1e-12)
     with pytest.raises(ConfigError, match="mask_mode 'fuzzy'"):
         outline_fit(net, obj, rgb, K, R, t, mask_mode="fuzzy")
+
+
+def test_a_temperature_flattens_the_soft_masks_and_leaves_the_hard_one(outline_run):
+    """At temperature T the probability is ``sigmoid(logit / T)`` (flatter for T > 1, the same pixels above 0.5),
+    in both soft modes; the hard mask does not change; a temperature that is not a positive number is refused,
+    by the network, the fit and both estimators, naming the value."""
+    from scipy.special import expit
+
+    from simtest.estimators.keypoints.crop_infer import CropKeypointEstimator
+    from simtest.estimators.templates import TemplateEstimator
+
+    net = OutlineNet(outline_run.model_path.with_suffix(".onnx"))
+    rng = np.random.default_rng(3)
+    crop = rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    prior = np.zeros((64, 64), bool)
+    prior[12:50, 18:44] = True
+    logits = net.logits(crop, prior).astype(np.float64)
+    warm = net.read(crop, prior, "soft", temperature=2.0)
+    assert np.allclose(warm, expit(logits / 2.0), atol=1e-12)
+    assert np.array_equal(warm > 0.5, net.read(crop, prior, "soft") > 0.5)
+    assert np.all(np.abs(warm - 0.5) <= np.abs(net.read(crop, prior, "soft") - 0.5) + 1e-12)
+    mirror = expit(net.logits(np.ascontiguousarray(crop[:, ::-1]), np.ascontiguousarray(prior[:, ::-1]))[:, ::-1]
+                   / 2.0)
+    assert np.allclose(net.read(crop, prior, "soft+flip", 2.0), 0.5 * (warm + mirror), atol=1e-12)
+    assert np.array_equal(net.read(crop, prior, "hard", 4.0), net.read(crop, prior, "hard"))
+    for bad in (0.0, -1.0, float("nan"), float("inf"), "warm"):
+        with pytest.raises(ConfigError, match="outline network: temperature must be a positive number, got"):
+            net.probability(crop, prior, temperature=bad)
+    obj = load_object_set("builtin-small").by_name("mug_0")
+    with pytest.raises(ConfigError, match="temperature must be a positive number, got 0"):
+        outline_fit(net, obj, np.zeros((480, 640, 3), np.uint8), K, np.eye(3), np.array([0, 0, 0.6]),
+                    mask_mode="soft", temperature=0)
+    with pytest.raises(ConfigError, match="templates: outline_temperature must be a positive number, got -2"):
+        TemplateEstimator(outline_temperature=-2)
+    with pytest.raises(ConfigError, match="keypoints: outline_temperature must be a positive number, got 'x'"):
+        CropKeypointEstimator(outline_temperature="x")
