@@ -202,7 +202,7 @@ class CropKeypointEstimator:
                  outline_mask: str = TEMPLATE_OUTLINE_MASK,
                  outline_temperature: float = TEMPLATE_OUTLINE_TEMPERATURE, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
-        from simtest.estimators.templates.outline import MASK_MODES, check_temperature  # local: templates import this
+        from simtest.estimators.templates.outline import MASK_MODES, check_temperature  # local: import cycle
 
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS), ("outline_mask", outline_mask, MASK_MODES)):
