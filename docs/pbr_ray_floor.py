@@ -76,24 +76,16 @@ def cast_rays(mi, dr, scene, sensor, width: int, height: int, spp: int, seed: in
     counts: dict[str, int] = {}
     t, pi = _timed(dr, lambda r: scene.ray_intersect_preliminary(r), rays, repeat=repeat)
     seconds["camera"], counts["camera"] = t, n
-    si = pi.compute_surface_interaction(rays)
-    hit = si.is_valid()
-    dr.eval(si, hit)
-    shadow = cosine_rays(si)
-    seconds["shadow_1"], _ = _timed(dr, lambda r, a: scene.ray_test(r, a), shadow, hit, repeat=repeat)
-    bounce = cosine_rays(si)
-    seconds["bounce_1"], pi2 = _timed(dr, lambda r, a: scene.ray_intersect_preliminary(r, active=a), bounce, hit,
-                                      repeat=repeat)
-    counts["shadow_1"] = counts["bounce_1"] = _count(hit)
-    si2 = pi2.compute_surface_interaction(bounce, active=hit)
-    hit2 = hit & si2.is_valid()
-    dr.eval(si2, hit2)
-    shadow2 = cosine_rays(si2)
-    seconds["shadow_2"], _ = _timed(dr, lambda r, a: scene.ray_test(r, a), shadow2, hit2, repeat=repeat)
-    bounce2 = cosine_rays(si2)
-    seconds["bounce_2"], _ = _timed(dr, lambda r, a: scene.ray_intersect_preliminary(r, active=a), bounce2, hit2,
-                                    repeat=repeat)
-    counts["shadow_2"] = counts["bounce_2"] = _count(hit2)
+    ray, active = rays, mi.Bool(True)
+    for k in (1, 2):  # from the surfaces the previous rays hit: a shadow ray and a bounce ray each
+        si = pi.compute_surface_interaction(ray, active=active)
+        active = active & si.is_valid()
+        dr.eval(si, active)
+        shadow, ray = cosine_rays(si), cosine_rays(si)
+        seconds[f"shadow_{k}"], _ = _timed(dr, lambda r, a: scene.ray_test(r, a), shadow, active, repeat=repeat)
+        seconds[f"bounce_{k}"], pi = _timed(dr, lambda r, a: scene.ray_intersect_preliminary(r, active=a), ray,
+                                            active, repeat=repeat)
+        counts[f"shadow_{k}"] = counts[f"bounce_{k}"] = _count(active)
     return {"seconds": seconds, "rays": counts}
 
 
