@@ -9,11 +9,18 @@ estimate); then prints ADD(-S)-0.1d over all targets for each rule that picks on
 (``prob``: the first region, ``match``: the best template match, ``match_prob``: their product, ``oracle``:
 the best candidate, what a perfect verifier reaches), each for the silhouette-fitted pose and for the matched
 template's pose without the fit. With a dataset that has visible masks (``simtest masks``) each candidate also
-gets its region's IoU with the target's mask. Run from the repository root::
+gets its region's IoU with the target's mask. With ``--outline FILE`` every candidate is also fitted to that
+outline network's mask, as the estimator fits its kept poses (``soft+flip`` at ``--temperature``), and the rules
+are scored on the fitted poses too. ``top k`` keeps the candidates of rank below ``k`` (a second pooled
+detector's regions come after the first's); ``all`` keeps every candidate. Run from the repository root::
 
     simtest masks --data LMO --out LMO-masked
     python docs/sim2real_candidates.py --data LMO-masked --candidates 3 --out runs/candidates.jsonl
     python docs/sim2real_candidates.py --data LMO-masked --score-only --out runs/candidates.jsonl
+    python docs/sim2real_candidates.py --data LMO-masked --candidates 3 --max-images 25 --out runs/c.jsonl \
+        --outline simtest/estimators/weights/templates_outline_lmo_640x480.onnx --opt framing=true --opt refine=none \
+        --opt local_deg=4 --opt region_threshold=0.1 \
+        --opt "detector=simtest/estimators/weights/keypoints_detector_lmo_640x480.onnx+simtest/estimators/weights/keypoints_detector_lmo_640x480.clutter.onnx"
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from simtest.metrics.intervals import wilson_interval  # noqa: E402
 from simtest.evaluation.images import observation  # noqa: E402
 from simtest.estimators.templates.estimator import TemplateEstimator  # noqa: E402
+from simtest.estimators.templates.outline import OutlineNet, outline_fit  # noqa: E402
 from simtest.io import bop  # noqa: E402
 from simtest.io.dataset import image_size, select_images  # noqa: E402
 from simtest.metrics.pose import add, adi  # noqa: E402
@@ -40,12 +48,15 @@ from simtest.objects.loaders import load_dataset_objects  # noqa: E402
 RULES = ("prob", "match", "match_prob", "oracle")
 
 
-def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: dict) -> None:
-    """Write one JSON line per image: its targets and every candidate with its ADD(-S) error (metres)."""
+def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: dict, outline: Path | None = None,
+         temperature: float = 2.0) -> None:
+    """Write one JSON line per image: its targets and every candidate with its ADD(-S) error (metres), and with
+    ``outline`` the error after the outline fit (``error_outlined``)."""
     objects = load_dataset_objects(data)
     refs = select_images(data, None, None, max_images, objects.ids)
     width, height = image_size(data)
     est = TemplateEstimator(detect="rgb", candidates=candidates, **opts)
+    net = None if outline is None else OutlineNet(outline)
     with open(out, "w") as f:
         for i, ref in enumerate(refs):
             t0 = time.perf_counter()
@@ -59,6 +70,10 @@ def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: d
                 mine = [(j, g) for j, g in tg if g.obj_id == c["obj_id"]]
                 metric = adi if obj.is_symmetric else add
                 errs = [metric(c["R"], c["t"], g.T_cam_obj.R, g.T_cam_obj.t, obj.vertices) for _, g in mine]
+                if net is not None:
+                    fit = outline_fit(net, obj, np.asarray(obs.rgb), obs.K, c["R"], c["t"], mask_mode="soft+flip",
+                                      temperature=temperature)
+                    fitted = [metric(fit.R, fit.t, g.T_cam_obj.R, g.T_cam_obj.t, obj.vertices) for _, g in mine]
                 t0m = np.asarray(c["info"].get("t_matched", c["t"]))
                 sil = c["info"].get("silhouette") or c["info"].get("edges") or {}
                 cands.append({"obj_id": c["obj_id"], "rank": c["rank"], "prob": c["prob"], "match": c["match"],
@@ -69,7 +84,8 @@ def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: d
                                                    for _, g in mine) if mine else None,
                               "te": min(float(np.linalg.norm(c["t"] - g.T_cam_obj.t)) for _, g in mine)
                               if mine else None,
-                              "region_iou": _region_iou(ref, c["mask"], mine)})
+                              "region_iou": _region_iou(ref, c["mask"], mine),
+                              **({} if net is None else {"error_outlined": min(fitted) if fitted else None})})
             f.write(json.dumps({"scene_id": ref.scene_id, "im_id": ref.im_id, "targets": targets,
                                 "candidates": cands}) + "\n")
             f.flush()
@@ -131,15 +147,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-images", type=int, default=None)
     ap.add_argument("--opt", action="append", default=[], help="more estimator options KEY=VALUE")
     ap.add_argument("--score-only", action="store_true")
+    ap.add_argument("--outline", type=Path, default=None, help="an outline network to fit every candidate to")
+    ap.add_argument("--temperature", type=float, default=2.0, help="the outline fit's temperature")
     args = ap.parse_args(argv)
     if not args.score_only:
         opts = {k: _value(v) for k, v in (o.split("=", 1) for o in args.opt)}
-        dump(args.data, args.out, args.candidates, args.max_images, opts)
-    for key, what in (("error", "silhouette-fitted"), ("error_matched", "matched template, no fit")):
-        for k in range(1, args.candidates + 1):
+        dump(args.data, args.out, args.candidates, args.max_images, opts, args.outline, args.temperature)
+    keys = [("error", "silhouette-fitted"), ("error_matched", "matched template, no fit")]
+    if "error_outlined" in open(args.out).readline():
+        keys.append(("error_outlined", "outline-fitted"))
+    for key, what in keys:
+        for k in [*range(1, args.candidates + 1), None]:
             for rule, (h, n) in score(args.out, k, key).items():
                 lo, hi = wilson_interval(h, n)
-                print(f"{what}: top {k} {rule:10s} {100 * h / n:5.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] of {n}")
+                top = "all" if k is None else f"top {k}"
+                print(f"{what}: {top} {rule:10s} {100 * h / n:5.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] of {n}")
     return 0
 
 
