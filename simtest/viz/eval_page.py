@@ -131,11 +131,27 @@ def load_eval_run(run_dir: str | Path, data: str | Path | None = None) -> EvalRu
                                     {k: _float(r.get(k, "")) for k in ERROR_COLUMNS}))
         except (KeyError, ValueError) as exc:
             raise DatasetError(f"{run_dir / 'errors.csv'}: malformed row ({exc})") from None
-    results = run_dir / "results.csv"
-    estimates = read_bop_results(results) if results.is_file() else []
+    results = _results_of(run_dir, settings)
+    estimates = read_bop_results(results) if results is not None else []
     failures = read_csv(run_dir / "failures.csv") if (run_dir / "failures.csv").is_file() else []
-    return EvalRun(run_dir, dataset, str(settings.get("split", "train_pbr")), str(settings.get("estimator", "?")),
-                   rows, estimates, failures)
+    label = settings.get("estimator") or (f"results {Path(str(settings['results'])).name}" if settings.get("results")
+                                          else "?")
+    return EvalRun(run_dir, dataset, str(settings.get("split", "train_pbr")), str(label), rows, estimates, failures)
+
+
+def _results_of(run_dir: Path, settings: dict) -> Path | None:
+    """The run's estimates: its own ``results.csv``, else (a run that scored a results file, ``simtest eval
+    --results``) the file its settings name, as given, beside the run folder or inside it; None when neither
+    is there (the page then draws the ground truth alone)."""
+    own = run_dir / "results.csv"
+    if own.is_file():
+        return own
+    name = settings.get("results")
+    if name:
+        for cand in (Path(str(name)), run_dir.parent / str(name), run_dir / str(name)):
+            if cand.is_file():
+                return cand
+    return None
 
 
 def target_errors(run: EvalRun) -> dict[tuple[int, int, int], TargetError]:

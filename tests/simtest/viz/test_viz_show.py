@@ -100,6 +100,30 @@ def test_eval_page_draws_every_scored_image(oracle_run, tmp_path, capsys):
     assert (np.abs(rgb - (40, 220, 60)).sum(axis=-1) < 30).sum() > 50
 
 
+def test_a_run_that_scored_a_results_file_draws_that_files_estimates(oracle_run, small_dataset, tmp_path,
+                                                                    monkeypatch):
+    """``simtest eval --results CSV`` writes no results.csv of its own: the page reads the CSV its settings name
+    (here given relative to the folder the run sits in) and labels the run by it; with the CSV gone it draws the
+    ground truth alone."""
+    import shutil
+
+    (tmp_path / "mine.csv").write_bytes((oracle_run / "results.csv").read_bytes())
+    monkeypatch.chdir(tmp_path)
+    assert main(["eval", "--data", str(small_dataset), "--results", "mine.csv", "--no-vsd", "--quiet",
+                 "--out", "scored"]) == 0
+    monkeypatch.chdir(oracle_run.parent)  # the CSV is found beside the run folder, not only from where it was made
+    scored = tmp_path / "scored"
+    assert not (scored / "results.csv").exists()
+    run = load_eval_run(scored)
+    assert run.estimator == "results mine.csv" and len(run.estimates) == len(load_eval_run(oracle_run).estimates) > 0
+    out = tmp_path / "scored.png"
+    assert main(["show", str(scored), "--images", "1", "--scale", "1", "--out", str(out)]) == 0
+    rgb = _png(out)[..., ::-1].astype(int)
+    assert (np.abs(rgb - (255, 40, 220)).sum(axis=-1) < 30).sum() > 50  # the estimates are drawn
+    shutil.move(tmp_path / "mine.csv", tmp_path / "gone.csv")
+    assert load_eval_run(scored).estimates == []
+
+
 def test_worst_targets_rank_by_the_error_column(oracle_run, tmp_path):
     run = load_eval_run(oracle_run)
     worst = worst_targets(run, 3, by="re")
