@@ -486,14 +486,32 @@ def run_ray(fn, units: list, backend: Backend, init, init_args: tuple, stats: Ru
             stats.finished += 1
             yield result
     finally:
-        for ref in running:  # the run stopped early (an error, --fail-fast, Ctrl-C): free the cluster's CPUs
-            # (best effort: Ray may still run a task whose worker was being started)
-            try:
-                ray.cancel(ref, force=True)
-            except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel
-                pass
+        _cancel(ray, list(running))
         if _SESSIONS == 0:
             release()
+
+
+#: Seconds the units in flight get to finish when a run stops early, before the rest are cancelled.
+CANCEL_GRACE_S = 1.0
+
+
+def _cancel(ray, refs: list) -> None:
+    """Free the cluster's CPUs of a run that stopped early (an error, --fail-fast, Ctrl-C): cancel the units still
+    in flight. Units finishing at that moment are left to finish (up to :data:`CANCEL_GRACE_S`): a cancel that
+    meets a task's completion can abort the whole driver inside Ray's task manager ("Tried to complete task
+    that was not pending", ray-project/ray#54846), which no Python code can catch. Best effort: Ray may still
+    run a task whose worker was being started."""
+    if not refs:
+        return
+    try:
+        _, refs = ray.wait(refs, num_returns=len(refs), timeout=CANCEL_GRACE_S)
+    except Exception:  # noqa: BLE001 - the cluster is going away: cancel what is listed
+        pass
+    for ref in refs:
+        try:
+            ray.cancel(ref, force=True)
+        except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel
+            pass
 
 
 @contextmanager
