@@ -10,17 +10,18 @@ estimate); then prints ADD(-S)-0.1d over all targets for each rule that picks on
 the best candidate, what a perfect verifier reaches), each for the silhouette-fitted pose and for the matched
 template's pose without the fit. With a dataset that has visible masks (``simtest masks``) each candidate also
 gets its region's IoU with the target's mask. With ``--outline FILE`` every candidate is also fitted to that
-outline network's mask, as the estimator fits its kept poses (``soft+flip`` at ``--temperature``), and the rules
+outline network's mask, as LM-O's default fits its kept poses (``soft+flip`` at ``--temperature``), and the rules
 are scored on the fitted poses too. ``top k`` keeps the candidates of rank below ``k`` (a second pooled
 detector's regions come after the first's); ``all`` keeps every candidate. Run from the repository root::
 
     simtest masks --data LMO --out LMO-masked
     python docs/sim2real_candidates.py --data LMO-masked --candidates 3 --out runs/candidates.jsonl
     python docs/sim2real_candidates.py --data LMO-masked --score-only --out runs/candidates.jsonl
+    W=simtest/estimators/weights
     python docs/sim2real_candidates.py --data LMO-masked --candidates 3 --max-images 25 --out runs/c.jsonl \
-        --outline simtest/estimators/weights/templates_outline_lmo_640x480.onnx --opt framing=true --opt refine=none \
-        --opt local_deg=4 --opt region_threshold=0.1 \
-        --opt "detector=simtest/estimators/weights/keypoints_detector_lmo_640x480.onnx+simtest/estimators/weights/keypoints_detector_lmo_640x480.clutter.onnx"
+        --outline $W/templates_outline_lmo_640x480.onnx --opt framing=true --opt refine=none --opt local_deg=4 \
+        --opt region_threshold=0.1 \
+        --opt "detector=$W/keypoints_detector_lmo_640x480.onnx+$W/keypoints_detector_lmo_640x480.clutter.onnx"
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from simtest.metrics.intervals import wilson_interval  # noqa: E402
 from simtest.evaluation.images import observation  # noqa: E402
 from simtest.estimators.templates.estimator import TemplateEstimator  # noqa: E402
+from simtest.estimators.keypoints.crop_infer import TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE  # noqa: E402
 from simtest.estimators.templates.outline import OutlineNet, outline_fit  # noqa: E402
 from simtest.io import bop  # noqa: E402
 from simtest.io.dataset import image_size, select_images  # noqa: E402
@@ -49,7 +51,7 @@ RULES = ("prob", "match", "match_prob", "oracle")
 
 
 def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: dict, outline: Path | None = None,
-         temperature: float = 2.0) -> None:
+         temperature: float = TEMPLATE_OUTLINE_TEMPERATURE) -> None:
     """Write one JSON line per image: its targets and every candidate with its ADD(-S) error (metres), and with
     ``outline`` the error after the outline fit (``error_outlined``)."""
     objects = load_dataset_objects(data)
@@ -71,8 +73,8 @@ def dump(data: Path, out: Path, candidates: int, max_images: int | None, opts: d
                 metric = adi if obj.is_symmetric else add
                 errs = [metric(c["R"], c["t"], g.T_cam_obj.R, g.T_cam_obj.t, obj.vertices) for _, g in mine]
                 if net is not None:
-                    fit = outline_fit(net, obj, np.asarray(obs.rgb), obs.K, c["R"], c["t"], mask_mode="soft+flip",
-                                      temperature=temperature)
+                    fit = outline_fit(net, obj, np.asarray(obs.rgb), obs.K, c["R"], c["t"],
+                                      mask_mode=TEMPLATE_OUTLINE_MASK, temperature=temperature)
                     fitted = [metric(fit.R, fit.t, g.T_cam_obj.R, g.T_cam_obj.t, obj.vertices) for _, g in mine]
                 t0m = np.asarray(c["info"].get("t_matched", c["t"]))
                 sil = c["info"].get("silhouette") or c["info"].get("edges") or {}
@@ -148,13 +150,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--opt", action="append", default=[], help="more estimator options KEY=VALUE")
     ap.add_argument("--score-only", action="store_true")
     ap.add_argument("--outline", type=Path, default=None, help="an outline network to fit every candidate to")
-    ap.add_argument("--temperature", type=float, default=2.0, help="the outline fit's temperature")
+    ap.add_argument("--temperature", type=float, default=TEMPLATE_OUTLINE_TEMPERATURE,
+                    help="the outline fit's temperature (default: LM-O's shipped one)")
     args = ap.parse_args(argv)
     if not args.score_only:
         opts = {k: _value(v) for k, v in (o.split("=", 1) for o in args.opt)}
         dump(args.data, args.out, args.candidates, args.max_images, opts, args.outline, args.temperature)
     keys = [("error", "silhouette-fitted"), ("error_matched", "matched template, no fit")]
-    if "error_outlined" in open(args.out).readline():
+    with open(args.out) as f:
+        outlined = "error_outlined" in f.readline()
+    if outlined:
         keys.append(("error_outlined", "outline-fitted"))
     for key, what in keys:
         for k in [*range(1, args.candidates + 1), None]:

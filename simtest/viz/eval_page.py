@@ -106,9 +106,9 @@ def _dataset_of(run_dir: Path, settings: dict, data: str | Path | None) -> Path:
     name = settings.get("dataset")
     if not name:
         raise DatasetError(f"{run_dir / 'metrics.json'}: settings name no dataset; give it with --data DIR")
-    for cand in (Path(name), run_dir / name, run_dir.parent / name):
-        if cand.is_dir():
-            return cand
+    found = _near_run(run_dir, str(name), Path.is_dir)
+    if found is not None:
+        return found
     raise DatasetError(f"{run_dir / 'metrics.json'}: the evaluated dataset {name!r} is not there any more; "
                        "give it with --data DIR")
 
@@ -134,23 +134,28 @@ def load_eval_run(run_dir: str | Path, data: str | Path | None = None) -> EvalRu
     results = _results_of(run_dir, settings)
     estimates = read_bop_results(results) if results is not None else []
     failures = read_csv(run_dir / "failures.csv") if (run_dir / "failures.csv").is_file() else []
-    label = settings.get("estimator") or (f"results {Path(str(settings['results'])).name}" if settings.get("results")
-                                          else "?")
+    scored = settings.get("results")  # a run that scored a results file is labelled by that file
+    label = settings.get("estimator") or (f"results {Path(str(scored)).name}" if scored else "?")
     return EvalRun(run_dir, dataset, str(settings.get("split", "train_pbr")), str(label), rows, estimates, failures)
 
 
 def _results_of(run_dir: Path, settings: dict) -> Path | None:
     """The run's estimates: its own ``results.csv``, else (a run that scored a results file, ``simtest eval
-    --results``) the file its settings name, as given, beside the run folder or inside it; None when neither
-    is there (the page then draws the ground truth alone)."""
+    --results``) the file its settings name (:func:`_near_run`); None when neither is there (the page then
+    draws the ground truth alone)."""
     own = run_dir / "results.csv"
     if own.is_file():
         return own
     name = settings.get("results")
-    if name:
-        for cand in (Path(str(name)), run_dir.parent / str(name), run_dir / str(name)):
-            if cand.is_file():
-                return cand
+    return _near_run(run_dir, str(name), Path.is_file) if name else None
+
+
+def _near_run(run_dir: Path, name: str, exists) -> Path | None:
+    """A path a run's settings name, as given (from where the run was made), inside the run folder or beside it:
+    the first for which ``exists`` holds, else None."""
+    for cand in (Path(name), run_dir / name, run_dir.parent / name):
+        if exists(cand):
+            return cand
     return None
 
 

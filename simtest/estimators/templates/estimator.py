@@ -53,7 +53,7 @@ from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
-from simtest.estimators.templates.outline import MASK_MODES, OutlineNet, check_temperature, outline_fit
+from simtest.estimators.templates.outline import OutlineNet, check_mask_mode, check_temperature, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
@@ -184,8 +184,7 @@ class TemplateEstimator:
         if not 0.0 < float(outline_max_scale) < 1.0 or not 0.0 <= float(outline_deg) <= 10.0:
             raise ConfigError(f"templates: need outline_max_scale in (0, 1) and outline_deg in [0, 10] degrees, got "
                               f"{outline_max_scale!r}, {outline_deg!r}")
-        if outline_mask not in MASK_MODES:
-            raise ConfigError(f"templates: outline_mask {outline_mask!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+        check_mask_mode(outline_mask, "templates: outline_mask")
         check_temperature(outline_temperature, "templates: outline_temperature")
         #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
         self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)

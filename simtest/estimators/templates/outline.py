@@ -31,7 +31,7 @@ from simtest.estimators.templates.crops import region_crop
 from simtest.render.silhouette import object_silhouette
 
 __all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
-           "MIN_SILHOUETTE_PX", "MASK_MODES", "check_temperature"]
+           "MIN_SILHOUETTE_PX", "MASK_MODES", "check_mask_mode", "check_temperature"]
 
 #: The ``format`` entry of outline-network checkpoints and ONNX files.
 FORMAT = "simtest-outline/1"
@@ -115,11 +115,16 @@ class OutlineNet:
                 finite number.
         """
         T = check_temperature(temperature)
-        if mode == "hard":
+        if check_mask_mode(mode, "outline network: mask mode") == "hard":
             return self.mask(crop_rgb, prior)
-        if mode not in MASK_MODES:
-            raise ConfigError(f"outline network: mask mode {mode!r} is unknown; allowed: {', '.join(MASK_MODES)}")
         return self.probability(crop_rgb, prior, flip=mode == "soft+flip", temperature=T)
+
+
+def check_mask_mode(value: str, name: str = "outline fit: mask_mode") -> str:
+    """``value`` when it is one of :data:`MASK_MODES`, or a ConfigError naming ``name``, the value and the modes."""
+    if value not in MASK_MODES:
+        raise ConfigError(f"{name} {value!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+    return value
 
 
 def check_temperature(value: float, name: str = "outline network: temperature") -> float:
@@ -165,8 +170,7 @@ def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndar
     Raises:
         ConfigError: An unknown ``mask_mode`` or a temperature that is not a positive number.
     """
-    if mask_mode not in MASK_MODES:
-        raise ConfigError(f"outline fit: mask_mode {mask_mode!r} is unknown; allowed: {', '.join(MASK_MODES)}")
+    check_mask_mode(mask_mode)
     T = check_temperature(temperature)
     return fit_to_mask(obj, rgb, K, R, t, lambda crop: net.read(crop.rgb, crop.mask, mask_mode, T), net.size,
                        max_scale, step_deg)
