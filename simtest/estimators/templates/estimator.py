@@ -9,7 +9,10 @@ region of the shipped RGB detector of the ``keypoints`` estimator):
    (:mod:`.match`); the best (angle, template) gives the rotation, and the crop pixel and size of the template's
    object give the translation.
 3. With ``framing`` the crop window is moved and scaled while the templates match it better (:mod:`.framing`):
-   the translation then comes from the best-matching window, not from the region's outline.
+   the translation then comes from the best-matching window, not from the region's outline. The search starts
+   from the region's window scaled by each of ``framing_starts`` and the best-matching result is kept: a
+   detector region that holds only part of its object (the real LM-O frames' can and driller) frames a window
+   too small for the search's steps to grow out of.
 4. With ``local_deg`` templates rendered on the fly around the best match replace it while they match better
    (:mod:`.local`).
 5. With ``polish`` the framing is searched once more, in finer steps, against the final template alone; the
@@ -56,7 +59,7 @@ from simtest.estimators.templates.match import match_scores, template_pose, temp
 from simtest.estimators.templates.outline import OutlineNet, check_mask_mode, check_temperature, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
-__all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS"]
+__all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS", "check_framing_starts"]
 
 DETECTORS = ("rgb", "gt")
 REFINES = ("none", "silhouette", "edges")
@@ -66,6 +69,21 @@ REFINES = ("none", "silhouette", "edges")
 SELECTS = ("match", "prob", "match_prob")
 #: Two candidate regions of one object overlapping more than this (IoU) are one region (posed once).
 SAME_REGION_IOU = 0.8
+
+
+def check_framing_starts(starts, who: str = "templates: framing_starts") -> tuple[float, ...]:
+    """``starts`` as a tuple of window factors, each a finite number in [0.25, 4]; a single number is one start.
+    ``who`` names the option in the error.
+
+    Raises:
+        ConfigError: An empty list or a factor out of range, named with the value.
+    """
+    vals = (starts,) if isinstance(starts, (int, float)) else tuple(starts) if isinstance(starts, (list, tuple)) else ()
+    if not vals or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.25 <= float(v) <= 4.0
+                            for v in vals):
+        raise ConfigError(f"{who} must be window factors in [0.25, 4], e.g. (1, 1.4, 2), got "
+                          f"{starts!r}")
+    return tuple(float(v) for v in vals)
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -105,6 +123,8 @@ class TemplateEstimator:
             object stays on the same pixels): a calibration of the depth the template match implies. With the
             exact rotation that depth lies a median 1.7 % too far on real LM-O frames and 0.4 % on renders
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
+        framing_starts: Factors of the region's window side (each in [0.25, 4]) from which the framing search
+            starts; the best-matching framing is kept (ties: the first).
         outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
             change of that fit; outline_deg: its first rotation step in degrees (0: the rotation stays; 2 chosen
@@ -125,7 +145,7 @@ class TemplateEstimator:
                  region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
                  outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard",
-                 outline_temperature: float = 1.0) -> None:
+                 outline_temperature: float = 1.0, framing_starts: tuple[float, ...] = (1.0,)) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -161,6 +181,8 @@ class TemplateEstimator:
         self.last_failures: list[dict[str, Any]] = []
         #: Search the crop window's position and size for the best template match (:mod:`.framing`).
         self.framing = bool(framing)
+        #: Factors of the region's window side the framing search starts from.
+        self.framing_starts = check_framing_starts(framing_starts)
         #: Candidate regions posed per expected instance, and the rule that keeps one (:data:`SELECTS`).
         self.candidates, self.select = int(candidates), select
         if not 0.0 <= float(region_threshold) < 1.0:
@@ -287,9 +309,11 @@ class TemplateEstimator:
                                         info={**info, "candidate": rank, "candidates": len(cands)}))
         return out
 
-    def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
-              ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
-        bank, weights = self.bank(obj)
+    def region_match(self, weights: np.ndarray, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray
+                     ) -> tuple[list, np.ndarray, np.ndarray | None, int, int, float]:
+        """Step 1-2 for one region ``mask`` (H, W) bool: its crops at every roll, their unit features (n, C, h, w)
+        and cell masks (or None without ``query_mask``), and the best (roll index, template index, score)
+        against the templates ``weights``."""
         crops = [region_crop(rgb, mask, K, self.settings.size, self.settings.margin, a) for a in self.inplane]
         q = self.encoder.features(np.stack([c.rgb for c in crops]))
         qm = None
@@ -298,14 +322,23 @@ class TemplateEstimator:
             qm = np.stack([cv2.resize(c.mask.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for c in crops])
         scores = match_scores(q, weights, qm)
         a, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        crop, best = crops[a], float(scores[a, j])
+        return crops, q, qm, int(a), int(j), float(scores[a, j])
+
+    def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
+              ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
+        bank, weights = self.bank(obj)
+        crops, q, qm, a, j, best = self.region_match(weights, rgb, mask, K)
+        crop = crops[a]
         info: dict[str, Any] = {"template": int(j), "inplane_deg": float(np.degrees(self.inplane[a])),
                                 "match": best}
         query, query_mask, roll = q[a], None if qm is None else qm[a], float(self.inplane[a])
         if self.framing:
-            fr = framing_search(rgb, K, window_centre(crop, K), crop.window[2], float(self.inplane[a]),
-                                self.encoder, weights, self.settings.size)
-            info.update(framing_crops=fr.crops, match_region=best, match=fr.score,
+            runs = [framing_search(rgb, K, window_centre(crop, K), crop.window[2] * f, float(self.inplane[a]),
+                                   self.encoder, weights, self.settings.size) for f in self.framing_starts]
+            k = max(range(len(runs)), key=lambda i: (runs[i].score, -i))
+            fr = runs[k]
+            info.update(framing_crops=sum(r.crops for r in runs), framing_start=self.framing_starts[k],
+                        match_region=best, match=fr.score,
                         inplane_deg=float(np.degrees(fr.roll_rad)))
             crop, j, best, query, query_mask, roll = fr.crop, fr.template, fr.score, fr.query, None, fr.roll_rad
         if self.local_deg > 0:

@@ -286,3 +286,35 @@ def test_silhouette_fit_runs_after_the_framing_search(objects, cache, monkeypatc
     fit = e.info["silhouette"]
     assert fit["iou_before"] > 0.5 and fit["iou_after"] >= fit["iou_before"], fit
     assert abs(e.t[2] / t[2] - 1.0) < 0.03, (e.t, t)
+
+
+def test_framing_starts_grow_a_window_out_of_a_partial_region(objects, cache, monkeypatch):
+    """A region that holds only part of its object (the left third of the mug, as a detector's on a real frame)
+    frames a window too small; started also from the window scaled 1.4 and 2 times, the search keeps the best
+    match (never worse than the single start) and its depth error falls from 2.5 to 0.3 %. ``(1,)`` is the single
+    start bit for bit, and bad factors are refused with the value named."""
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    obj = objects.by_name("mug_0")
+    R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
+    with ObjectRenderer(obj, K, W, H) as renderer:
+        rgb, mask = renderer.render(R, t)
+    cols = np.nonzero(mask.any(axis=0))[0]
+    part = mask.copy()
+    part[:, cols[0] + (cols[-1] - cols[0]) // 3:] = False
+    obs = Observation(rgb=rgb, depth=None, K=K, width=W, height=H, objects=objects,
+                      target_obj_ids=(obj.obj_id,), masks=(part,))
+    est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none", framing=True)
+    (one,) = est.estimate(obs)
+    est.framing_starts = (1.0,)
+    (same,) = est.estimate(obs)
+    assert np.array_equal(same.t, one.t) and np.array_equal(same.R, one.R) and one.info["framing_start"] == 1.0
+    est.framing_starts = (1.0, 1.4, 2.0)
+    (multi,) = est.estimate(obs)
+    assert multi.info["match"] >= one.info["match"] and multi.info["framing_start"] in (1.0, 1.4, 2.0)
+    assert multi.info["framing_crops"] > one.info["framing_crops"]
+    dz_one, dz_multi = abs(one.t[2] / t[2] - 1.0), abs(multi.t[2] / t[2] - 1.0)
+    assert dz_multi < 0.01 and dz_multi < 0.5 * dz_one, (dz_one, dz_multi, multi.info["framing_start"])  # 2.5 -> 0.3 %
+    for bad in ((), (0.1,), ("2",), (1.0, 9.0), True):
+        with pytest.raises(ConfigError, match="framing_starts"):
+            TemplateEstimator(framing_starts=bad)
+    assert TemplateEstimator(framing_starts=1.5).framing_starts == (1.5,)
