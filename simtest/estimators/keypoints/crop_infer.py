@@ -68,6 +68,8 @@ from simtest.io.bop import mask_bbox
 from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_box, map_pixels, warp_crop
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
 from simtest.estimators.shipped import choose, choose_all, matches, pose_stage
+from simtest.estimators.keypoints.template_stage import (TEMPLATE_CANDIDATES, TEMPLATE_OUTLINE_MASK,  # noqa: F401
+                                                         TEMPLATE_OUTLINE_TEMPERATURE, template_stage)
 
 if TYPE_CHECKING:
     from simtest.estimators.templates.estimator import TemplateEstimator
@@ -83,13 +85,6 @@ SOLVERS = ("auto", "dense", "keypoints")
 REFINES = ("none", "silhouette")
 #: The pose stages: the crop network, or template matching on the same detections (:data:`POSE_STAGES`).
 POSES = ("network", "templates")
-#: ``pose=templates``: detector regions posed per expected instance and the rule that keeps one, unless
-#: ``candidates`` is given, no silhouette fit to the detector's coarse regions, the framing search that
-#: frees the pose from the region's outline, and the local template search around the best match (first step
-#: in degrees) on the searched framing, and the outline fit to the network's probability at temperature 2 averaged
-#: with its mirror image's (chosen on the real LM-O frames, docs/sim2real.md).
-TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
-TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE = 4.0, "soft+flip", 2.0
 CHECKPOINT_NAME = "keypoints_builtin-small_320x240.pt"
 DETECTOR_NAME = "keypoints_detector_builtin-small_320x240.pt"
 
@@ -178,6 +173,7 @@ class CropKeypointEstimator:
             object's visible mask (:mod:`simtest.estimators.templates.outline`); None: the shipped one trained
             for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit. outline_mask /
             outline_temperature: how that fit reads the network (``soft+flip``) and the divisor of its logits (2).
+            framing_starts: window factors the framing search starts from (None: the stage's, :mod:`.template_stage`).
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class probability
             first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md): the detector's
             region holds the object for 44.9 % of 761 real targets ranked by probability, 36.4 % by area; on
@@ -200,15 +196,19 @@ class CropKeypointEstimator:
                  refine_coverage: float = 0.2, candidates: int | None = None, region_rank: str = "prob",
                  pose: str | None = None, outline: str | bool | None = None,
                  outline_mask: str = TEMPLATE_OUTLINE_MASK,
-                 outline_temperature: float = TEMPLATE_OUTLINE_TEMPERATURE, *, model: Any = None,
+                 outline_temperature: float = TEMPLATE_OUTLINE_TEMPERATURE,
+                 framing_starts: tuple[float, ...] | None = None, *, model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
-        from simtest.estimators.templates.outline import MASK_MODES, check_temperature  # local: import cycle
+        from simtest.estimators.templates.estimator import check_framing_starts  # local: import cycle
+        from simtest.estimators.templates.outline import MASK_MODES, check_temperature
 
         for name, val, ok in (("detect", detect, DETECTORS), ("fusion", fusion, FUSIONS), ("pnp", pnp, PNP_METHODS),
                               ("solver", solver, SOLVERS), ("outline_mask", outline_mask, MASK_MODES)):
             if val not in ok:
                 raise ConfigError(f"keypoints: unknown {name} {val!r}; valid: {', '.join(ok)}")
         check_temperature(outline_temperature, "keypoints: outline_temperature")
+        if framing_starts is not None:
+            framing_starts = check_framing_starts(framing_starts, "keypoints: framing_starts")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
         if candidates is not None and not (isinstance(candidates, int) and not isinstance(candidates, bool)
@@ -254,7 +254,7 @@ class CropKeypointEstimator:
         self._options = {"solver": solver, "fusion": fusion, "detector": detector, "runtime": runtime,
                          "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
                          "candidates": candidates, "outline": outline, "outline_mask": outline_mask,
-                         "outline_temperature": float(outline_temperature)}
+                         "outline_temperature": float(outline_temperature), "framing_starts": framing_starts}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:
@@ -415,20 +415,7 @@ class CropKeypointEstimator:
         template matching (:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, made at first
         use and sharing this estimator's detector)."""
         if self.templates is None:
-            # local: the templates package imports this package's crop geometry
-            from simtest.estimators.templates.estimator import TemplateEstimator
-            from simtest.estimators.templates.outline import shipped_outline
-
-            given, outline = self._options["candidates"], self._options["outline"]
-            if outline is None:
-                outline = shipped_outline(obs.objects) if self.detect == "rgb" else None
-            self.templates = TemplateEstimator(
-                detect=self.detect, region_rank=self.region_rank, threads=self._options["threads"] or 1,
-                candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
-                refine=TEMPLATE_REFINE if self.detect == "rgb" else "silhouette",
-                framing=TEMPLATE_FRAMING and self.detect == "rgb",
-                local_deg=TEMPLATE_LOCAL_DEG if self.detect == "rgb" else 0.0, outline=outline,
-                outline_mask=self._options["outline_mask"], outline_temperature=self._options["outline_temperature"])
+            self.templates = template_stage(self.detect, self.region_rank, obs.objects, self._options)
             self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
         out = self.templates.estimate(obs)
         self.last_failures = list(self.templates.last_failures)

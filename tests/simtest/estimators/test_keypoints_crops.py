@@ -403,6 +403,7 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
 
     from simtest.estimators import load_estimator
     from simtest.estimators.keypoints.crop_infer import TEMPLATE_CANDIDATES
+    from simtest.estimators.keypoints.template_stage import TEMPLATE_FRAMING_STARTS
 
     monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
     objects = load_dataset_objects(small_dataset)
@@ -417,6 +418,11 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     assert est.templates.outline_mask == "soft+flip"  # how an outline fit reads its network (tenth round)
     assert est.templates.outline_temperature == 2.0  # at temperature 2 (eleventh round)
     assert load_estimator("keypoints", outline_temperature=1)._options["outline_temperature"] == 1.0
+    assert est.templates.framing_starts == TEMPLATE_FRAMING_STARTS == (1.4,)  # the window the framing search starts from
+    assert all(e.info["framing_start"] in TEMPLATE_FRAMING_STARTS for e in found)
+    assert load_estimator("keypoints", framing_starts=(1,))._options["framing_starts"] == (1.0,)
+    with pytest.raises(ConfigError, match="framing_starts must be window factors in \\[0.25, 4\\].*got \\(0, 2\\)"):
+        load_estimator("keypoints", framing_starts=(0, 2))
     assert load_estimator("keypoints", outline_mask="hard")._options["outline_mask"] == "hard"
     with pytest.raises(ConfigError, match="unknown outline_mask 'fuzzy'; valid: hard, soft, soft\\+flip"):
         load_estimator("keypoints", outline_mask="fuzzy")
