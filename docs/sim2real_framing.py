@@ -75,7 +75,7 @@ def dump(data: Path, out: Path, factors: list[float], candidates: int, max_image
             rgb, K = np.asarray(obs.rgb), np.asarray(obs.K, np.float64)
             masks = {j: bop.read_mask(ref.gt_dir, ref.im_id, j, visible=True) for j, _ in tg}
             rows = []
-            for _, oid, mask, _ in est._regions(obs):
+            for _, oid, mask, _ in est.regions(obs):
                 mine = [(j, g) for j, g in tg if g.obj_id == oid]
                 cover = [float((masks[j] & mask).sum() / max(int(masks[j].sum()), 1)) for j, _ in mine]
                 if not cover or max(cover) <= MIN_COVER:

@@ -224,7 +224,7 @@ class TemplateEstimator:
             self.banks[key] = (bank, template_weights(bank))
         return self.banks[key]
 
-    def _regions(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float]]:
+    def regions(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float]]:
         """``(target index or None, obj_id, mask (H, W) bool, detection score)`` per region to pose."""
         if self.detect == "gt":
             obs.require_targets("templates (detect=gt)")
@@ -259,7 +259,7 @@ class TemplateEstimator:
         obs = observation
         self.last_failures, self.last_candidates, self._edges = [], [], None
         K = np.asarray(obs.K, np.float64)
-        regions = self._regions(obs)
+        regions = self.regions(obs)
         if self.candidates > 1 and self.detect == "rgb" and obs.target_obj_ids is not None:
             return self._outlined(obs, self._estimate_candidates(obs, regions, K), K)
         out = []

@@ -203,7 +203,7 @@ def test_pooled_detectors_pose_a_shared_region_once(small_dataset, cache, monkey
     counted = 0
     for ref in select_images(small_dataset, None, None, 2, objects.ids):
         obs, _ = observation(ref, objects, "gt-masks", width, height, False)
-        a, b = one._regions(obs), two._regions(obs)
+        a, b = one.regions(obs), two.regions(obs)
         assert len(two.more_segmenters) == 1
         assert [(r[1], r[3]) for r in a] == [(r[1], r[3]) for r in b]
         assert all(np.array_equal(ra[2], rb[2]) for ra, rb in zip(a, b))
