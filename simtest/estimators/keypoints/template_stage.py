@@ -36,7 +36,7 @@ def template_stage(detect: str, region_rank: str, objects: Any, options: dict[st
     from simtest.estimators.templates.estimator import TemplateEstimator  # local: it imports the crop geometry
     from simtest.estimators.templates.outline import shipped_outline
 
-    given, outline, starts = options["candidates"], options["outline"], options.get("framing_starts")
+    given, outline, starts = options["candidates"], options["outline"], options["framing_starts"]
     rgb = detect == "rgb"
     if outline is None:
         outline = shipped_outline(objects) if rgb else None

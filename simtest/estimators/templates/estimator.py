@@ -53,7 +53,7 @@ from simtest.estimators.templates.crops import mask_in_crop, region_crop, window
 from simtest.estimators.templates.edges import edge_distance, fit_edges
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
-from simtest.estimators.templates.framing import framing_search
+from simtest.estimators.templates.framing import Framing, framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
 from simtest.estimators.templates.outline import OutlineNet, check_mask_mode, check_temperature, outline_fit
@@ -78,11 +78,11 @@ def check_framing_starts(starts, who: str = "templates: framing_starts") -> tupl
     Raises:
         ConfigError: An empty list or a factor out of range, named with the value.
     """
-    vals = (starts,) if isinstance(starts, (int, float)) else tuple(starts) if isinstance(starts, (list, tuple)) else ()
-    if not vals or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.25 <= float(v) <= 4.0
-                            for v in vals):
-        raise ConfigError(f"{who} must be window factors in [0.25, 4], e.g. (1, 1.4, 2), got "
-                          f"{starts!r}")
+    vals = (starts,) if isinstance(starts, (int, float)) else starts
+    numbers = isinstance(vals, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                      for v in vals)
+    if not numbers or not vals or not all(0.25 <= float(v) <= 4.0 for v in vals):
+        raise ConfigError(f"{who} must be window factors in [0.25, 4], e.g. (1, 1.4, 2), got {starts!r}")
     return tuple(float(v) for v in vals)
 
 
@@ -324,6 +324,13 @@ class TemplateEstimator:
         a, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
         return crops, q, qm, int(a), int(j), float(scores[a, j])
 
+    def framings(self, rgb: np.ndarray, K: np.ndarray, crop, roll_rad: float, weights: np.ndarray) -> list[Framing]:
+        """Step 3: one framing search per factor of :attr:`framing_starts`, each from ``crop``'s window (centre
+        kept, side scaled by the factor) at the roll ``roll_rad`` (radians), against the templates ``weights``."""
+        centre, side = window_centre(crop, K), crop.window[2]
+        return [framing_search(rgb, K, centre, side * f, roll_rad, self.encoder, weights, self.settings.size)
+                for f in self.framing_starts]
+
     def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
               ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
         bank, weights = self.bank(obj)
@@ -333,8 +340,7 @@ class TemplateEstimator:
                                 "match": best}
         query, query_mask, roll = q[a], None if qm is None else qm[a], float(self.inplane[a])
         if self.framing:
-            runs = [framing_search(rgb, K, window_centre(crop, K), crop.window[2] * f, float(self.inplane[a]),
-                                   self.encoder, weights, self.settings.size) for f in self.framing_starts]
+            runs = self.framings(rgb, K, crop, float(self.inplane[a]), weights)
             k = max(range(len(runs)), key=lambda i: (runs[i].score, -i))
             fr = runs[k]
             info.update(framing_crops=sum(r.crops for r in runs), framing_start=self.framing_starts[k],

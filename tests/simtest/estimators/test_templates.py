@@ -16,7 +16,9 @@ from simtest.estimators.base import Observation
 from simtest.estimators.templates import TemplateEstimator
 from simtest.estimators.templates.bank import (FORMAT, RENDER_SIZE, BankSettings, _appearance_hash, bank_path,
                                                load_or_build, render_intrinsics, template_image)
-from simtest.estimators.templates.crops import region_crop
+from simtest.estimators.templates.crops import region_crop, window_centre
+from simtest.estimators.templates.framing import framing_search
+from simtest.estimators.templates.match import template_pose
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.render import ObjectRenderer
@@ -291,8 +293,8 @@ def test_silhouette_fit_runs_after_the_framing_search(objects, cache, monkeypatc
 def test_framing_starts_grow_a_window_out_of_a_partial_region(objects, cache, monkeypatch):
     """A region that holds only part of its object (the left third of the mug, as a detector's on a real frame)
     frames a window too small; started also from the window scaled 1.4 and 2 times, the search keeps the best
-    match (never worse than the single start) and its depth error falls from 2.5 to 0.3 %. ``(1,)`` is the single
-    start bit for bit, and bad factors are refused with the value named."""
+    match (never worse than the single start) and its depth error falls from 2.5 to 0.3 %. The single start is
+    the plain search from the region's window, and bad factors are refused with the value named."""
     monkeypatch.setenv("SIMTEST_CACHE", str(cache))
     obj = objects.by_name("mug_0")
     R, t = inplane_rotation(np.radians(10.0)) @ view_rotation([0.4, -0.6, 0.7]), np.array([0.05, -0.03, 0.65])
@@ -305,9 +307,14 @@ def test_framing_starts_grow_a_window_out_of_a_partial_region(objects, cache, mo
                       target_obj_ids=(obj.obj_id,), masks=(part,))
     est = TemplateEstimator(detect="gt", views=600, min_elevation_deg=0.0, refine="none", framing=True)
     (one,) = est.estimate(obs)
-    est.framing_starts = (1.0,)
-    (same,) = est.estimate(obs)
-    assert np.array_equal(same.t, one.t) and np.array_equal(same.R, one.R) and one.info["framing_start"] == 1.0
+    # the single start (the default) is the plain search from the region's own window
+    bank, weights = est.bank(obj)
+    crops, _, _, a, _, _ = est.region_match(weights, rgb, part, K)
+    fr = framing_search(rgb, K, window_centre(crops[a], K), crops[a].window[2], float(est.inplane[a]), est.encoder,
+                        weights, est.settings.size)
+    R_fr, t_fr = template_pose(bank, fr.template, fr.crop.K, fr.crop.R_virt)
+    assert one.info["framing_start"] == 1.0 and one.info["match"] == fr.score
+    assert np.array_equal(one.R, R_fr) and np.array_equal(one.t, t_fr)
     est.framing_starts = (1.0, 1.4, 2.0)
     (multi,) = est.estimate(obs)
     assert multi.info["match"] >= one.info["match"] and multi.info["framing_start"] in (1.0, 1.4, 2.0)
