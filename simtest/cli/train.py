@@ -39,7 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, help="images (outlines: crops) per step (default: 8; outlines 32)")
     p.add_argument("--lr", type=float, help="peak learning rate (default: 2e-3 keypoints, 3e-3 segmentation)")
     p.add_argument("--augment", default="occlusion,weather", metavar="NAME,NAME",
-                   help="on-the-fly augmentation: occlusion, weather, depth, color (photometric jitter), or none (default: occlusion,weather; "
+                   help="on-the-fly augmentation: occlusion, weather, depth, color (photometric jitter), background (cluttered "
+                        "backgrounds), object-light (each object brightened or dimmed against its surroundings), or "
+                        "none (default: occlusion,weather; "
                         "weather leaves out brightness/frost/snow/fog, which stay unseen)")
     p.add_argument("--crop", metavar="HxW", help="keypoints --arch crop: the zoom-in crop size (default 128x128); "
                                                  "otherwise train on HxW crops around objects (default full images)")
@@ -82,6 +84,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-scale", choices=("crop", "image"),
                    help="outlines: apply the camera's blur, colour and noise to the crop (default) or to the image "
                         "around the object before cropping")
+    p.add_argument("--object-light", type=float, metavar="P",
+                   help="outlines: share of the samples whose object is brightened or dimmed against its "
+                        "surroundings by a gain in [0.9, 1.8] (default 0; segmentation and keypoints: "
+                        "--augment ...,object-light)")
     p.add_argument("--no-image-skip", dest="image_skip", action="store_false", default=None,
                    help="outlines: the network's last stage reads the pretrained features and the prior only, not "
                         "the crop's pixels")
@@ -202,7 +208,7 @@ def _run_outlines(args: argparse.Namespace) -> int:
                              max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
                              **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size",
                                       pose_priors="pose_priors", camera_scale="camera_scale",
-                                      image_skip="image_skip"))
+                                      image_skip="image_skip", object_light="object_light"))
     res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
     return _report(res, cfg.epochs, "val_iou", lambda b: f"val mask IoU {100 * b['val_iou']:.1f} %, the priors' "
                                                          f"{100 * b['val_prior_iou']:.1f} %")

@@ -13,7 +13,7 @@ Everything documented as ``simtest.data.NAME`` is importable from here.
 """
 
 from simtest.data.dense import DENSE_CHANNELS, load_channels
-from simtest.data.augment import (AUGMENTATIONS, TRAIN_WEATHER, BackgroundSwap, ColorJitter, Compose, Corrupt,
+from simtest.data.augment import (AUGMENTATIONS, TRAIN_WEATHER, BackgroundSwap, ColorJitter, Compose, Corrupt, ObjectLight,
                                   RandomCorrupt, augmentation)
 from simtest.data.feed import (ImageEntry, ImageFeed, check_feed_options, check_seed, collate, crop_intrinsics,
                                crop_window, sample_rng)
@@ -23,7 +23,7 @@ from simtest.data.pointclouds import ObjectPoints, PointCloudSequence
 from simtest.io.dense import nocs_from_coords
 
 __all__ = [
-    "PoseDataset", "Corrupt", "RandomCorrupt", "ColorJitter", "BackgroundSwap", "Compose", "collate", "sample_rng", "project_points",
+    "PoseDataset", "Corrupt", "RandomCorrupt", "ColorJitter", "ObjectLight", "BackgroundSwap", "Compose", "collate", "sample_rng", "project_points",
     "canonical_symmetry", "KEYPOINT_TYPES", "TRAIN_WEATHER", "augmentation", "AUGMENTATIONS",
     "PointCloudSequence", "ObjectPoints", "ImageFeed", "ImageEntry", "check_feed_options", "check_seed",
     "crop_window", "crop_intrinsics", "UnlabelledDataset", "MixedDataset", "collate_mixed", "DENSE_CHANNELS",

@@ -12,14 +12,14 @@ import numpy as np
 
 from simtest.errors import ConfigError
 
-__all__ = ["Corrupt", "RandomCorrupt", "ColorJitter", "BackgroundSwap", "Compose", "augmentation", "TRAIN_WEATHER", "AUGMENTATIONS"]
+__all__ = ["Corrupt", "RandomCorrupt", "ColorJitter", "ObjectLight", "BackgroundSwap", "Compose", "augmentation", "TRAIN_WEATHER", "AUGMENTATIONS"]
 
 #: Image corruptions used by the ``weather`` augmentation. The four evaluation conditions of the robustness
 #: tables (brightness, frost, snow, fog) are deliberately left out so they stay unseen in training.
 TRAIN_WEATHER: tuple[str, ...] = ("gaussian_noise", "shot_noise", "defocus_blur", "motion_blur", "contrast",
                                   "saturate", "jpeg_compression", "pixelate", "gaussian_blur", "spatter")
 #: Names understood by :func:`augmentation`.
-AUGMENTATIONS: tuple[str, ...] = ("occlusion", "weather", "depth", "color", "background")
+AUGMENTATIONS: tuple[str, ...] = ("occlusion", "weather", "depth", "color", "background", "object-light")
 
 
 @dataclass(frozen=True)
@@ -121,6 +121,34 @@ class ColorJitter:
         return dict(sample, rgb=np.round(x * 255.0).astype(np.uint8))
 
 
+@dataclass(frozen=True)
+class ObjectLight:
+    """Brighten (or dim) each annotated object's visible pixels by a gain of its own, uniform in ``gain``
+    (sRGB values multiplied and clipped; with probability ``p`` per sample). Geometry, depth and masks are
+    untouched; distractors and the room keep their rendered values.
+
+    Why: a real camera can show the objects lit brighter against their surroundings than a render does. On
+    LM-O's 100 real frames the objects' visible pixels average 0.72 of their models' vertex colours, in
+    ``configs/lmo-clutter.toml``'s path-traced frames 0.50, at about the same image mean; a global brightness
+    jitter (``color``) cannot change that contrast. On LM-O it did not help the detector or the outline network
+    (docs/sim2real.md, thirteenth round): measure it on your own frames (``docs/sim2real_photometry.py``).
+    """
+
+    gain: tuple[float, float] = (0.9, 1.8)
+    p: float = 0.5
+
+    def __call__(self, sample: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+        masks = np.asarray(sample["masks"])
+        if rng.random() >= self.p or not len(masks):
+            return sample
+        gains = rng.uniform(*self.gain, size=len(masks)).astype(np.float32)
+        x = np.asarray(sample["rgb"], np.float32)
+        factor = np.ones(x.shape[:2], np.float32)
+        for m, g in zip(masks, gains):
+            factor[np.asarray(m, bool)] = g
+        return dict(sample, rgb=np.clip(np.round(x * factor[..., None]), 0, 255).astype(np.uint8))
+
+
 def _texture(rng: np.random.Generator, shape: tuple[int, int], tile_px: float, seeds: int) -> np.ndarray:
     """(H, W, 3) uint8: a random procedural material's colour map (:mod:`simtest.materials.procedural`) tiled
     at ``tile_px`` pixels a tile, shifted by a random phase."""
@@ -202,8 +230,9 @@ def augmentation(names: Sequence[str] | str | None, p: float = 0.8) -> Compose |
 
     ``occlusion``: paste occluders at level L1..L3; ``weather``: one of :data:`TRAIN_WEATHER` at severity
     1..5; ``depth``: a depth-noise preset. Each named kind is applied to a sample with probability 0.5, and a
-    sample is corrupted at all with probability ``p``. ``background``: :class:`BackgroundSwap` and ``color``:
-    :class:`ColorJitter` (their own probabilities), in that order, before the corruptions.
+    sample is corrupted at all with probability ``p``. ``background``: :class:`BackgroundSwap`,
+    ``object-light``: :class:`ObjectLight` and ``color``: :class:`ColorJitter` (their own probabilities), in that
+    order, before the corruptions.
 
     Raises:
         ConfigError: An unknown name (lists the valid ones).
@@ -225,6 +254,7 @@ def augmentation(names: Sequence[str] | str | None, p: float = 0.8) -> Compose |
                             occlusion_levels=(1, 2, 3) if "occlusion" in names else (),
                             depth_noise=tuple(DEPTH_PRESETS) if "depth" in names else (), p=p)
     # background and colour first, in Compose slots of their own: without them the corruptions draw as before
-    first = ((BackgroundSwap(),) if "background" in names else ()) + ((ColorJitter(),) if "color" in names else ())
+    first = (((BackgroundSwap(),) if "background" in names else ()) + ((ObjectLight(),) if "object-light" in names else ())
+             + ((ColorJitter(),) if "color" in names else ()))
     return Compose(first + (corrupt,))
 

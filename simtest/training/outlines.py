@@ -35,6 +35,7 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
+from simtest.data.augment import ObjectLight
 from simtest.errors import ConfigError
 from simtest.estimators.checkpoint import check_objects, object_record
 from simtest.estimators.templates.crops import mask_in_crop, region_crop, window_crop
@@ -71,6 +72,9 @@ class OutlineTrainConfig:
             trained) or ``"image"`` (to the image around the object before it is cropped, blur sigma 0.5-1.8
             image pixels: a camera blurs in its own pixels, so a small object's crop is blurrier).
         image_skip: The network's last stage also reads the crop's pixels (:class:`MaskNetConfig`; default on).
+        object_light: The share of samples whose object's visible pixels in the crop are brightened or dimmed
+            by a gain of their own (:class:`~simtest.data.augment.ObjectLight`, before the camera's changes;
+            default 0: none). Real cameras show objects lit brighter against their surroundings than renders.
         encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
@@ -95,6 +99,7 @@ class OutlineTrainConfig:
     pose_priors: float = 0.0
     camera_scale: str = "crop"
     image_skip: bool = True
+    object_light: float = 0.0
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -107,6 +112,8 @@ class OutlineTrainConfig:
                               f"{self.camera_scale!r}")
         if not 0.0 <= float(self.pose_priors) <= 1.0:
             raise ConfigError(f"outline training: pose_priors must be a share in [0, 1], got {self.pose_priors!r}")
+        if not 0.0 <= float(self.object_light) <= 1.0:
+            raise ConfigError(f"outline training: object_light must be a share in [0, 1], got {self.object_light!r}")
         if not 0.0 <= float(self.min_visib) < 1.0:
             raise ConfigError(f"outline training: min_visib must be in [0, 1), got {self.min_visib!r}")
         if self.encoder_lr_scale != 0.0 or not self.freeze_encoder_bn:
@@ -212,8 +219,10 @@ class OutlineCrops:
     "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes."""
 
     def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
-                 augment_p: float = 1.0, objects=None, pose_priors: float = 0.0, camera_scale: str = "crop") -> None:
+                 augment_p: float = 1.0, objects=None, pose_priors: float = 0.0, camera_scale: str = "crop",
+                 object_light: float = 0.0) -> None:
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
+        self.object_light = float(object_light)
         self.augment_p, self.camera_scale = float(augment_p), camera_scale
         self.objects, self.pose_priors = objects, float(pose_priors)
         if self.pose_priors > 0 and objects is None:
@@ -247,6 +256,8 @@ class OutlineCrops:
             sample = pose_sample(rgb, K, self.objects.get(gt.obj_id), gt.T_cam_obj.R, gt.T_cam_obj.t, visible,
                                  self.size, rng)
         crop, prior, visible = sample or outline_sample(rgb, K, amodal, visible, self.size, rng)
+        if self.photometric and self.object_light > 0 and rng.random() < self.object_light:  # no draw at 0
+            crop = ObjectLight(p=1.0)({"rgb": crop, "masks": visible[None]}, rng)["rgb"]
         if changed and self.camera_scale == "crop":
             crop = _photometric(crop, rng)
         return crop, prior, visible
@@ -305,7 +316,7 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
     for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
         check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
     train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True,
-                         cfg.augment_p, objects, cfg.pose_priors, cfg.camera_scale)
+                         cfg.augment_p, objects, cfg.pose_priors, cfg.camera_scale, cfg.object_light)
     if not len(train):
         raise ConfigError(f"outline training: no instance with visib_fract >= {cfg.min_visib} in {roots}")
     val = None

@@ -104,6 +104,24 @@ def test_camera_changes_at_the_image_scale_are_seeded_and_keep_the_masks(small_d
         OutlineTrainConfig(data="x", out="y", camera_scale="sensor")
 
 
+def test_object_light_changes_only_the_objects_visible_pixels_of_a_crop(small_dataset):
+    """``--object-light 1``: the crop's visible object pixels scaled by one gain, everything else (the rest of
+    the crop, the prior, the mask) drawn as without it; 0 keeps the earlier samples; a share outside [0, 1] is
+    refused."""
+    instances = _instances([str(small_dataset)], None, 0.5, None)
+    plain = OutlineCrops(instances, 64, seed=2, photometric=True, augment_p=0.0)
+    lit = OutlineCrops(instances, 64, seed=2, photometric=True, augment_p=0.0, object_light=1.0)
+    changed = 0
+    for i in range(len(instances)):
+        (c0, p0, v0), (c1, p1, v1) = plain.arrays(i), lit.arrays(i)
+        assert np.array_equal(p0, p1) and np.array_equal(v0, v1)
+        assert np.array_equal(c0[v0 == 0], c1[v0 == 0])
+        changed += int((c0[v0 == 1] != c1[v0 == 1]).any())
+    assert changed >= len(instances) - 1  # a gain within a rounding step of 1 leaves a crop as it was
+    with pytest.raises(ConfigError, match="object_light"):
+        OutlineTrainConfig(data="x", out="y", object_light=1.5)
+
+
 def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
     _resume_equals_uninterrupted(train_outlines, OutlineTrainConfig, tmp_path, data=str(small_dataset), epochs=2,
                                  batch_size=4, crop_size=32, max_images=2, seed=5, threads=1)
