@@ -418,7 +418,7 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     assert est.templates.outline_mask == "soft+flip"  # how an outline fit reads its network (tenth round)
     assert est.templates.outline_temperature == 2.0  # at temperature 2 (eleventh round)
     assert load_estimator("keypoints", outline_temperature=1)._options["outline_temperature"] == 1.0
-    assert est.templates.framing_starts == TEMPLATE_FRAMING_STARTS == (1.4,)  # the window the framing search starts from
+    assert est.templates.framing_starts == TEMPLATE_FRAMING_STARTS == (1.0, 1.4)  # the windows the framing search starts from
     assert all(e.info["framing_start"] in TEMPLATE_FRAMING_STARTS for e in found)
     assert load_estimator("keypoints", framing_starts=(1,))._options["framing_starts"] == (1.0,)
     with pytest.raises(ConfigError, match="framing_starts must be window factors in \\[0.25, 4\\].*got \\(0, 2\\)"):
