@@ -176,23 +176,26 @@ def test_object_light_scales_each_object_by_its_own_gain_and_nothing_else(small_
 
     lit = PoseDataset(small_dataset, transform=Compose((ObjectLight(gain=(1.2, 1.6), p=1.0),)), seed=3)
     clean = PoseDataset(small_dataset)
+    checked = 0
     for i in range(3):
         s, g = lit[i], clean[i]
         fg = g["masks"].any(0)
         assert fg.any() and torch.equal(s["rgb"][:, ~fg], g["rgb"][:, ~fg])
         for m in g["masks"]:
             own = m & ~(g["masks"].sum(0) > 1)  # pixels of this instance only (visible masks do not overlap)
-            a, b = g["rgb"][:, own].double(), s["rgb"][:, own].double()
-            keep = (a > 8) & (b < 255)  # away from rounding at black and clipping at white
+            a, b = g["rgb"][:, own].double() * 255.0, s["rgb"][:, own].double() * 255.0  # the 8-bit values
+            keep = (a > 8) & (b < 254.5)  # away from rounding at black and clipping at white
             if int(keep.sum()) < 20:
                 continue
             gains = (b[keep] / a[keep])
             assert 1.2 - 0.07 < float(gains.median()) < 1.6 + 0.07
             assert float((gains - gains.median()).abs().max()) < 0.5 / 8 + 1e-9  # one gain: only rounding differs
+            checked += 1
         for k in ("depth", "masks", "keypoints_2d", "R", "t"):
             assert torch.equal(s[k], g[k]), k
         again = PoseDataset(small_dataset, transform=Compose((ObjectLight(gain=(1.2, 1.6), p=1.0),)), seed=3)[i]
         assert torch.equal(s["rgb"], again["rgb"])
+    assert checked >= 3  # instances large enough to read their gain were checked
     assert [type(t).__name__ for t in augmentation("color,object-light,background").transforms] == [
         "BackgroundSwap", "ObjectLight", "ColorJitter", "RandomCorrupt"]
 
