@@ -46,6 +46,19 @@ def test_objects_brighten_with_the_light_against_their_vertex_colours(tmp_path):
     for o in (1, 2):
         assert 0.0 < a["ratio"][o] < b["ratio"][o] < 2.0
     assert float(np.mean(a["image_mean"])) < float(np.mean(b["image_mean"]))
+    # the ratio, read back by hand for the box (obj 1, painted (200, 190, 180)): visible pixels over that colour
+    from simtest.io import bop
+    from simtest.io.bop_splits import dataset_split_dir, scene_dirs
+
+    (scene,) = scene_dirs(dataset_split_dir(bright))
+    ann, ratios = bop.read_scene(scene), []
+    for im in sorted(ann):
+        rgb = bop.read_image(scene, im).astype(np.float64)
+        for g, gt in enumerate(ann[im]["gt"]):
+            mask = bop.read_mask(scene, im, g, visible=True)
+            if int(gt.obj_id) == 1 and int(mask.sum()) >= 20:
+                ratios.append(float((rgb[mask].mean(0) / np.array([200.0, 190.0, 180.0])).mean()))
+    assert ratios and abs(b["ratio"][1] - float(np.mean(ratios))) < 1e-9
     done = subprocess.run([sys.executable, str(ROOT / "docs" / "sim2real_photometry.py"), str(dim), str(bright)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]

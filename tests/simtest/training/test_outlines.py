@@ -106,8 +106,7 @@ def test_camera_changes_at_the_image_scale_are_seeded_and_keep_the_masks(small_d
 
 def test_object_light_changes_only_the_objects_visible_pixels_of_a_crop(small_dataset):
     """``--object-light 1``: the crop's visible object pixels scaled by one gain, everything else (the rest of
-    the crop, the prior, the mask) drawn as without it; 0 keeps the earlier samples; a share outside [0, 1] is
-    refused."""
+    the crop, the prior, the mask) drawn as with the default 0; a share outside [0, 1] is refused."""
     instances = _instances([str(small_dataset)], None, 0.5, None)
     plain = OutlineCrops(instances, 64, seed=2, photometric=True, augment_p=0.0)
     lit = OutlineCrops(instances, 64, seed=2, photometric=True, augment_p=0.0, object_light=1.0)
