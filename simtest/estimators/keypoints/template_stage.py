@@ -21,23 +21,27 @@ if TYPE_CHECKING:
     from simtest.estimators.templates.estimator import TemplateEstimator
 
 __all__ = ["TEMPLATE_CANDIDATES", "TEMPLATE_SELECT", "TEMPLATE_REFINE", "TEMPLATE_FRAMING", "TEMPLATE_LOCAL_DEG",
-           "TEMPLATE_OUTLINE_MASK", "TEMPLATE_OUTLINE_TEMPERATURE", "TEMPLATE_FRAMING_STARTS", "template_stage"]
+           "TEMPLATE_OUTLINE_MASK", "TEMPLATE_OUTLINE_TEMPERATURE", "TEMPLATE_FRAMING_STARTS", "TEMPLATE_REGION_EXTRA",
+           "template_stage"]
 
 TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
 TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE = 4.0, "soft+flip", 2.0
 #: Factors of the region's window side the framing search starts from (the best-matching result is kept).
 TEMPLATE_FRAMING_STARTS: tuple[float, ...] = (1.0, 1.4)
+#: Class probability above which regions the class map misses become candidates too (0: none).
+TEMPLATE_REGION_EXTRA = 0.0
 
 
 def template_stage(detect: str, region_rank: str, objects: Any, options: dict[str, Any]) -> TemplateEstimator:
     """The template estimator of the stage for ``detect`` (``rgb`` or ``gt``) and ``region_rank``, with the
     keypoint estimator's ``options`` (``candidates``, ``outline``, ``outline_mask``, ``outline_temperature``,
-    ``framing_starts``, ``threads``; None: this module's settings). Without an ``outline`` option and with
+    ``framing_starts``, ``region_extra``, ``threads``; None: this module's settings). Without an ``outline`` option and with
     ``detect=rgb`` the shipped outline network for ``objects`` is taken, if there is one."""
     from simtest.estimators.templates.estimator import TemplateEstimator  # local: it imports the crop geometry
     from simtest.estimators.templates.outline import shipped_outline
 
     given, outline, starts = options["candidates"], options["outline"], options["framing_starts"]
+    extra = options.get("region_extra")
     rgb = detect == "rgb"
     if outline is None:
         outline = shipped_outline(objects) if rgb else None
@@ -46,5 +50,6 @@ def template_stage(detect: str, region_rank: str, objects: Any, options: dict[st
         candidates=TEMPLATE_CANDIDATES if given is None else int(given), select=TEMPLATE_SELECT,
         refine=TEMPLATE_REFINE if rgb else "silhouette", framing=TEMPLATE_FRAMING and rgb,
         framing_starts=TEMPLATE_FRAMING_STARTS if starts is None else starts,
+        region_extra=(TEMPLATE_REGION_EXTRA if extra is None else float(extra)) if rgb else 0.0,
         local_deg=TEMPLATE_LOCAL_DEG if rgb else 0.0, outline=outline, outline_mask=options["outline_mask"],
         outline_temperature=options["outline_temperature"])

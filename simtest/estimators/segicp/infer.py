@@ -185,11 +185,19 @@ class Segmenter:
         ``threshold``: 0 takes a class's regions from the class map (the pixels where the class is the most
         probable); above 0, from the pixels where the class's probability exceeds it, so an object whose pixels
         another class narrowly wins still gets a region (regions of different classes may then overlap)."""
+        if rank not in REGION_RANKS:  # checked before the network runs (again in regions_in)
+            raise ConfigError(f"region rank must be one of {', '.join(REGION_RANKS)}, got {rank!r}")
+        return self.regions_in(self.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64)), obs,
+                               per_instance, rank, threshold)
+
+    def regions_in(self, prob: np.ndarray, obs: Observation, per_instance: int = 1, rank: str = "area",
+                   threshold: float = 0.0) -> list[tuple[int, np.ndarray, float]]:
+        """:meth:`regions` from class probabilities already computed for ``obs`` (``prob`` (C+1, H, W) of
+        :meth:`probabilities`), so one image's regions can be taken several ways for one network run."""
         if rank not in REGION_RANKS:
             raise ConfigError(f"region rank must be one of {', '.join(REGION_RANKS)}, got {rank!r}")
         if not 0.0 <= float(threshold) < 1.0:
             raise ConfigError(f"region threshold must be a class probability in [0, 1), got {threshold!r}")
-        prob = self.probabilities(obs.rgb, obs.depth, np.asarray(obs.K, np.float64))
         label = prob.argmax(0)
         wanted = None if obs.target_obj_ids is None else [int(o) for o in obs.target_obj_ids]
         out = []

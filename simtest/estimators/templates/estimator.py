@@ -69,6 +69,8 @@ REFINES = ("none", "silhouette", "edges")
 SELECTS = ("match", "prob", "match_prob")
 #: Two candidate regions of one object overlapping more than this (IoU) are one region (posed once).
 SAME_REGION_IOU = 0.8
+#: A ``region_extra`` region overlapping one of the object's class-map regions more than this (IoU) is dropped.
+EXTRA_REGION_IOU = 0.5
 
 
 def check_framing_starts(starts, who: str = "templates: framing_starts") -> tuple[float, ...]:
@@ -115,6 +117,10 @@ class TemplateEstimator:
         region_threshold: With ``detect=rgb``, 0 takes regions from the detector's class map, above 0 from the
             pixels where the class's probability exceeds it (:meth:`~simtest.estimators.segicp.infer.
             Segmenter.regions`).
+        region_extra: With ``detect=rgb`` and above 0: besides the regions ``region_threshold`` takes, each
+            detector's regions of the pixels whose class probability exceeds it (as many per object), those
+            overlapping none of the object's regions found so far at IoU > :data:`EXTRA_REGION_IOU`: an object
+            whose pixels another class or the background narrowly wins still gets a candidate (0: none).
         polish: First aim step (a fraction of the window) of a last framing search against the final template
             alone (after the local search; 0: none), its size and roll steps in proportion (:mod:`.framing`),
             down to ``polish_min_shift``: finer than the first search, whose 600 templates make the score
@@ -142,7 +148,7 @@ class TemplateEstimator:
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
                  local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
-                 region_threshold: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
+                 region_threshold: float = 0.0, region_extra: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
                  outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard",
                  outline_temperature: float = 1.0, framing_starts: tuple[float, ...] = (1.0,)) -> None:
@@ -190,6 +196,9 @@ class TemplateEstimator:
                               f"{region_threshold!r}")
         #: 0: regions from the class map; above 0: from the class probability above it.
         self.region_threshold = float(region_threshold)
+        if not 0.0 <= float(region_extra) < 1.0:
+            raise ConfigError(f"templates: region_extra must be a class probability in [0, 1), got {region_extra!r}")
+        self.region_extra = float(region_extra)
         #: Every candidate of the last :meth:`estimate` (obj_id, rank, region probability, match, pose, kept).
         self.last_candidates: list[dict[str, Any]] = []
         if not 0.0 <= float(polish) < 0.5 or not 0.0 < float(polish_min_shift) < 0.5:
@@ -235,11 +244,16 @@ class TemplateEstimator:
         seen = replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
         per = self.candidates if obs.target_obj_ids is not None else 1
         out: list[tuple[int | None, int, np.ndarray, float]] = []
-        for segmenter in [self.segmenter, *self.more_segmenters]:
-            for o, m, p in segmenter.regions(seen, per, self.region_rank, self.region_threshold):
-                m = np.asarray(m, bool)
-                if not any(r[1] == int(o) and _iou(r[2], m) > SAME_REGION_IOU for r in out):
-                    out.append((None, int(o), m, float(p)))
+        segmenters = [self.segmenter, *self.more_segmenters]
+        probs = [s.probabilities(seen.rgb, seen.depth, np.asarray(seen.K, np.float64)) for s in segmenters]
+        passes = [(self.region_threshold, SAME_REGION_IOU)] + ([(self.region_extra, EXTRA_REGION_IOU)]
+                                                              if self.region_extra > 0 else [])
+        for threshold, same in passes:
+            for segmenter, prob in zip(segmenters, probs):
+                for o, m, p in segmenter.regions_in(prob, seen, per, self.region_rank, threshold):
+                    m = np.asarray(m, bool)
+                    if not any(r[1] == int(o) and _iou(r[2], m) > same for r in out):
+                        out.append((None, int(o), m, float(p)))
         return out
 
     def _load_detector(self, objects) -> None:

@@ -403,7 +403,7 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
 
     from simtest.estimators import load_estimator
     from simtest.estimators.keypoints.crop_infer import TEMPLATE_CANDIDATES
-    from simtest.estimators.keypoints.template_stage import TEMPLATE_FRAMING_STARTS
+    from simtest.estimators.keypoints.template_stage import TEMPLATE_FRAMING_STARTS, TEMPLATE_REGION_EXTRA
 
     monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
     objects = load_dataset_objects(small_dataset)
@@ -423,6 +423,10 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     assert load_estimator("keypoints", framing_starts=(1,))._options["framing_starts"] == (1.0,)
     with pytest.raises(ConfigError, match="framing_starts must be window factors in \\[0.25, 4\\].*got \\(0, 2\\)"):
         load_estimator("keypoints", framing_starts=(0, 2))
+    assert est.templates.region_extra == TEMPLATE_REGION_EXTRA
+    assert load_estimator("keypoints", region_extra=0.2)._options["region_extra"] == 0.2
+    with pytest.raises(ConfigError, match="region_extra must be a class probability in \\[0, 1\\), got -0.1"):
+        load_estimator("keypoints", region_extra=-0.1)
     assert load_estimator("keypoints", outline_mask="hard")._options["outline_mask"] == "hard"
     with pytest.raises(ConfigError, match="unknown outline_mask 'fuzzy'; valid: hard, soft, soft\\+flip"):
         load_estimator("keypoints", outline_mask="fuzzy")

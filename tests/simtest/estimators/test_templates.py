@@ -213,6 +213,40 @@ def test_pooled_detectors_pose_a_shared_region_once(small_dataset, cache, monkey
     assert counted > 0
 
 
+def test_extra_regions_add_only_what_the_class_map_misses(small_dataset, cache, monkeypatch):
+    """``region_extra``: the class map's regions come first, unchanged; then the regions of pixels whose class
+    probability exceeds it, each overlapping none of its object's earlier regions at IoU > EXTRA_REGION_IOU and
+    lying wholly above it (eroded); a value outside [0, 1) is refused by name."""
+    from simtest.estimators.segicp.infer import FORMAT
+    from simtest.estimators.shipped import choose
+    from simtest.estimators.templates.estimator import EXTRA_REGION_IOU, _iou
+    from simtest.evaluation.images import observation
+    from simtest.io.dataset import image_size, select_images
+    from simtest.objects.loaders import load_dataset_objects
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(cache))
+    objects = load_dataset_objects(small_dataset)
+    width, height = image_size(small_dataset)
+    path = str(choose("keypoints_detector", FORMAT, objects, what="test", subset=True).path)
+    plain = TemplateEstimator(detect="rgb", detector=path, candidates=3)
+    extra = TemplateEstimator(detect="rgb", detector=path, candidates=3, region_extra=0.05)
+    added = 0
+    for ref in select_images(small_dataset, None, None, 3, objects.ids):
+        obs, _ = observation(ref, objects, "gt-masks", width, height, False)
+        a, b = plain.regions(obs), extra.regions(obs)
+        assert [(r[1], r[3]) for r in b[:len(a)]] == [(r[1], r[3]) for r in a]
+        assert all(np.array_equal(ra[2], rb[2]) for ra, rb in zip(a, b))
+        prob = extra.segmenter.probabilities(obs.rgb, np.zeros(obs.rgb.shape[:2], np.float32), np.asarray(obs.K))
+        for n, (_, oid, mask, p) in enumerate(b[len(a):], start=len(a)):
+            c = extra.segmenter.class_ids.index(oid) + 1
+            assert mask.any() and float(prob[c][mask].min()) > 0.05 and 0.05 < p <= 1.0
+            assert all(_iou(r[2], mask) <= EXTRA_REGION_IOU for r in b[:n] if r[1] == oid)
+            added += 1
+    assert added > 0
+    with pytest.raises(ConfigError, match=r"region_extra must be a class probability in \[0, 1\), got 1.0"):
+        TemplateEstimator(region_extra=1.0)
+
+
 def _loose_region(objects) -> tuple[Observation, np.ndarray]:
     """A mug rendered at 0.65 m, given as a region far larger than it and off its centre (a coarse detector's):
     the observation and the true translation (metres)."""
