@@ -59,7 +59,7 @@ from simtest.estimators.templates.match import match_scores, template_pose, temp
 from simtest.estimators.templates.outline import OutlineNet, check_mask_mode, check_temperature, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
-__all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS", "check_framing_starts"]
+__all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS", "check_framing_starts", "pooled_regions"]
 
 DETECTORS = ("rgb", "gt")
 REFINES = ("none", "silhouette", "edges")
@@ -90,6 +90,25 @@ def check_framing_starts(starts, who: str = "templates: framing_starts") -> tupl
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max(int((a | b).sum()), 1))
+
+
+def pooled_regions(segmenters: list, probs: list[np.ndarray], obs: Observation, per: int, rank: str,
+                   threshold: float = 0.0, extra: float = 0.0) -> list[tuple[int, np.ndarray, float]]:
+    """``(obj_id, mask (H, W) bool, mean class probability)`` of every candidate region of several detectors:
+    each one's regions of ``obs`` (``probs``: its class probabilities; ``per``, ``rank``, ``threshold`` as in
+    :meth:`~simtest.estimators.segicp.infer.Segmenter.regions`) in turn, a region overlapping an earlier one of
+    its object at IoU > :data:`SAME_REGION_IOU` dropped; then with ``extra`` > 0 the same from the pixels whose
+    class probability exceeds ``extra``, those overlapping an earlier one at IoU > :data:`EXTRA_REGION_IOU`
+    dropped."""
+    out: list[tuple[int, np.ndarray, float]] = []
+    passes = [(threshold, SAME_REGION_IOU)] + ([(extra, EXTRA_REGION_IOU)] if extra > 0 else [])
+    for level, same in passes:
+        for segmenter, prob in zip(segmenters, probs):
+            for o, m, p in segmenter.regions_in(prob, obs, per, rank, level):
+                m = np.asarray(m, bool)
+                if not any(r[0] == int(o) and _iou(r[1], m) > same for r in out):
+                    out.append((int(o), m, float(p)))
+    return out
 
 
 class TemplateEstimator:
@@ -243,18 +262,10 @@ class TemplateEstimator:
             self._load_detector(obs.objects)
         seen = replace(obs, depth=np.zeros(obs.rgb.shape[:2], np.float32))
         per = self.candidates if obs.target_obj_ids is not None else 1
-        out: list[tuple[int | None, int, np.ndarray, float]] = []
         segmenters = [self.segmenter, *self.more_segmenters]
         probs = [s.probabilities(seen.rgb, seen.depth, np.asarray(seen.K, np.float64)) for s in segmenters]
-        passes = [(self.region_threshold, SAME_REGION_IOU)] + ([(self.region_extra, EXTRA_REGION_IOU)]
-                                                              if self.region_extra > 0 else [])
-        for threshold, same in passes:
-            for segmenter, prob in zip(segmenters, probs):
-                for o, m, p in segmenter.regions_in(prob, seen, per, self.region_rank, threshold):
-                    m = np.asarray(m, bool)
-                    if not any(r[1] == int(o) and _iou(r[2], m) > same for r in out):
-                        out.append((None, int(o), m, float(p)))
-        return out
+        return [(None, o, m, p) for o, m, p in pooled_regions(segmenters, probs, seen, per, self.region_rank,
+                                                              self.region_threshold, self.region_extra)]
 
     def _load_detector(self, objects) -> None:
         from simtest.estimators.segicp.infer import FORMAT as SEG_FORMAT, Segmenter
