@@ -69,7 +69,7 @@ REFINES = ("none", "silhouette", "edges")
 SELECTS = ("match", "prob", "match_prob")
 #: Two candidate regions of one object overlapping more than this (IoU) are one region (posed once).
 SAME_REGION_IOU = 0.8
-#: A ``region_extra`` region overlapping one of the object's class-map regions more than this (IoU) is dropped.
+#: A ``region_extra`` region overlapping an earlier region of its object more than this (IoU) is dropped.
 EXTRA_REGION_IOU = 0.5
 
 
