@@ -26,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from simtest.estimators.keypoints.template_stage import TEMPLATE_CANDIDATES  # noqa: E402
 from simtest.estimators.segicp.infer import Segmenter  # noqa: E402
 from simtest.estimators.templates.estimator import pooled_regions  # noqa: E402
 from simtest.io import bop  # noqa: E402
@@ -33,8 +34,6 @@ from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
 
 HIT_IOU = 0.3
 RULES = ("area", "prob", "top3", "prob3", "cands")
-#: Candidate regions per expected instance and detector, as the shipped pipeline takes them (TEMPLATE_CANDIDATES).
-CANDIDATES = 3
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -58,7 +57,8 @@ def score(detector: str, data: Path, max_images: int | None, threads: int, thres
         rgb = bop.read_image(scene, im)
         probs = [seg.probabilities(rgb, np.zeros(rgb.shape[:2], np.float32), d["K"]) for seg in segs]
         ids = tuple(int(g.obj_id) for g in d["gt"] if g.obj_id in segs[0].class_ids)
-        cands = pooled_regions(segs, probs, SimpleNamespace(target_obj_ids=ids), CANDIDATES, "prob", threshold, extra)
+        cands = pooled_regions(segs, probs, SimpleNamespace(target_obj_ids=ids), TEMPLATE_CANDIDATES, "prob",
+                               threshold, extra)
         counts += [sum(o == oid for o, _, _ in cands) for oid in set(ids)]
         for k, g in enumerate(d["gt"]):
             if g.visib_fract < 0.1 or g.obj_id not in segs[0].class_ids:

@@ -43,7 +43,7 @@ def template_stage(detect: str, region_rank: str, objects: Any, options: dict[st
     from simtest.estimators.templates.outline import shipped_outline
 
     given, outline, starts = options["candidates"], options["outline"], options["framing_starts"]
-    extra = options.get("region_extra")
+    extra = options["region_extra"]
     rgb = detect == "rgb"
     if outline is None:
         outline = shipped_outline(objects) if rgb else None
