@@ -39,7 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from simtest.camera import pinhole_pixels  # noqa: E402
 from simtest.io import bop  # noqa: E402
+from simtest.io.bop_results import read_bop_results  # noqa: E402
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
+from simtest.metrics.bop19 import ResultRow  # noqa: E402
 from simtest.objects.loaders import load_dataset_objects  # noqa: E402
 from simtest.render.silhouette import object_silhouette  # noqa: E402
 
@@ -51,12 +53,6 @@ BUCKETS = ("pass", "on it, turned < 15", "on it, turned", "on another object", "
            "no estimate")
 
 
-def _pose(row: dict) -> tuple[np.ndarray, np.ndarray]:
-    """``(R, t)`` of a results.csv row (t in metres; the file holds millimetres)."""
-    R = np.array(row["R"].split(), float).reshape(3, 3)
-    return R, np.array(row["t"].split(), float) / 1000.0
-
-
 def buckets(run: Path, data: Path, first_images: int | None = None, results: Path | None = None) -> dict:
     """``{"counts": {obj_id: {bucket: n}}, "near": [(obj_id, distance ratio, du px, dv px, passed)]}`` over
     the run's targets (its first ``first_images`` images by scene and image id, or all); ``results``: the
@@ -66,10 +62,9 @@ def buckets(run: Path, data: Path, first_images: int | None = None, results: Pat
     annotations = {k: bop.read_scene(s) for k, s in scenes.items()}
     with open(run / "errors.csv", newline="") as f:
         targets = list(csv.DictReader(f))
-    found: dict[tuple[int, int, int], list[dict]] = defaultdict(list)
-    with open(results or run / "results.csv", newline="") as f:
-        for row in csv.DictReader(f):
-            found[(int(row["scene_id"]), int(row["im_id"]), int(row["obj_id"]))].append(row)
+    found: dict[tuple[int, int, int], list[ResultRow]] = defaultdict(list)
+    for row in read_bop_results(results or run / "results.csv"):  # t in metres
+        found[(row.scene_id, row.im_id, row.obj_id)].append(row)
     images = sorted({(int(r["scene_id"]), int(r["im_id"])) for r in targets})
     kept = set(images[:first_images] if first_images is not None else images)
     counts: dict[int, dict[str, int]] = defaultdict(lambda: dict.fromkeys(BUCKETS, 0))
@@ -90,10 +85,10 @@ def buckets(run: Path, data: Path, first_images: int | None = None, results: Pat
         H, W = visible[gt_id].shape
         posed = []
         for row in rows:
-            R, tr = _pose(row)
+            R, tr = row.R, row.t
             sil = object_silhouette(objects.get(oid), R, tr, d["K"], W, H) if tr[2] > 0 else np.zeros((H, W), bool)
             on = [float((sil & m).sum()) / max(int(sil.sum()), 1) for m in visible]
-            posed.append((on[gt_id] >= ON_MASK, on[gt_id], float(row["score"]), tr, sil, on))
+            posed.append((on[gt_id] >= ON_MASK, on[gt_id], float(row.score), tr, sil, on))
         _, _, _, tr, sil, on = max(posed, key=lambda p: p[:3])
         passed = t["matched"] == "1" and float(t["add_s_or_add"]) < 0.1 * float(t["diameter_m"])
         turned = not (t["re_sym"] and float(t["re_sym"]) < TURN_DEG)
