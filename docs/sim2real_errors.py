@@ -54,7 +54,7 @@ BUCKETS = ("pass", "on it, turned < 15", "on it, turned", "on another object", "
 
 
 def buckets(run: Path, data: Path, first_images: int | None = None, results: Path | None = None) -> dict:
-    """``{"counts": {obj_id: {bucket: n}}, "near": [(obj_id, distance ratio, du px, dv px, passed)]}`` over
+    """``{"counts": {obj_id: {bucket: n}}, "near": [(distance ratio, du px, dv px)]}`` over
     the run's targets (its first ``first_images`` images by scene and image id, or all); ``results``: the
     estimates (default ``run/results.csv``; ``simtest eval --results`` scores a file it does not copy)."""
     objects = load_dataset_objects(data)
@@ -105,7 +105,7 @@ def buckets(run: Path, data: Path, first_images: int | None = None, results: Pat
             g = d["gt"][gt_id].T_cam_obj
             u, v = pinhole_pixels(d["K"], tr)
             ug, vg = pinhole_pixels(d["K"], g.t)
-            near.append((oid, float(np.linalg.norm(tr) / np.linalg.norm(g.t)), float(u - ug), float(v - vg), passed))
+            near.append((float(np.linalg.norm(tr) / np.linalg.norm(g.t)), float(u - ug), float(v - vg)))
     return {"counts": dict(counts), "near": near}
 
 
@@ -129,7 +129,7 @@ def main() -> None:
         print(f"| {oid} | {sum(c.values())} | " + " | ".join(str(c[b]) for b in BUCKETS) + " |")
     n = sum(total.values())
     print(f"| all | {n} | " + " | ".join(f"{total[b]} ({100 * total[b] / max(n, 1):.1f} %)" for b in BUCKETS) + " |")
-    near = np.array([x[1:4] for x in r["near"]]) if r["near"] else np.zeros((0, 3))
+    near = np.array(r["near"]).reshape(-1, 3)
     if len(near):
         q = np.percentile(near[:, 0], [25, 50, 75])
         print(f"\npassing or on it and turned < 15 (objects without symmetries, {len(near)} estimates): distance "
