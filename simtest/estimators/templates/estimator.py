@@ -56,7 +56,7 @@ from simtest.estimators.templates.export import default_encoder
 from simtest.estimators.templates.framing import Framing, framing_search
 from simtest.estimators.templates.local import local_search
 from simtest.estimators.templates.match import match_scores, template_pose, template_weights
-from simtest.estimators.templates.outline import OutlineNet, check_mask_mode, check_temperature, outline_fit
+from simtest.estimators.templates.outline import check_mask_mode, check_temperature, load_outline, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["TemplateEstimator", "DETECTORS", "REFINES", "SELECTS", "check_framing_starts", "pooled_regions"]
@@ -150,7 +150,8 @@ class TemplateEstimator:
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
         framing_starts: Factors of the region's window side (each in [0.25, 4]) from which the framing search
             starts; the best-matching framing is kept (ties: the first).
-        outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; None or False: none) that fits
+        outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; several joined by ``+``
+            are read as one, their probabilities averaged; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
             change of that fit; outline_deg: its first rotation step in degrees (0: the rotation stays; 2 chosen
             on held-out renders, docs/sim2real.md, eighth round); outline_mask: how the fit reads the network's
@@ -237,7 +238,7 @@ class TemplateEstimator:
         check_mask_mode(outline_mask, "templates: outline_mask")
         check_temperature(outline_temperature, "templates: outline_temperature")
         #: The outline network of step 8 (None: no outline fit), and the largest depth change it may make.
-        self.outline = None if outline in (None, False, "", "none") else OutlineNet(str(outline), threads=threads)
+        self.outline = None if outline in (None, False, "", "none") else load_outline(str(outline), threads=threads)
         self.outline_max_scale, self.outline_deg = float(outline_max_scale), float(outline_deg)
         self.outline_mask, self.outline_temperature = str(outline_mask), float(outline_temperature)
 

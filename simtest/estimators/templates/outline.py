@@ -13,8 +13,10 @@ divides the logits before the sigmoid, so the probability is flatter: the fit's 
 its probability exceeds about ``IoU / (1 + IoU)`` (0.44 at IoU 0.8), so a flatter probability lets the silhouette
 grow over pixels the network leans against, i.e. pulls the pose nearer. On the real LM-O frames the fitted
 poses lie a median 0.2 % too far at T = 1, 0.1 % too near at T = 2 and 1.6 % too near at T = 4 (docs/sim2real.md,
-eleventh round). ``"hard"`` is the same at any temperature. Inference runs
-through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through torch from a ``.pt``.
+eleventh round). ``"hard"`` is the same at any temperature. Several networks (``A.onnx+B.onnx``,
+:func:`load_outline`; every shipped one of a set, :func:`shipped_outline`) are read as one: their probabilities
+averaged. Inference runs through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through
+torch from a ``.pt``.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
 from simtest.estimators.templates.crops import region_crop
 from simtest.render.silhouette import object_silhouette
 
-__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
+__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineNets", "load_outline", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
            "MIN_SILHOUETTE_PX", "MASK_MODES", "check_mask_mode", "check_temperature"]
 
 #: The ``format`` entry of outline-network checkpoints and ONNX files.
@@ -120,6 +122,44 @@ class OutlineNet:
         return self.probability(crop_rgb, prior, flip=mode == "soft+flip", temperature=T)
 
 
+class OutlineNets:
+    """Several outline networks read as one: their probabilities averaged (each read as :meth:`OutlineNet.read`
+    reads it, at the same temperature), ``"hard"`` the pixels where that mean exceeds 0.5.
+
+    Args:
+        nets: The networks, all with the same crop size.
+
+    Raises:
+        ConfigError: No network, or networks with different crop sizes (naming the files and sizes).
+    """
+
+    def __init__(self, nets: list[OutlineNet]) -> None:
+        if not nets:
+            raise ConfigError("outline networks: need at least one network")
+        sizes = {n.size for n in nets}
+        if len(sizes) != 1:
+            raise ConfigError("outline networks: all must take the same crop size, got "
+                              + ", ".join(f"{n.path}: {n.size}" for n in nets))
+        self.nets, self.size = list(nets), nets[0].size
+        self.path = "+".join(n.path for n in nets)
+
+    def read(self, crop_rgb: np.ndarray, prior: np.ndarray, mode: str = "hard", temperature: float = 1.0) -> np.ndarray:
+        """The mean of the networks' probabilities (``mode`` ``soft`` or ``soft+flip``) or its pixels above 0.5
+        (``hard``), as :meth:`OutlineNet.read`."""
+        hard = check_mask_mode(mode, "outline network: mask mode") == "hard"
+        p = np.mean([n.read(crop_rgb, prior, "soft" if hard else mode, temperature) for n in self.nets], axis=0)
+        return p > 0.5 if hard else p
+
+
+def load_outline(spec: str | Path, runtime: str = "auto", threads: int | None = None) -> OutlineNet | OutlineNets:
+    """The outline network of ``spec``: one file (``.onnx`` / ``.pt``), or several joined by ``+`` read as one
+    (:class:`OutlineNets`)."""
+    paths = [p for p in str(spec).split("+") if p]
+    if len(paths) == 1:
+        return OutlineNet(paths[0], runtime, threads)
+    return OutlineNets([OutlineNet(p, runtime, threads) for p in paths])
+
+
 def check_mask_mode(value: str, name: str = "outline fit: mask_mode") -> str:
     """``value`` when it is one of :data:`MASK_MODES`, or a ConfigError naming ``name``, the value and the modes."""
     if value not in MASK_MODES:
@@ -159,7 +199,7 @@ class OutlineFit:
                 "scale": self.scale}
 
 
-def outline_fit(net: OutlineNet, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+def outline_fit(net: OutlineNet | OutlineNets, obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                 max_scale: float = 0.1, step_deg: float = 2.0, mask_mode: str = "hard",
                 temperature: float = 1.0) -> OutlineFit:
     """The pose ``(R, t)`` of ``obj`` in image ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` refined by the
@@ -206,11 +246,11 @@ FAMILY = "templates_outline"
 
 
 def shipped_outline(objects) -> str | None:
-    """The ONNX file of the shipped outline network trained for ``objects`` (compared by content: ids and
-    meshes; the dataset may hold more objects), or None when none was."""
+    """The ONNX files of the shipped outline networks trained for ``objects`` (compared by content: ids and
+    meshes; the dataset may hold more objects), joined by ``+`` (read as one by :func:`load_outline`; a set's
+    network without a variant first), or None when none was."""
     from simtest.estimators.shipped import matches, shipped_nets
 
-    for net in shipped_nets(FAMILY, FORMAT):
-        if matches(net.record, objects, subset=True) is None:
-            return str(net.path.with_suffix(".onnx"))
-    return None
+    found = [str(net.path.with_suffix(".onnx")) for net in shipped_nets(FAMILY, FORMAT)
+             if matches(net.record, objects, subset=True) is None]
+    return "+".join(found) if found else None

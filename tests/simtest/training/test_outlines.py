@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 
 from simtest.errors import ConfigError  # noqa: E402
 from simtest.estimators.base import Observation  # noqa: E402
-from simtest.estimators.templates.outline import OutlineNet, outline_fit  # noqa: E402
+from simtest.estimators.templates.outline import OutlineNet, OutlineNets, load_outline, outline_fit  # noqa: E402
 from simtest.objects import load_object_set  # noqa: E402
 from simtest.training.outlines import OutlineCrops, OutlineTrainConfig, _instances, train_outlines  # noqa: E402
 
@@ -162,6 +162,29 @@ def test_the_onnx_file_draws_the_masks_torch_draws_and_the_fit_moves_the_pose_wi
     assert set(fit.info()) == {"applied", "iou_before", "iou_after", "scale"}
     behind = outline_fit(onnx, obj, rgb, K, R, -t)  # nothing of it in the image: left as it is
     assert not behind.applied and np.array_equal(behind.t, -t)
+
+
+def test_networks_joined_by_plus_are_read_as_one_their_probabilities_averaged(outline_run):
+    onnx_path = str(outline_run.model_path.with_suffix(".onnx"))
+    parsed, single = load_outline(f"{onnx_path}+{onnx_path}"), load_outline(onnx_path)
+    assert isinstance(parsed, OutlineNets) and isinstance(single, OutlineNet) and parsed.size == 64
+    assert parsed.path == f"{onnx_path}+{onnx_path}" and len(parsed.nets) == 2
+    # the ONNX file and the checkpoint run by torch: two readings that differ in the last bits
+    a, b = OutlineNet(onnx_path), OutlineNet(outline_run.model_path, "torch")
+    joined = OutlineNets([a, b])
+    rng = np.random.default_rng(1)
+    crop = rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    prior = np.zeros((64, 64), bool)
+    prior[12:50, 18:46] = True
+    for mode in ("soft", "soft+flip"):
+        want = 0.5 * (a.read(crop, prior, mode, 2.0) + b.read(crop, prior, mode, 2.0))
+        assert np.array_equal(joined.read(crop, prior, mode, 2.0), want)
+    mean = 0.5 * (a.read(crop, prior, "soft") + b.read(crop, prior, "soft"))
+    assert np.array_equal(joined.read(crop, prior, "hard"), mean > 0.5)
+    with pytest.raises(ConfigError, match="at least one"):
+        OutlineNets([])
+    with pytest.raises(ConfigError, match="mask mode 'fuzzy' is unknown"):
+        joined.read(crop, prior, "fuzzy")
 
 
 def test_the_template_estimator_fits_its_kept_poses_with_an_outline_network(outline_run, tmp_path, monkeypatch):
