@@ -29,16 +29,20 @@ def add_no_progress_alias(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", dest="no_progress", action="store_true", help=argparse.SUPPRESS)
 
 
-def add_fault_options(parser: argparse.ArgumentParser, unit: str, over_limit: str, goes_on: str) -> None:
+def add_fault_options(parser: argparse.ArgumentParser, unit: str, over_limit: str, goes_on: str,
+                      declared: bool = False) -> None:
     """``--timeout SECONDS`` and ``--fail-fast``, the estimator-fault options of eval and grasp.
 
     Args:
         unit: What one estimator call covers (``"image"``, ``"episode"``).
         over_limit: What happens to a unit over the time limit (help text).
         goes_on: When the command exits 1 without ``--fail-fast`` (help text).
+        declared: Without ``--timeout`` the value is None: 120 s, or the estimator's declared ``time_limit_s``
+            where longer (:func:`simtest.estimators.guard.resolve_timeout`); else the default is 120.
     """
-    parser.add_argument("--timeout", type=float, default=120.0, metavar="SECONDS",
-                        help=f"time limit of the estimator per {unit} (default 120; 0 = none); {over_limit}")
+    default = "120, or the estimator's own limit where it declares a longer one" if declared else "120"
+    parser.add_argument("--timeout", type=float, default=None if declared else 120.0, metavar="SECONDS",
+                        help=f"time limit of the estimator per {unit} (default {default}; 0 = none); {over_limit}")
     parser.add_argument("--fail-fast", action="store_true",
                         help=f"stop at the estimator's first failure and print its traceback (exit code 1); "
                              f"without it the run goes on ({goes_on})")

@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="also score as tracking (tracking.md, tracking.csv, tracking.png); the default for a "
                         "dataset generated with --rig sequence")
     add_fault_options(p, "image", "an image over it is recorded in failures.csv as 'timeout' and the run goes on",
-                      "failures go to failures.csv; exit code 1 if every image failed")
+                      "failures go to failures.csv; exit code 1 if every image failed", declared=True)
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="worker processes (or Ray CPUs); each loads the estimator once and runs whole scenes "
                         "(default 1: this process); the files are the same for any N but for the measured times")
@@ -92,6 +92,7 @@ def _shown_metrics(names: str | None, tolerance_csv: str | None) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from simtest.backend import RunStats
     from simtest.estimators.options import parse_options
+    from simtest.estimators.guard import AUTO_TIMEOUT
     from simtest.evaluation.run import evaluate, format_table, overall_table, score_results
 
     scenes = None
@@ -116,8 +117,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         backend, stats = backend_from_args(args), RunStats()
         try:
+            timeout = AUTO_TIMEOUT if args.timeout is None else args.timeout
             report = evaluate(args.data, args.estimator, targets=args.targets or "gt-masks",
-                              estimator_options=parse_options(args.opt), timeout=args.timeout,
+                              estimator_options=parse_options(args.opt), timeout=timeout,
                               fail_fast=args.fail_fast, backend=backend, stats=stats, **common)
         except EstimatorError as exc:
             print(f"simtest eval: estimator failed (--fail-fast): {exc}", file=sys.stderr)

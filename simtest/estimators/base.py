@@ -15,6 +15,11 @@ instead: it is given each target's ground-truth pose once, on the first frame of
 target appears (``Observation.init_poses``), and stable track ids on every frame; its runs are labelled
 ``NAME (GT init)`` (:func:`needs_gt_init`).
 
+Set-up and time: the evaluation calls an estimator's optional ``prepare(objects)`` once per worker before its
+first image, outside the per-image time limit (read caches, build template banks; :func:`prepare_estimator`),
+and an estimator that needs more than the default 120 s per image declares ``time_limit_s`` (seconds), which
+raises the limit when the user sets none (:func:`simtest.estimators.guard.resolve_timeout`).
+
 Sequences: the evaluation calls an estimator's optional ``reset()`` before the first frame of every scene
 (a scene is one sequence), and gives frames in order with ``Observation.frame_index`` counting from 0 within
 the scene, so an estimator may keep state from frame to frame.
@@ -36,7 +41,7 @@ if TYPE_CHECKING:
     from simtest.objects import ObjectSet
 
 __all__ = ["Observation", "PoseEstimate", "Estimator", "gt_access", "estimator_label", "GT_MASKS_LABEL",
-           "GT_INIT_LABEL", "needs_gt_init", "needs_depth", "reset_estimator"]
+           "GT_INIT_LABEL", "needs_gt_init", "needs_depth", "reset_estimator", "prepare_estimator"]
 
 #: Names that moved out of this module: the loader and registry to :mod:`simtest.estimators.registry`, option
 #: parsing to :mod:`simtest.estimators.options`. ``from simtest.estimators.base import NAME`` still works, with
@@ -86,6 +91,14 @@ def reset_estimator(estimator: Any) -> None:
     reset = getattr(estimator, "reset", None)
     if callable(reset):
         reset()
+
+
+def prepare_estimator(estimator: Any, objects: Any) -> None:
+    """Call the estimator's optional ``prepare(objects)`` (once, before its first image, with the dataset's
+    object set); estimators without one need no set-up and nothing happens."""
+    prepare = getattr(estimator, "prepare", None)
+    if callable(prepare):
+        prepare(objects)
 
 
 def estimator_label(name: str, estimator: Any) -> str:

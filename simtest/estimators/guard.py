@@ -38,13 +38,16 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 
-__all__ = ["DEFAULT_TIMEOUT_S", "FAILURE_KINDS", "EstimatorFailure", "InvalidEstimate", "call_estimator",
+__all__ = ["DEFAULT_TIMEOUT_S", "AUTO_TIMEOUT", "resolve_timeout", "FAILURE_KINDS", "EstimatorFailure", "InvalidEstimate", "call_estimator",
            "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES", "log_fault"]
 
 log = logging.getLogger(__name__)
 
 #: Default time limit of one estimator call, seconds.
 DEFAULT_TIMEOUT_S = 120.0
+#: The time limit an evaluation takes when none is given: :data:`DEFAULT_TIMEOUT_S`, or the estimator's declared
+#: ``time_limit_s`` where that is longer (:func:`resolve_timeout`).
+AUTO_TIMEOUT = "auto"
 #: Kinds of :class:`EstimatorFailure`.
 FAILURE_KINDS = ("exception", "exit", "timeout", "invalid-return")
 #: Largest deviation of ``R R^T`` from the identity accepted as a rotation.
@@ -112,6 +115,27 @@ def check_timeout(timeout: float | None) -> float | None:
             or timeout < 0:
         raise ConfigError(f"timeout must be a number of seconds >= 0 (0 or None: no limit), got {timeout!r}")
     return float(timeout) if timeout > 0 else None
+
+
+def resolve_timeout(timeout: float | str | None, estimator: Any = None) -> float | None:
+    """The time limit of one call in seconds (None: no limit). ``timeout`` :data:`AUTO_TIMEOUT` gives
+    :data:`DEFAULT_TIMEOUT_S`, raised to the estimator's ``time_limit_s`` (seconds one call may take, declared
+    by estimators that take minutes per image) when it declares a longer one; numbers as :func:`check_timeout`.
+
+    Raises:
+        ConfigError: A bad ``timeout``, or a declared ``time_limit_s`` that is not a positive number (naming the
+            estimator's type and the value).
+    """
+    if timeout != AUTO_TIMEOUT:
+        return check_timeout(timeout)
+    declared = getattr(estimator, "time_limit_s", None)
+    if declared is None:
+        return DEFAULT_TIMEOUT_S
+    if isinstance(declared, bool) or not isinstance(declared, (int, float)) or not math.isfinite(declared) \
+            or declared <= 0:
+        raise ConfigError(f"{type(estimator).__name__}.time_limit_s must be a positive number of seconds, got "
+                          f"{declared!r}")
+    return max(DEFAULT_TIMEOUT_S, float(declared))
 
 
 def _timeout_possible() -> bool:

@@ -16,7 +16,7 @@ from typing import Any
 
 from simtest.backend import Backend, RunStats, run_units
 from simtest.errors import ConfigError, EstimatorError
-from simtest.estimators.base import Observation, reset_estimator
+from simtest.estimators.base import Observation, prepare_estimator, reset_estimator
 from simtest.estimators.registry import is_file_target, load_estimator
 from simtest.estimators.guard import call_estimator, check_estimate, log_fault
 from simtest.io import bop
@@ -189,8 +189,9 @@ def _init_worker(estimator: Any, options: dict[str, Any] | None, setup: WorkerSe
     """Load the estimator and the dataset's objects once per worker process."""
     objects = load_dataset_objects(Path(setup.root))
     _WORKER.clear()
-    _WORKER.update(est=load_estimator(estimator, **(options or {})), objects=objects, known=set(objects.ids),
-                   setup=setup)
+    est = load_estimator(estimator, **(options or {}))
+    prepare_estimator(est, objects)  # outside the per-image time limit
+    _WORKER.update(est=est, objects=objects, known=set(objects.ids), setup=setup)
 
 
 def _run_shard(shard: _Shard) -> _ShardResult:
@@ -254,6 +255,8 @@ def run_scene_shards(est: Any, spec: Any, options: dict[str, Any] | None, shards
     if not in_process:  # a Ray worker may run in another folder
         shards = [_Shard(s.index, tuple(_absolute(r) for r in s.refs)) for s in shards]
     done: dict[int, _ShardResult] = {}
+    if in_process:
+        prepare_estimator(est, objects)  # before the bar and outside the per-image time limit, as in a worker
     bar = tqdm(total=sum(len(s.refs) for s in shards), desc="eval", unit="img", disable=not progress,
                dynamic_ncols=True)
     if in_process:

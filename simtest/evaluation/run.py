@@ -65,7 +65,7 @@ from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, needs_depth,
                                      needs_gt_init)
 from simtest.estimators.registry import load_estimator
-from simtest.estimators.guard import DEFAULT_TIMEOUT_S, check_timeout
+from simtest.estimators.guard import AUTO_TIMEOUT, check_timeout, resolve_timeout
 from simtest.evaluation.detection import keep_top_per_image, score_detection
 from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards, targets_needed
 from simtest.evaluation.tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
@@ -169,7 +169,7 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
              targets: str = "gt-masks", scenes: Sequence[int] | None = None, max_images: int | None = None,
              progress: bool = True, out_dir: str | Path | None = None, vsd: bool = True,
              estimator_options: dict[str, Any] | None = None,
-             timeout: float | None = DEFAULT_TIMEOUT_S, overwrite: bool = False,
+             timeout: float | str | None = AUTO_TIMEOUT, overwrite: bool = False,
              fail_fast: bool = False, labels: str | Path | None = None, tracking: bool | None = None,
              backend: Backend | None = None, stats: RunStats | None = None,
              task: str = "localization", grasp_tolerance: str | Path | None = None) -> EvalReport:
@@ -192,8 +192,11 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240. Skipped,
             with a note in ``metrics.md``, when the dataset has no depth.
         estimator_options: Options for a named estimator (ignored for instances).
-        timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit); an image over the
-            limit is recorded as a ``timeout`` failure and the run goes on with the next image.
+        timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit; ``"auto"``: 120 s, or
+            the estimator's declared ``time_limit_s`` where longer, :func:`~simtest.estimators.guard.resolve_timeout`);
+            an image over the limit is recorded as a ``timeout`` failure and the run goes on with the next image.
+            An estimator's optional ``prepare(objects)`` runs once per worker before its first image, outside
+            the limit (caches, banks).
         overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
             estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
         fail_fast: Stop at the first fault of the estimator (any failure kind but ``no-estimate``) by raising
@@ -250,8 +253,10 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt or needs_gt_init = True); "
                           "use targets='gt-masks'")
     gt_masks = gt_masks and targets == "gt-masks"
-    limit = check_timeout(timeout)
+    if timeout != AUTO_TIMEOUT:
+        check_timeout(timeout)  # a bad value fails before the objects are read
     objects = _objects_for(root, est)
+    limit = resolve_timeout(timeout, est)  # after check_objects: a shipped choice may declare its own
     notes = DataNotes()
     refs = select_images(root, split, scenes, max_images, set(objects.ids), labels, notes)
     vsd = _check_inputs(estimator, est, notes, gt_masks, vsd)

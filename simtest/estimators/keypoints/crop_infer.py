@@ -415,14 +415,31 @@ class CropKeypointEstimator:
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
         return self._best_per_target(out, obs)
 
+    @property
+    def time_limit_s(self) -> float | None:
+        """Seconds one image may take: the template stage's with ``pose=templates`` (None: the default's)."""
+        from simtest.estimators.templates.estimator import TemplateEstimator
+
+        return TemplateEstimator.time_limit_s if self.pose == "templates" else None
+
+    def prepare(self, objects: Any) -> None:
+        """Once before the first image, outside its time limit: the networks chosen for ``objects`` and, with
+        ``pose=templates``, the stage's template banks read or built (minutes with a cold cache)."""
+        self.check_objects(objects)
+        if self.pose == "templates":
+            self._template_stage(objects).prepare(objects)
+
+    def _template_stage(self, objects: Any) -> TemplateEstimator:
+        """The template estimator of ``pose=templates`` (made at first use, sharing this one's detectors)."""
+        if self.templates is None:
+            self.templates = template_stage(self.detect, self.region_rank, objects, self._options)
+            self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
+        return self.templates
+
     def _template_poses(self, obs: Observation) -> list[PoseEstimate]:
         """``pose=templates``: the detector's regions (or the ground-truth masks with ``detect=gt``) posed by
-        template matching (:class:`~simtest.estimators.templates.estimator.TemplateEstimator`, made at first
-        use and sharing this estimator's detector)."""
-        if self.templates is None:
-            self.templates = template_stage(self.detect, self.region_rank, obs.objects, self._options)
-            self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
-        out = self.templates.estimate(obs)
+        template matching (:meth:`_template_stage`)."""
+        out = self._template_stage(obs.objects).estimate(obs)
         self.last_failures = list(self.templates.last_failures)
         return out
 

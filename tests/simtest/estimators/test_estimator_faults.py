@@ -250,3 +250,52 @@ def test_sweep_records_timeouts_in_pose_and_grasp_cells(tmp_path):
     assert row["reason"] == "estimator_timeout" and "1 s time limit" in row["error"]
     with pytest.raises(ConfigError, match=r"timeout = -1 is invalid"):
         SweepConfig.from_dict({**cfg.to_dict(), "timeout": -1})
+
+
+class SlowToPrepare:
+    """Takes 1.5 s to prepare (a cache being built), then answers at once; counts its calls."""
+
+    calls: list[str] = []
+
+    def prepare(self, objects):
+        SlowToPrepare.calls.append(f"prepare {len(objects.ids)}")
+        time.sleep(1.5)
+
+    def estimate(self, observation):
+        SlowToPrepare.calls.append("estimate")
+        return []
+
+
+class DeclaresTime(ReturnsEmpty):
+    time_limit_s = 600.0
+
+
+class DeclaresNonsense(ReturnsEmpty):
+    time_limit_s = -5
+
+
+def test_prepare_runs_once_before_the_images_outside_their_time_limit(small_dataset, tmp_path):
+    SlowToPrepare.calls.clear()
+    rep = evaluate(small_dataset, SlowToPrepare(), out_dir=tmp_path, progress=False, vsd=False, max_images=2,
+                   timeout=1)
+    assert [c.split()[0] for c in SlowToPrepare.calls] == ["prepare", "estimate", "estimate"]
+    assert not [r for r in _failures_csv(tmp_path) if r["kind"] == "timeout"]  # the 1.5 s were not an image's
+    assert rep.settings["timeout_s"] == 1.0
+
+
+def test_the_default_time_limit_follows_what_the_estimator_declares(small_dataset, tmp_path):
+    from simtest.estimators.guard import AUTO_TIMEOUT, DEFAULT_TIMEOUT_S, resolve_timeout
+
+    assert resolve_timeout(AUTO_TIMEOUT, ReturnsEmpty()) == DEFAULT_TIMEOUT_S == 120.0
+    assert resolve_timeout(AUTO_TIMEOUT, DeclaresTime()) == 600.0
+    short = DeclaresTime()
+    short.time_limit_s = 30.0  # shorter than the default: the default holds
+    assert resolve_timeout(AUTO_TIMEOUT, short) == 120.0
+    assert resolve_timeout(5, DeclaresTime()) == 5.0 and resolve_timeout(0, DeclaresTime()) is None
+    with pytest.raises(ConfigError, match="DeclaresNonsense.time_limit_s must be a positive number of seconds, got -5"):
+        resolve_timeout(AUTO_TIMEOUT, DeclaresNonsense())
+    rep = evaluate(small_dataset, DeclaresTime(), out_dir=tmp_path / "auto", progress=False, vsd=False, max_images=1)
+    assert rep.settings["timeout_s"] == 600.0  # no timeout given: the declared one
+    rep = evaluate(small_dataset, DeclaresTime(), out_dir=tmp_path / "given", progress=False, vsd=False,
+                   max_images=1, timeout=7)
+    assert rep.settings["timeout_s"] == 7.0  # the user's choice wins

@@ -69,6 +69,9 @@ def test_the_lmo_models_get_the_lmo_networks():
     from simtest.estimators.templates.outline import shipped_outline
 
     assert Path(shipped_outline(objects)).name == "templates_outline_lmo_640x480.onnx"
+    # its template stage takes minutes per real frame: the evaluation's default time limit follows it
+    assert est.pose == "templates" and est.time_limit_s == 900.0
+    assert load_estimator("keypoints").time_limit_s is None  # builtin-small's crop network: the default holds
 
 
 def test_a_variant_is_a_second_network_of_its_set_and_comes_after_the_first(tmp_path):

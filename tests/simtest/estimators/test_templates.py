@@ -359,3 +359,18 @@ def test_framing_starts_grow_a_window_out_of_a_partial_region(objects, cache, mo
         with pytest.raises(ConfigError, match="framing_starts"):
             TemplateEstimator(framing_starts=bad)
     assert TemplateEstimator(framing_starts=1.5).framing_starts == (1.5,)
+
+
+def test_prepare_reads_or_builds_every_bank_before_the_first_image(objects, tmp_path, monkeypatch):
+    """``prepare`` (called by the evaluation outside the per-image time limit) fills the cache, so the first
+    image only reads it."""
+    from simtest.estimators.templates.bank import bank_path
+
+    monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
+    two = objects.subset([objects.by_name("mug_0").obj_id, objects.by_name("banana_0").obj_id])
+    est = TemplateEstimator(detect="gt", views=60, refine="none", outline="none")
+    paths = [bank_path(two.get(i), est.settings) for i in two.ids]
+    assert not any(p.exists() for p in paths)
+    est.prepare(two)
+    assert all(p.is_file() for p in paths) and sorted(est.banks) == sorted(int(i) for i in two.ids)
+    assert est.time_limit_s == 900.0
