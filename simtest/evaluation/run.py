@@ -5,8 +5,10 @@ image, calls the estimator through :func:`simtest.estimators.guard.call_estimato
 time limit; an exception, ``sys.exit``, a timeout or a return value that is not a list is recorded and the run
 goes on), rejects invalid estimates (:func:`~simtest.estimators.guard.check_estimate`: not PoseEstimate-like,
 wrong shapes, NaN / inf, not a rotation, unknown object id), writes the estimates as a BOP results CSV and
-scores them with :func:`score_estimates`. :func:`score_results` scores a results CSV written by any
-estimator, with the same code, so both give the same numbers.
+scores them with :func:`score_estimates`. The estimator's optional ``prepare(objects)`` runs once per worker
+before its first image, outside the limit (caches, template banks); an estimator may declare a longer limit
+(``time_limit_s``, :func:`simtest.estimators.guard.resolve_timeout`). :func:`score_results` scores a results
+CSV written by any estimator, with the same code, so both give the same numbers.
 
 Scoring protocol
 ----------------
@@ -65,7 +67,7 @@ from simtest.errors import ConfigError, DatasetError
 from simtest.estimators.base import (GT_INIT_LABEL, GT_MASKS_LABEL, Estimator, gt_access, needs_depth,
                                      needs_gt_init)
 from simtest.estimators.registry import load_estimator
-from simtest.estimators.guard import AUTO_TIMEOUT, check_timeout, resolve_timeout
+from simtest.estimators.guard import AUTO_TIMEOUT, resolve_timeout
 from simtest.evaluation.detection import keep_top_per_image, score_detection
 from simtest.evaluation.images import WorkerSetup, run_scene_shards, scene_shards, targets_needed
 from simtest.evaluation.tracking import TrackingReport, is_sequence_dataset, score_tracking, write_tracking
@@ -192,11 +194,8 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         vsd: Also compute VSD (per-target errors and AR_VSD); about 5-10 ms per estimate at 320x240. Skipped,
             with a note in ``metrics.md``, when the dataset has no depth.
         estimator_options: Options for a named estimator (ignored for instances).
-        timeout: Time limit of one ``estimate()`` call, seconds (``None`` or 0: no limit; ``"auto"``: 120 s, or
-            the estimator's declared ``time_limit_s`` where longer, :func:`~simtest.estimators.guard.resolve_timeout`);
-            an image over the limit is recorded as a ``timeout`` failure and the run goes on with the next image.
-            An estimator's optional ``prepare(objects)`` runs once per worker before its first image, outside
-            the limit (caches, banks).
+        timeout: Time limit of one ``estimate()`` call, seconds (``None``/0: none; ``"auto"``: 120 or the
+            estimator's longer ``time_limit_s``); an image over it is a ``timeout`` failure, the run goes on.
         overwrite: Allow a non-empty ``out_dir`` (its files of these names are replaced); checked before the
             estimator is loaded. ``out_dir`` may never be, or lie inside, ``dataset_dir``.
         fail_fast: Stop at the first fault of the estimator (any failure kind but ``no-estimate``) by raising
@@ -253,8 +252,6 @@ def evaluate(dataset_dir: str | Path, estimator: str | Estimator | Any, *, split
         raise ConfigError(f"estimator {estimator!r} needs ground-truth targets (needs_gt or needs_gt_init = True); "
                           "use targets='gt-masks'")
     gt_masks = gt_masks and targets == "gt-masks"
-    if timeout != AUTO_TIMEOUT:
-        check_timeout(timeout)  # a bad value fails before the objects are read
     objects = _objects_for(root, est)
     limit = resolve_timeout(timeout, est)  # after check_objects: a shipped choice may declare its own
     notes = DataNotes()

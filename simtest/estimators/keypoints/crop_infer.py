@@ -69,7 +69,7 @@ from simtest.estimators.keypoints.crops import crop_intrinsics, crop_window_for_
 from simtest.estimators.keypoints.infer import PNP_METHODS, fuse_keypoints, solve_pnp
 from simtest.estimators.shipped import choose, choose_all, matches, pose_stage
 from simtest.estimators.keypoints.template_stage import (TEMPLATE_CANDIDATES, TEMPLATE_OUTLINE_MASK,  # noqa: F401
-                                                         TEMPLATE_OUTLINE_TEMPERATURE, template_stage)
+                                                         TEMPLATE_OUTLINE_TEMPERATURE, TemplatePoseStage)
 
 if TYPE_CHECKING:
     from simtest.estimators.templates.estimator import TemplateEstimator
@@ -126,7 +126,7 @@ def crop_maps(fg: np.ndarray, kp: np.ndarray, label: int, cfg: dict[str, Any], x
     return out
 
 
-class CropKeypointEstimator:
+class CropKeypointEstimator(TemplatePoseStage):
     """Zoom-in keypoint pose estimator (registered as ``keypoints``); see the module doc.
 
     Args:
@@ -414,34 +414,6 @@ class CropKeypointEstimator:
             info["box"] = [float(v) for v in box]
             out.append(PoseEstimate(obj_id=oid, R=R, t=t, score=float(score * dscore), target_index=k, info=info))
         return self._best_per_target(out, obs)
-
-    @property
-    def time_limit_s(self) -> float | None:
-        """Seconds one image may take: the template stage's with ``pose=templates`` (None: the default's)."""
-        from simtest.estimators.templates.estimator import TemplateEstimator
-
-        return TemplateEstimator.time_limit_s if self.pose == "templates" else None
-
-    def prepare(self, objects: Any) -> None:
-        """Once before the first image, outside its time limit: the networks chosen for ``objects`` and, with
-        ``pose=templates``, the stage's template banks read or built (minutes with a cold cache)."""
-        self.check_objects(objects)
-        if self.pose == "templates":
-            self._template_stage(objects).prepare(objects)
-
-    def _template_stage(self, objects: Any) -> TemplateEstimator:
-        """The template estimator of ``pose=templates`` (made at first use, sharing this one's detectors)."""
-        if self.templates is None:
-            self.templates = template_stage(self.detect, self.region_rank, objects, self._options)
-            self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
-        return self.templates
-
-    def _template_poses(self, obs: Observation) -> list[PoseEstimate]:
-        """``pose=templates``: the detector's regions (or the ground-truth masks with ``detect=gt``) posed by
-        template matching (:meth:`_template_stage`)."""
-        out = self._template_stage(obs.objects).estimate(obs)
-        self.last_failures = list(self.templates.last_failures)
-        return out
 
     def _best_per_target(self, found: list[PoseEstimate], obs: Observation) -> list[PoseEstimate]:
         """With ``candidates > 1`` and the target ids known: per object the as many best-scored estimates as

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 __all__ = ["TEMPLATE_CANDIDATES", "TEMPLATE_SELECT", "TEMPLATE_REFINE", "TEMPLATE_FRAMING", "TEMPLATE_LOCAL_DEG",
            "TEMPLATE_OUTLINE_MASK", "TEMPLATE_OUTLINE_TEMPERATURE", "TEMPLATE_FRAMING_STARTS", "TEMPLATE_REGION_EXTRA",
-           "template_stage"]
+           "template_stage", "TemplatePoseStage"]
 
 TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "match", "none", True
 TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE = 4.0, "soft+flip", 2.0
@@ -55,3 +55,37 @@ def template_stage(detect: str, region_rank: str, objects: Any, options: dict[st
         region_extra=(TEMPLATE_REGION_EXTRA if extra is None else float(extra)) if rgb else 0.0,
         local_deg=TEMPLATE_LOCAL_DEG if rgb else 0.0, outline=outline, outline_mask=options["outline_mask"],
         outline_temperature=options["outline_temperature"])
+
+
+class TemplatePoseStage:
+    """What the keypoint estimator does with ``pose=templates`` (its ``pose``, ``detect``, ``region_rank``,
+    ``segmenter``, ``more_segmenters``, ``templates``, ``_options`` and ``check_objects`` are read): the stage
+    made at first use, its set-up before the first image, the time it may take per image."""
+
+    @property
+    def time_limit_s(self) -> float | None:
+        """Seconds one image may take: the template stage's with ``pose=templates`` (None: the default's)."""
+        from simtest.estimators.templates.estimator import TemplateEstimator
+
+        return TemplateEstimator.time_limit_s if self.pose == "templates" else None
+
+    def prepare(self, objects: Any) -> None:
+        """Once before the first image, outside its time limit: the networks chosen for ``objects`` and, with
+        ``pose=templates``, the stage's template banks read or built (minutes with a cold cache)."""
+        self.check_objects(objects)
+        if self.pose == "templates":
+            self._template_stage(objects).prepare(objects)
+
+    def _template_stage(self, objects: Any) -> TemplateEstimator:
+        """The template estimator of ``pose=templates`` (made at first use, sharing the detectors)."""
+        if self.templates is None:
+            self.templates = template_stage(self.detect, self.region_rank, objects, self._options)
+            self.templates.segmenter, self.templates.more_segmenters = self.segmenter, self.more_segmenters
+        return self.templates
+
+    def _template_poses(self, obs) -> list:
+        """``pose=templates``: the detector's regions (or the ground-truth masks with ``detect=gt``) posed by
+        template matching (:meth:`_template_stage`)."""
+        out = self._template_stage(obs.objects).estimate(obs)
+        self.last_failures = list(self.templates.last_failures)
+        return out
