@@ -27,7 +27,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from simtest.estimators.keypoints.template_stage import (  # noqa: E402
     TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE)
 from simtest.estimators.templates import outline as outline_stage  # noqa: E402
-from simtest.estimators.templates.crops import mask_in_crop, region_crop  # noqa: E402
 from simtest.io import bop  # noqa: E402
 from simtest.io.bop_results import read_bop_results, write_bop_results  # noqa: E402
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
@@ -60,24 +59,6 @@ def nearer_pixels(depths: list[np.ndarray], i: int, z_origin: float) -> np.ndarr
     return out
 
 
-def fit_with_occluders(net, obj, rgb, K, R, t, hidden: np.ndarray):
-    """:func:`outline_stage.outline_fit` with the crop's pixels under ``hidden`` (H, W) bool left out."""
-    from simtest.estimators.silhouette import fit_translation
-    from simtest.render.silhouette import object_silhouette
-
-    H, W = rgb.shape[:2]
-    sil = object_silhouette(obj, R, t, K, W, H) if t[2] > 0 else np.zeros((H, W), bool)
-    if int(sil.sum()) < outline_stage.MIN_SILHOUETTE_PX:
-        return R, t
-    crop = region_crop(rgb, sil, K, net.size, outline_stage.MARGIN)
-    prob = net.read(crop.rgb, crop.mask, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE)
-    valid = crop.valid & ~(mask_in_crop(hidden, K, crop) > 0)
-    Rv = crop.R_virt
-    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, np.asarray(prob, np.float64), valid, max_scale=MAX_SCALE,
-                          step_deg=STEP_DEG)
-    return (Rv.T @ fit.R, Rv.T @ fit.t) if fit.applied else (R, t)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", type=Path, help="a simtest eval run folder (its results.csv), made without the fit")
@@ -90,6 +71,11 @@ def main() -> None:
     if args.out.exists() and not args.overwrite:
         sys.exit(f"{args.out} exists; pass --overwrite to replace it")
     net = outline_stage.load_outline(args.net)
+
+    def read(crop):
+        """The network's mask as the stage reads it (:func:`outline_stage.outline_fit`)."""
+        return net.read(crop.rgb, crop.mask, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE)
+
     objects = load_dataset_objects(args.data)
     scenes = {int(s.name): s for s in scene_dirs(dataset_split_dir(args.data))}
     annotations = {k: bop.read_scene(s) for k, s in scenes.items()}
@@ -106,13 +92,9 @@ def main() -> None:
         depths = [render_depth(o.vertices, o.faces, R, t, K, W, H) if t[2] > 0 else np.zeros((H, W), np.float32)
                   for o, R, t in poses] if args.occluders else []
         for k, (n, (obj, R, t)) in enumerate(zip(members, poses)):
-            if args.occluders:
-                R2, t2 = fit_with_occluders(net, obj, rgb, K, R, t, nearer_pixels(depths, k, float(t[2])))
-            else:
-                fit = outline_stage.outline_fit(net, obj, rgb, K, R, t, MAX_SCALE, STEP_DEG, TEMPLATE_OUTLINE_MASK,
-                                                TEMPLATE_OUTLINE_TEMPERATURE)
-                R2, t2 = fit.R, fit.t
-            out[n] = replace(rows[n], R=R2, t=t2)
+            hidden = nearer_pixels(depths, k, float(t[2])) if args.occluders else None
+            fit = outline_stage.fit_to_mask(obj, rgb, K, R, t, read, net.size, MAX_SCALE, STEP_DEG, hidden)
+            out[n] = replace(rows[n], R=fit.R, t=fit.t)
         print(f"image {scene}/{im}: {len(members)} poses fitted", flush=True)
     write_bop_results(args.out, out)
     print(f"wrote {args.out}: score it with simtest eval --data {args.data} --results {args.out}")

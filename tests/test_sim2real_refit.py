@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from simtest.estimators.keypoints.template_stage import TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE
-from simtest.estimators.templates.outline import load_outline, outline_fit
+from simtest.estimators.templates.outline import fit_to_mask, load_outline, outline_fit
 from simtest.evaluation.run import evaluate
 from simtest.io import bop
 from simtest.io.bop_results import read_bop_results, write_bop_results
@@ -59,6 +59,14 @@ def test_refit_is_the_stages_fit_of_each_pose(small_dataset, tmp_path):
     want = outline_fit(load_outline(net_path), objects.get(rows[0].obj_id), rgb, K, rows[0].R, rows[0].t,
                        mod.MAX_SCALE, mod.STEP_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE)
     assert np.allclose(fitted[0].t, want.t, atol=1e-9) and np.allclose(fitted[0].R, want.R, atol=1e-9)
+    net = load_outline(net_path)
+
+    def read(crop):
+        return net.read(crop.rgb, crop.mask, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE)
+
+    nothing_hidden = fit_to_mask(objects.get(rows[0].obj_id), rgb, K, rows[0].R, rows[0].t, read, net.size,
+                                 mod.MAX_SCALE, mod.STEP_DEG, np.zeros(rgb.shape[:2], bool))
+    assert np.array_equal(nothing_hidden.t, want.t) and np.array_equal(nothing_hidden.R, want.R)
     assert all(abs(f.t[2] / r.t[2] - 1.0) <= 0.1 + 1e-9 for f, r in zip(fitted, rows))  # the depth bound
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert again.returncode != 0 and "--overwrite" in again.stderr  # never overwrites silently

@@ -29,7 +29,7 @@ import numpy as np
 
 from simtest.errors import ConfigError
 from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
-from simtest.estimators.templates.crops import region_crop
+from simtest.estimators.templates.crops import mask_in_crop, region_crop
 from simtest.render.silhouette import object_silhouette
 
 __all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineNets", "load_outline", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
@@ -218,11 +218,12 @@ def outline_fit(net: OutlineNet | OutlineNets, obj, rgb: np.ndarray, K: np.ndarr
 
 def fit_to_mask(obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                 mask_of: Callable[[Any], np.ndarray], size: int, max_scale: float = 0.1,
-                step_deg: float = 2.0) -> OutlineFit:
+                step_deg: float = 2.0, hidden: np.ndarray | None = None) -> OutlineFit:
     """:func:`outline_fit` with the mask drawn by ``mask_of(crop)`` ((size, size) bool, or a probability in
     [0, 1]) for the crop
     (:class:`~simtest.estimators.templates.crops.Crop`) framed on the pose's silhouette: the network's, or an
-    exact visible mask warped into the crop (docs/sim2real_outline.py)."""
+    exact visible mask warped into the crop (docs/sim2real_outline.py). ``hidden`` (H, W) bool: image pixels
+    left out of the fit (e.g. where other objects lie in front; docs/sim2real_refit.py)."""
     from simtest.estimators.silhouette import fit_translation
 
     R, t, K = np.asarray(R, np.float64), np.asarray(t, np.float64).reshape(3), np.asarray(K, np.float64)
@@ -233,7 +234,8 @@ def fit_to_mask(obj, rgb: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarra
     crop = region_crop(rgb, sil, K, size, MARGIN)
     mask = mask_of(crop)
     Rv = crop.R_virt
-    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), crop.valid, max_scale=max_scale,
+    valid = crop.valid if hidden is None else crop.valid & ~(mask_in_crop(hidden, K, crop) > 0)
+    fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, mask.astype(np.float64), valid, max_scale=max_scale,
                           step_deg=step_deg)
     if not fit.applied:  # the fit kept the pose: give it back as it came
         return OutlineFit(R, t, False, float(fit.iou_before), float(fit.iou_after), 1.0)
