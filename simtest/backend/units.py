@@ -72,32 +72,48 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
         workers = 1 if solo else min(backend.workers, len(todo))
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                  initargs=(init, init_args)) as pool:
-            queue, alone, todo = (alone, [], todo) if solo else (todo, alone, [])
-            in_flight: dict[Any, int] = {}
-            while queue or in_flight:
-                while queue and len(in_flight) < workers:
-                    i = queue.pop(0)
-                    in_flight[pool.submit(_run_unit, fn, units[i])] = i
-                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                broken, held = None, []
-                for future in done:
-                    i = in_flight.pop(future)
-                    try:
-                        result = future.result()
-                    except BrokenProcessPool as exc:
-                        broken = exc
-                        held.append(i)
-                        continue
-                    stats.finished += 1
-                    yield result
-                if broken is not None:  # the pool is gone: what it held and what was left go to a new one
-                    held += list(in_flight.values())
-                    if len(held) == 1:
-                        _lost(units, held[0], broken, losses, backend.retries, todo, stats)
-                    else:
-                        _suspects(units, held, alone, stats)
-                    (alone if solo else todo).extend(queue)
-                    break
+            try:
+                queue, alone, todo = (alone, [], todo) if solo else (todo, alone, [])
+                in_flight: dict[Any, int] = {}
+                while queue or in_flight:
+                    while queue and len(in_flight) < workers:
+                        i = queue.pop(0)
+                        in_flight[pool.submit(_run_unit, fn, units[i])] = i
+                    done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                    broken, held = None, []
+                    for future in done:
+                        i = in_flight.pop(future)
+                        try:
+                            result = future.result()
+                        except BrokenProcessPool as exc:
+                            broken = exc
+                            held.append(i)
+                            continue
+                        stats.finished += 1
+                        yield result
+                    if broken is not None:  # the pool is gone: what it held and what was left go to a new one
+                        held += list(in_flight.values())
+                        if len(held) == 1:
+                            _lost(units, held[0], broken, losses, backend.retries, todo, stats)
+                        else:
+                            _suspects(units, held, alone, stats)
+                        (alone if solo else todo).extend(queue)
+                        break
+            except BaseException:  # Ctrl-C, SIGTERM (SystemExit), an error: no worker outlives the run
+                _stop_workers(pool)
+                raise
+
+
+def _stop_workers(pool) -> None:
+    """Terminate ``pool``'s worker processes now (their units are abandoned) and let the pool go without waiting:
+    otherwise the pool's exit waits for units that may run for hours, and a killed driver leaves them orphaned."""
+    stop = getattr(pool, "terminate_workers", None)  # Python 3.14
+    if callable(stop):
+        stop()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 #: An exception the worker's initialiser raised, re-raised by its first unit (so the driver gets it as it is,

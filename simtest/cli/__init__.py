@@ -50,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         args.quiet = True
         print(f"simtest {args.command}: --no-progress is deprecated; use --quiet", file=sys.stderr)
     configure_logging(getattr(args, "verbose", 0), getattr(args, "quiet", False))
+    previous = _exit_on_sigterm()
     try:
         folder = getattr(args, "output_folder", None)
         folder = folder(args) if folder is not None else None
@@ -75,6 +76,35 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"simtest {args.command}: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print(f"simtest {args.command}: terminated", file=sys.stderr)
+        return 143
+    finally:
+        _restore_sigterm(previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised where the command is, so that its clean-up runs (workers stopped, locks released)."""
+
+
+def _exit_on_sigterm():
+    """Make SIGTERM raise :class:`_Terminated` (main thread only); returns the previous handler (None: unchanged)."""
+    import signal
+
+    def on_term(signum, frame):
+        raise _Terminated()
+
+    try:
+        return signal.signal(signal.SIGTERM, on_term)
+    except ValueError:  # not the main thread: leave it
+        return None
+
+
+def _restore_sigterm(previous) -> None:
+    if previous is not None:
+        import signal
+
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _os_error_text(exc: OSError) -> str:
