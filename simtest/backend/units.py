@@ -61,7 +61,7 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
     does not say whose unit it was: when it held one unit, that unit is charged a loss and submitted again, up to
     ``backend.retries`` losses (then a :class:`UnitFailure`); when it held several, none is charged and each is
     submitted again alone, one at a time, so that the next break names its unit. The finished ones are kept."""
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")  # GL contexts do not survive fork
@@ -70,38 +70,48 @@ def _run_local_pool(fn: Callable[[Any], Any], units: list[Any], backend: Backend
     while todo or alone:
         solo = bool(alone)
         workers = 1 if solo else min(backend.workers, len(todo))
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                 initargs=(init, init_args)) as pool:
-            try:
-                queue, alone, todo = (alone, [], todo) if solo else (todo, alone, [])
-                in_flight: dict[Any, int] = {}
-                while queue or in_flight:
-                    while queue and len(in_flight) < workers:
-                        i = queue.pop(0)
-                        in_flight[pool.submit(_run_unit, fn, units[i])] = i
-                    done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                    broken, held = None, []
-                    for future in done:
-                        i = in_flight.pop(future)
-                        try:
-                            result = future.result()
-                        except BrokenProcessPool as exc:
-                            broken = exc
-                            held.append(i)
-                            continue
-                        stats.finished += 1
-                        yield result
-                    if broken is not None:  # the pool is gone: what it held and what was left go to a new one
-                        held += list(in_flight.values())
-                        if len(held) == 1:
-                            _lost(units, held[0], broken, losses, backend.retries, todo, stats)
-                        else:
-                            _suspects(units, held, alone, stats)
-                        (alone if solo else todo).extend(queue)
-                        break
-            except BaseException:  # Ctrl-C, SIGTERM (SystemExit), an error: no worker outlives the run
-                _stop_workers(pool)
-                raise
+        with _pool(workers, ctx, init, init_args) as pool:
+            queue, alone, todo = (alone, [], todo) if solo else (todo, alone, [])
+            in_flight: dict[Any, int] = {}
+            while queue or in_flight:
+                while queue and len(in_flight) < workers:
+                    i = queue.pop(0)
+                    in_flight[pool.submit(_run_unit, fn, units[i])] = i
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                broken, held = None, []
+                for future in done:
+                    i = in_flight.pop(future)
+                    try:
+                        result = future.result()
+                    except BrokenProcessPool as exc:
+                        broken = exc
+                        held.append(i)
+                        continue
+                    stats.finished += 1
+                    yield result
+                if broken is not None:  # the pool is gone: what it held and what was left go to a new one
+                    held += list(in_flight.values())
+                    if len(held) == 1:
+                        _lost(units, held[0], broken, losses, backend.retries, todo, stats)
+                    else:
+                        _suspects(units, held, alone, stats)
+                    (alone if solo else todo).extend(queue)
+                    break
+
+
+@contextmanager
+def _pool(workers: int, ctx, init, init_args: tuple) -> Iterator[Any]:
+    """A process pool of ``workers`` spawned workers whose processes are terminated if the run stops early
+    (Ctrl-C, SIGTERM raised as an exception, an error in the driver, the consumer closing the generator): no
+    worker outlives the run."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(init, init_args)) as pool:
+        try:
+            yield pool
+        except BaseException:
+            _stop_workers(pool)
+            raise
 
 
 def _stop_workers(pool) -> None:

@@ -38,8 +38,9 @@ import numpy as np
 from simtest.errors import ConfigError
 from simtest.estimators.base import Observation, PoseEstimate
 
-__all__ = ["DEFAULT_TIMEOUT_S", "AUTO_TIMEOUT", "resolve_timeout", "FAILURE_KINDS", "EstimatorFailure", "InvalidEstimate", "call_estimator",
-           "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES", "log_fault"]
+__all__ = ["DEFAULT_TIMEOUT_S", "AUTO_TIMEOUT", "resolve_timeout", "FAILURE_KINDS", "EstimatorFailure",
+           "InvalidEstimate", "call_estimator", "check_estimate", "check_timeout", "trace_tail", "TRACE_FRAMES",
+           "log_fault"]
 
 log = logging.getLogger(__name__)
 

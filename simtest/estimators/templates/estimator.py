@@ -258,16 +258,16 @@ class TemplateEstimator:
         return self.banks[key]
 
     def prepare(self, objects) -> None:
-        """Once before the first image, outside its time limit: the detectors loaded (``detect="rgb"``) and the
-        bank of every object they look for (``detect="gt"``: of every object of ``objects``) read from the
-        cache or built (about a minute per object on two cores when the cache is cold)."""
-        ids = [int(i) for i in objects.ids]
-        if self.detect == "rgb":
-            if self.segmenter is None:
-                self._load_detector(objects)
-            known = {i for s in [self.segmenter, *self.more_segmenters] for i in s.class_ids}
-            ids = [i for i in ids if i in known]
-        for oid in ids:
+        """Once before the first image, outside its time limit, with ``detect="rgb"``: the detectors loaded and
+        the bank of every object of ``objects`` they look for read from the cache or built (about a minute per
+        object on two cores when the cache is cold). With ``detect="gt"`` the targets are not known before the
+        images, so banks stay built at first use."""
+        if self.detect != "rgb":
+            return
+        if self.segmenter is None:
+            self._load_detector(objects)
+        known = {i for s in [self.segmenter, *self.more_segmenters] for i in s.class_ids}
+        for oid in [int(i) for i in objects.ids if int(i) in known]:
             self.bank(objects.get(oid))
 
     def regions(self, obs: Observation) -> list[tuple[int | None, int, np.ndarray, float]]:

@@ -32,7 +32,8 @@ from simtest.estimators.onnx_net import OnnxNet, resolve_runtime
 from simtest.estimators.templates.crops import mask_in_crop, region_crop
 from simtest.render.silhouette import object_silhouette
 
-__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineNets", "load_outline", "OutlineFit", "outline_fit", "fit_to_mask", "shipped_outline", "MARGIN",
+__all__ = ["FORMAT", "FAMILY", "OutlineNet", "OutlineNets", "load_outline", "OutlineFit", "outline_fit", "fit_to_mask",
+           "shipped_outline", "MARGIN",
            "MIN_SILHOUETTE_PX", "MASK_MODES", "check_mask_mode", "check_temperature"]
 
 #: The ``format`` entry of outline-network checkpoints and ONNX files.

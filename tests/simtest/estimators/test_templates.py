@@ -362,15 +362,19 @@ def test_framing_starts_grow_a_window_out_of_a_partial_region(objects, cache, mo
 
 
 def test_prepare_reads_or_builds_every_bank_before_the_first_image(objects, tmp_path, monkeypatch):
-    """``prepare`` (called by the evaluation outside the per-image time limit) fills the cache, so the first
-    image only reads it."""
+    """``prepare`` (called by the evaluation outside the per-image time limit) loads the shipped detector and
+    fills the cache with the bank of every object it looks for, so the first image only reads them; with
+    ground-truth masks the targets are unknown before the images and nothing is built."""
     from simtest.estimators.templates.bank import bank_path
 
     monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
-    two = objects.subset([objects.by_name("mug_0").obj_id, objects.by_name("banana_0").obj_id])
-    est = TemplateEstimator(detect="gt", views=60, refine="none", outline="none")
-    paths = [bank_path(two.get(i), est.settings) for i in two.ids]
+    est = TemplateEstimator(detect="rgb", views=60, refine="none", outline="none")
+    paths = [bank_path(objects.get(i), est.settings) for i in objects.ids]
     assert not any(p.exists() for p in paths)
-    est.prepare(two)
-    assert all(p.is_file() for p in paths) and sorted(est.banks) == sorted(int(i) for i in two.ids)
+    gt = TemplateEstimator(detect="gt", views=60, refine="none", outline="none")
+    gt.prepare(objects)
+    assert not gt.banks and not any(p.exists() for p in paths)
+    est.prepare(objects)
+    assert est.segmenter is not None and set(est.segmenter.class_ids) == {int(i) for i in objects.ids}
+    assert all(p.is_file() for p in paths) and sorted(est.banks) == sorted(int(i) for i in objects.ids)
     assert est.time_limit_s == 900.0
