@@ -88,6 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="outlines: share of the samples whose object is brightened or dimmed against its "
                         "surroundings by a gain in [0.9, 1.8] (default 0; segmentation and keypoints: "
                         "--augment ...,object-light)")
+    p.add_argument("--target", choices=("visible", "amodal"),
+                   help="outlines: draw the object's visible pixels (default) or its whole silhouette, hidden parts "
+                        "too (amodal: a pose fitted to it is not pulled back by what lies in front)")
     p.add_argument("--no-image-skip", dest="image_skip", action="store_false", default=None,
                    help="outlines: the network's last stage reads the pretrained features and the prior only, not "
                         "the crop's pixels")
@@ -208,7 +211,8 @@ def _run_outlines(args: argparse.Namespace) -> int:
                              max_images=args.max_images, device=args.device, seed=args.seed, threads=args.threads,
                              **_given(args, epochs="epochs", lr="lr", workers="workers", batch_size="batch_size",
                                       pose_priors="pose_priors", camera_scale="camera_scale",
-                                      image_skip="image_skip", object_light="object_light"))
+                                      image_skip="image_skip", object_light="object_light",
+                                      target="target"))
     res = train_outlines(cfg, resume=args.resume, progress=not args.quiet)
     return _report(res, cfg.epochs, "val_iou", lambda b: f"val mask IoU {100 * b['val_iou']:.1f} %, the priors' "
                                                          f"{100 * b['val_prior_iou']:.1f} %")

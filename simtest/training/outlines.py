@@ -7,9 +7,11 @@ the one the template estimator looks through (:func:`~simtest.estimators.templat
 amodal mask, margin 1.2, rolled up to +-20 degrees), then shifted by up to +-6 % of the window and scaled by
 up to exp(+-0.1), as a searched framing is off. The prior is the amodal mask in that crop moved by a similarity
 (+-4 % shift, exp(+-0.05) scale, +-6 degrees), as a found pose is off; the target is the visible mask in the
-crop. With ``pose_priors`` (a share of the samples) the prior is instead the object's silhouette at its pose
-turned by up to :data:`POSE_TURN_DEG` about a random axis, moved along its viewing ray by up to exp(+-0.06) and
-across it by up to +-5 % of its diameter, and the crop is framed on that silhouette as
+crop (with ``target = "amodal"``: the whole silhouette in the crop, hidden parts too, so that a pose fitted to
+the network's mask is not pulled back where something in front hides the object). With ``pose_priors`` (a
+share of the samples) the prior is instead the object's silhouette at its pose turned by up to
+:data:`POSE_TURN_DEG` about a random axis, moved along its viewing ray by up to exp(+-0.06) and across it by up
+to +-5 % of its diameter, and the crop is framed on that silhouette as
 :func:`~simtest.estimators.templates.outline.outline_fit` frames a found pose (rolled as above): a pose that is
 off shows another outline, not only a moved one. The crop is then blurred (Gaussian, sigma 0.2-1.8 pixels, 70 %
 of samples; with ``camera_scale = "image"`` the image around the object, before cropping, sigma 0.5-1.8 image
@@ -47,8 +49,11 @@ from simtest.training.fit import Plan, TrainResult, fit
 from simtest.training.segmentation import data_roots
 from simtest.training.settings import check_settings, settings_dict
 
-__all__ = ["OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample", "FORMAT"]
+__all__ = ["TARGETS", "OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample",
+           "FORMAT"]
 
+#: What an outline network learns to draw (:attr:`OutlineTrainConfig.target`).
+TARGETS = ("visible", "amodal")
 #: Margin of the crop around the object (the template estimator's, :class:`BankSettings.margin`).
 MARGIN = 1.2
 
@@ -75,6 +80,8 @@ class OutlineTrainConfig:
         object_light: The share of samples whose object's visible pixels in the crop are brightened or dimmed
             by a gain of their own (:class:`~simtest.data.augment.ObjectLight`, before the camera's changes;
             default 0: none). Real cameras show objects lit brighter against their surroundings than renders.
+        target: What the network learns to draw: ``"visible"`` (the object's visible pixels, as the shipped
+            network) or ``"amodal"`` (its whole silhouette, hidden parts too).
         encoder_lr_scale, freeze_encoder_bn: Fixed at 0 and True (the encoder stays frozen); the loop reads them.
     """
 
@@ -100,6 +107,7 @@ class OutlineTrainConfig:
     camera_scale: str = "crop"
     image_skip: bool = True
     object_light: float = 0.0
+    target: str = "visible"
     encoder_lr_scale: float = 0.0
     freeze_encoder_bn: bool = True
 
@@ -110,6 +118,12 @@ class OutlineTrainConfig:
         if self.camera_scale not in _BLUR:
             raise ConfigError(f"outline training: camera_scale must be one of {', '.join(_BLUR)}, got "
                               f"{self.camera_scale!r}")
+        if self.target not in TARGETS:
+            raise ConfigError(f"outline training: target must be one of {', '.join(TARGETS)}, got {self.target!r}")
+        if self.target == "amodal" and float(self.object_light) > 0:
+            raise ConfigError("outline training: object_light brightens the object's visible pixels, which an amodal "
+                              f"sample does not carry; use it with target 'visible' (got object_light "
+                              f"{self.object_light!r})")
         if not 0.0 <= float(self.pose_priors) <= 1.0:
             raise ConfigError(f"outline training: pose_priors must be a share in [0, 1], got {self.pose_priors!r}")
         if not 0.0 <= float(self.object_light) <= 1.0:
@@ -216,11 +230,13 @@ def _around(box, K: np.ndarray, *images: np.ndarray) -> tuple[list[np.ndarray], 
 
 class OutlineCrops:
     """The samples of ``instances`` (see the module doc) as a map-style dataset: ``{"x": (4, S, S) float32,
-    "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes."""
+    "y": (1, S, S) float32}``; ``photometric`` adds the camera's changes; ``target`` is what ``y`` holds
+    (:data:`TARGETS`)."""
 
     def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
                  augment_p: float = 1.0, objects=None, pose_priors: float = 0.0, camera_scale: str = "crop",
-                 object_light: float = 0.0) -> None:
+                 object_light: float = 0.0, target: str = "visible") -> None:
+        self.target = target
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
         self.object_light = float(object_light)
         self.augment_p, self.camera_scale = float(augment_p), camera_scale
@@ -237,7 +253,8 @@ class OutlineCrops:
         self.epoch = int(epoch)
 
     def arrays(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sample ``i`` of the current epoch as uint8 arrays ``(crop, prior, visible)``."""
+        """Sample ``i`` of the current epoch as uint8 arrays ``(crop, prior, target)``: the target is the visible
+        mask, or with ``target="amodal"`` the whole silhouette."""
         scene, im, g = self.instances[i]
         if scene not in self._scenes:
             self._scenes[scene] = bop.read_scene(scene)
@@ -251,16 +268,17 @@ class OutlineCrops:
         if changed and self.camera_scale == "image":  # the camera's changes around the object, then the crop
             (rgb, visible, amodal), K = _around(gt.bbox_obj, K, rgb, visible, amodal)
             rgb = _photometric(rgb, rng, "image")
+        drawn = amodal if self.target == "amodal" else visible
         sample = None
         if self.pose_priors > 0 and rng.random() < self.pose_priors:  # no draw without pose priors
-            sample = pose_sample(rgb, K, self.objects.get(gt.obj_id), gt.T_cam_obj.R, gt.T_cam_obj.t, visible,
+            sample = pose_sample(rgb, K, self.objects.get(gt.obj_id), gt.T_cam_obj.R, gt.T_cam_obj.t, drawn,
                                  self.size, rng)
-        crop, prior, visible = sample or outline_sample(rgb, K, amodal, visible, self.size, rng)
+        crop, prior, target = sample or outline_sample(rgb, K, amodal, drawn, self.size, rng)
         if self.photometric and self.object_light > 0 and rng.random() < self.object_light:  # no draw at 0
-            crop = ObjectLight(p=1.0)({"rgb": crop, "masks": visible[None]}, rng)["rgb"]
+            crop = ObjectLight(p=1.0)({"rgb": crop, "masks": target[None]}, rng)["rgb"]
         if changed and self.camera_scale == "crop":
             crop = _photometric(crop, rng)
-        return crop, prior, visible
+        return crop, prior, target
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         import torch
@@ -288,7 +306,8 @@ def outline_loss(logits, target) -> dict[str, Any]:
 
 
 def validate_outlines(net, dataset: OutlineCrops, cfg: OutlineTrainConfig) -> dict[str, Any]:
-    """Mean IoU of the predicted visible masks and of the priors, over the validation crops."""
+    """Mean IoU of the predicted masks (visible or amodal, as trained) and of the priors, over the validation
+    crops."""
     import torch
 
     net.eval()
@@ -316,13 +335,14 @@ def _setup(cfg: OutlineTrainConfig) -> Plan:
     for other in roots[1:] + ([cfg.val] if cfg.val is not None else []):
         check_objects(record, load_dataset_objects(other), where=f"training dataset {roots[0]}")
     train = OutlineCrops(_instances(roots, cfg.split, cfg.min_visib, cfg.max_images), cfg.crop_size, cfg.seed, True,
-                         cfg.augment_p, objects, cfg.pose_priors, cfg.camera_scale, cfg.object_light)
+                         cfg.augment_p, objects, cfg.pose_priors, cfg.camera_scale, cfg.object_light, cfg.target)
     if not len(train):
         raise ConfigError(f"outline training: no instance with visib_fract >= {cfg.min_visib} in {roots}")
     val = None
     if cfg.val is not None:
         val = OutlineCrops(_instances([cfg.val], cfg.val_split, cfg.min_visib, cfg.val_images), cfg.crop_size,
-                           cfg.seed + 1, False, objects=objects, pose_priors=cfg.pose_priors)
+                           cfg.seed + 1, False, objects=objects, pose_priors=cfg.pose_priors,
+                           target=cfg.target)
     with torch.random.fork_rng(devices=[]):
         net = MaskNet(MaskNetConfig(crop_size=int(cfg.crop_size), image_skip=bool(cfg.image_skip)))
     net.init_weights(torch.Generator().manual_seed(int(cfg.seed)))

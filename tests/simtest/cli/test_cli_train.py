@@ -60,8 +60,13 @@ def test_train_outlines_from_the_command_line(small_dataset, tmp_path, capsys):
                  "--out", str(out), "--epochs", "1", "--max-images", "2", "--threads", "1", "--quiet"]) == 0
     ck = torch.load(out / "model.pt", weights_only=True)
     assert ck["format"] == "simtest-outline/1" and ck["train"]["batch_size"] == 32 and ck["net"]["crop_size"] == 128
+    assert ck["train"]["target"] == "visible"
     assert (out / "model.onnx").is_file() and "val mask IoU" in capsys.readouterr().out
     from simtest.estimators import load_estimator
 
     est = load_estimator("templates", outline=str(out / "model.onnx"))
     assert est.outline is not None and est.outline.runtime == "onnx"
+    amodal = tmp_path / "amodal"
+    assert main(["train", "outlines", "--data", str(small_dataset), "--out", str(amodal), "--epochs", "1",
+                 "--max-images", "1", "--threads", "1", "--target", "amodal", "--quiet"]) == 0
+    assert torch.load(amodal / "model.pt", weights_only=True)["train"]["target"] == "amodal"

@@ -121,6 +121,34 @@ def test_object_light_changes_only_the_objects_visible_pixels_of_a_crop(small_da
         OutlineTrainConfig(data="x", out="y", object_light=1.5)
 
 
+def test_an_amodal_target_is_the_whole_silhouette_in_the_same_crop(small_dataset):
+    """``target="amodal"``: the same crop and prior as the visible sample (no extra draw), the target the whole
+    silhouette, hidden parts too: it holds the visible mask and more where the object is occluded."""
+    from simtest.io import bop
+
+    instances = _instances([str(small_dataset)], None, 0.1, None)
+    for priors in (0.0, 1.0):
+        from simtest.objects.loaders import load_dataset_objects
+
+        objects = load_dataset_objects(str(small_dataset))
+        seen = OutlineCrops(instances, 64, seed=2, photometric=True, objects=objects, pose_priors=priors)
+        whole = OutlineCrops(instances, 64, seed=2, photometric=True, objects=objects, pose_priors=priors,
+                             target="amodal")
+        grown = 0
+        for i, (scene, im, g) in enumerate(instances):
+            (c0, p0, v0), (c1, p1, a1) = seen.arrays(i), whole.arrays(i)
+            assert np.array_equal(c0, c1) and np.array_equal(p0, p1)
+            assert np.count_nonzero(v0 & ~a1) <= 0.02 * max(1, np.count_nonzero(v0))  # warped alike, to a pixel
+            fract = bop.read_scene(scene)[im]["gt"][g].visib_fract
+            if fract < 0.8:
+                grown += np.count_nonzero(a1) > 1.1 * np.count_nonzero(v0)
+        assert grown > 0  # occluded instances draw their hidden part
+    with pytest.raises(ConfigError, match="target"):
+        OutlineTrainConfig(data="x", out="y", target="both")
+    with pytest.raises(ConfigError, match="object_light"):
+        OutlineTrainConfig(data="x", out="y", target="amodal", object_light=0.5)
+
+
 def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
     _resume_equals_uninterrupted(train_outlines, OutlineTrainConfig, tmp_path, data=str(small_dataset), epochs=2,
                                  batch_size=4, crop_size=32, max_images=2, seed=5, threads=1)
