@@ -11,8 +11,10 @@ regions on real frames often hold only part of their object, on renders the whol
 twelfth and thirteenth rounds); besides the class map's regions, those of class probability above
 :data:`TEMPLATE_REGION_EXTRA` that overlap none of them (29.0 % and AR_MSSD 0.360 against 27.7 % and 0.349
 without, fourteenth round); the local template search around the best match (first step
-:data:`TEMPLATE_LOCAL_DEG` degrees); the outline fit to the network's probability at temperature 2 averaged with
-its mirror image's.
+:data:`TEMPLATE_LOCAL_DEG` degrees); the outline fit to the shipped outline networks' probability at
+temperature 2 averaged with its mirror image's (:func:`~simtest.estimators.templates.outline.shipped_outline`:
+for LM-O two networks that draw the whole silhouette, hidden parts too, their probabilities averaged; 30.0 % and
+AR_MSSD 0.371 against 29.0 % and 0.360 with one that draws the visible pixels, seventeenth round).
 """
 
 from __future__ import annotations

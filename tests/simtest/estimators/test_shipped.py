@@ -65,10 +65,14 @@ def test_the_lmo_models_get_the_lmo_networks():
     # every shipped LM-O detector is loaded; template matching (LM-O's pose stage) pools their regions
     assert [Path(s.checkpoint).name for s in est.more_segmenters] == ["keypoints_detector_lmo_640x480.clutter.onnx"]
     assert est.class_ids == objects.ids
-    # and the outline network that fits the kept poses (templates, docs/sim2real.md, eighth round)
-    from simtest.estimators.templates.outline import shipped_outline
+    # and the outline networks that fit the kept poses (templates, docs/sim2real.md, eighth and seventeenth
+    # rounds): two trained on whole silhouettes, read as one
+    from simtest.estimators.templates.outline import OutlineNets, load_outline, shipped_outline
 
-    assert Path(shipped_outline(objects)).name == "templates_outline_lmo_640x480.onnx"
+    spec = shipped_outline(objects)
+    assert [Path(p).name for p in spec.split("+")] == ["templates_outline_lmo_640x480.onnx",
+                                                       "templates_outline_lmo_640x480.s2.onnx"]
+    assert isinstance(load_outline(spec), OutlineNets)
     # its template stage takes minutes per real frame: the evaluation's default time limit follows it
     assert est.pose == "templates" and est.time_limit_s == 900.0
     assert load_estimator("keypoints").time_limit_s is None  # builtin-small's crop network: the default holds
