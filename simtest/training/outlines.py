@@ -49,7 +49,7 @@ from simtest.training.fit import Plan, TrainResult, fit
 from simtest.training.segmentation import data_roots
 from simtest.training.settings import check_settings, settings_dict
 
-__all__ = ["TARGETS", "OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample",
+__all__ = ["TARGETS", "check_target", "OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample",
            "FORMAT"]
 
 #: What an outline network learns to draw (:attr:`OutlineTrainConfig.target`).
@@ -118,12 +118,7 @@ class OutlineTrainConfig:
         if self.camera_scale not in _BLUR:
             raise ConfigError(f"outline training: camera_scale must be one of {', '.join(_BLUR)}, got "
                               f"{self.camera_scale!r}")
-        if self.target not in TARGETS:
-            raise ConfigError(f"outline training: target must be one of {', '.join(TARGETS)}, got {self.target!r}")
-        if self.target == "amodal" and float(self.object_light) > 0:
-            raise ConfigError("outline training: object_light brightens the object's visible pixels, which an amodal "
-                              f"sample does not carry; use it with target 'visible' (got object_light "
-                              f"{self.object_light!r})")
+        check_target(self.target, self.object_light)
         if not 0.0 <= float(self.pose_priors) <= 1.0:
             raise ConfigError(f"outline training: pose_priors must be a share in [0, 1], got {self.pose_priors!r}")
         if not 0.0 <= float(self.object_light) <= 1.0:
@@ -135,6 +130,21 @@ class OutlineTrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return settings_dict(self)
+
+
+def check_target(target: str, object_light: float = 0.0) -> str:
+    """``target`` if it is one of :data:`TARGETS` and goes with ``object_light`` (which brightens the visible
+    pixels, so only with ``"visible"``).
+
+    Raises:
+        ConfigError: Another target, or ``"amodal"`` with ``object_light`` > 0 (naming the values).
+    """
+    if target not in TARGETS:
+        raise ConfigError(f"outline training: target must be one of {', '.join(TARGETS)}, got {target!r}")
+    if target == "amodal" and float(object_light) > 0:
+        raise ConfigError("outline training: object_light brightens the object's visible pixels, which an amodal "
+                          f"sample does not carry; use it with target 'visible' (got object_light {object_light!r})")
+    return target
 
 
 def _instances(roots: list[str], split: str | None, min_visib: float, max_images: int | None
@@ -236,7 +246,7 @@ class OutlineCrops:
     def __init__(self, instances: list[tuple[str, int, int]], size: int, seed: int, photometric: bool,
                  augment_p: float = 1.0, objects=None, pose_priors: float = 0.0, camera_scale: str = "crop",
                  object_light: float = 0.0, target: str = "visible") -> None:
-        self.target = target
+        self.target = check_target(target, object_light)
         self.instances, self.size, self.seed, self.photometric = instances, int(size), int(seed), bool(photometric)
         self.object_light = float(object_light)
         self.augment_p, self.camera_scale = float(augment_p), camera_scale

@@ -125,12 +125,11 @@ def test_an_amodal_target_is_the_whole_silhouette_in_the_same_crop(small_dataset
     """``target="amodal"``: the same crop and prior as the visible sample (no extra draw), the target the whole
     silhouette, hidden parts too: it holds the visible mask and more where the object is occluded."""
     from simtest.io import bop
+    from simtest.objects.loaders import load_dataset_objects
 
     instances = _instances([str(small_dataset)], None, 0.1, None)
+    objects = load_dataset_objects(str(small_dataset))
     for priors in (0.0, 1.0):
-        from simtest.objects.loaders import load_dataset_objects
-
-        objects = load_dataset_objects(str(small_dataset))
         seen = OutlineCrops(instances, 64, seed=2, photometric=True, objects=objects, pose_priors=priors)
         whole = OutlineCrops(instances, 64, seed=2, photometric=True, objects=objects, pose_priors=priors,
                              target="amodal")
@@ -147,6 +146,10 @@ def test_an_amodal_target_is_the_whole_silhouette_in_the_same_crop(small_dataset
         OutlineTrainConfig(data="x", out="y", target="both")
     with pytest.raises(ConfigError, match="object_light"):
         OutlineTrainConfig(data="x", out="y", target="amodal", object_light=0.5)
+    with pytest.raises(ConfigError, match="target"):  # the dataset refuses them as the settings do
+        OutlineCrops(instances, 64, seed=2, photometric=True, target="Amodal")
+    with pytest.raises(ConfigError, match="object_light"):
+        OutlineCrops(instances, 64, seed=2, photometric=True, target="amodal", object_light=1.0)
 
 
 def test_an_outline_run_resumed_after_an_epoch_equals_an_uninterrupted_one(small_dataset, tmp_path):
