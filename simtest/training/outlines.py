@@ -49,8 +49,8 @@ from simtest.training.fit import Plan, TrainResult, fit
 from simtest.training.segmentation import data_roots
 from simtest.training.settings import check_settings, settings_dict
 
-__all__ = ["TARGETS", "check_target", "OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample", "pose_sample",
-           "FORMAT"]
+__all__ = ["TARGETS", "check_target", "OutlineTrainConfig", "OutlineCrops", "train_outlines", "outline_sample",
+           "pose_sample", "FORMAT"]
 
 #: What an outline network learns to draw (:attr:`OutlineTrainConfig.target`).
 TARGETS = ("visible", "amodal")
