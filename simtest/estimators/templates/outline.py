@@ -1,6 +1,7 @@
-"""The outline stage of the template estimator: a found pose's silhouette, moved onto the object's visible pixels
-by the outline network (:mod:`.mask_model`, trained by ``simtest train outlines``), and the pose's translation
-fitted to that mask.
+"""The outline stage of the template estimator: a found pose's silhouette, moved onto the object as the outline
+network draws it (:mod:`.mask_model`, trained by ``simtest train outlines``: its visible pixels, or with
+``--target amodal`` its whole silhouette, hidden parts too, as LM-O's shipped networks draw it, so that the fit
+is not pulled back where something lies in front), and the pose's translation fitted to that mask.
 
 :func:`outline_fit` looks at the pose through the crop the templates use (the pose's own silhouette framed with
 margin 1.2), asks the network for the visible mask with the silhouette as its prior, and moves the object
@@ -11,11 +12,11 @@ is read one of three ways (``mask_mode``, :data:`MASK_MODES`): ``"hard"`` the pi
 the mean probability of the crop and of its mirror image (the network run twice). A ``temperature`` T > 1
 divides the logits before the sigmoid, so the probability is flatter: the fit's soft IoU takes in a pixel when
 its probability exceeds about ``IoU / (1 + IoU)`` (0.44 at IoU 0.8), so a flatter probability lets the silhouette
-grow over pixels the network leans against, i.e. pulls the pose nearer. On the real LM-O frames the fitted
-poses lie a median 0.2 % too far at T = 1, 0.1 % too near at T = 2 and 1.6 % too near at T = 4 (docs/sim2real.md,
-eleventh round). ``"hard"`` is the same at any temperature. Several networks (``A.onnx+B.onnx``,
-:func:`load_outline`; every shipped one of a set, :func:`shipped_outline`) are read as one: their probabilities
-averaged. Inference runs through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through
+grow over pixels the network leans against, i.e. pulls the pose nearer. On the real LM-O frames the poses fitted
+to the eighth round's visible-pixel network lay a median 0.2 % too far at T = 1, 0.1 % too near at T = 2 and 1.6 %
+too near at T = 4 (docs/sim2real.md, eleventh round). ``"hard"`` is the same at any temperature. Several
+networks (``A.onnx+B.onnx``, :func:`load_outline`; every shipped one of a set, :func:`shipped_outline`) are read
+as one: their probabilities averaged. Inference runs through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through
 torch from a ``.pt``.
 """
 
