@@ -16,8 +16,8 @@ grow over pixels the network leans against, i.e. pulls the pose nearer. On the r
 to the eighth round's visible-pixel network lay a median 0.2 % too far at T = 1, 0.1 % too near at T = 2 and 1.6 %
 too near at T = 4 (docs/sim2real.md, eleventh round). ``"hard"`` is the same at any temperature. Several
 networks (``A.onnx+B.onnx``, :func:`load_outline`; every shipped one of a set, :func:`shipped_outline`) are read
-as one: their probabilities averaged. Inference runs through ONNX Runtime (no torch) from the ``.onnx`` file beside a checkpoint, or through
-torch from a ``.pt``.
+as one: their probabilities averaged. Inference runs through ONNX Runtime (no torch) from the ``.onnx`` file
+beside a checkpoint, or through torch from a ``.pt``.
 """
 
 from __future__ import annotations
