@@ -5,10 +5,11 @@ cluster runs one unit per CPU on every node). :func:`worker_threads` is the one 
 from __future__ import annotations
 
 import os
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 
 __all__ = ["ThreadBudget", "available_cores", "workers_per_machine", "thread_budget", "apply_thread_budget",
-           "worker_threads"]
+           "worker_threads", "blas_threads"]
 
 
 @dataclass(frozen=True)
@@ -87,3 +88,25 @@ def worker_threads(workers: int, ray_address: str | None = None, *, apply: bool 
     """
     machine = workers_per_machine(workers, ray_address)
     return apply_thread_budget(machine) if apply else thread_budget(machine)
+
+
+def blas_threads(threads: int) -> AbstractContextManager:
+    """A ``with`` block in which numpy's BLAS (OpenBLAS, MKL, ...) runs matrix products on at most ``threads``
+    threads (>= 1), restored after (threadpoolctl).
+
+    A process that shares the cores with other workers and runs small products between ONNX Runtime calls
+    should hold its BLAS to its own share: OpenBLAS starts a pool of one thread per core whose threads wait
+    for each other, so on busy cores a product waits for threads the scheduler has parked. Measured on two
+    cores shared with two other runs: the template stage's feature matching (8 crops' 10240 features against
+    about 400-600 templates) took 0.19 s a call, half of a real LM-O frame's time, where one thread takes
+    about 2 ms; one frame, two runs side by side, 84 s with the default pool against 72 s, the same poses
+    (docs/sim2real.md, eighteenth round).
+
+    Raises:
+        ValueError: ``threads`` is below 1.
+    """
+    from threadpoolctl import threadpool_limits
+
+    if int(threads) < 1:
+        raise ValueError(f"blas_threads: threads must be at least 1, got {threads!r}")
+    return threadpool_limits(limits=int(threads), user_api="blas")

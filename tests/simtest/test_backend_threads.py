@@ -36,3 +36,24 @@ def test_gl_does_not_know_about_ray():
     import simtest.render.gl as gl
 
     assert "ray" not in inspect.getsource(gl).lower().replace("array", "")
+
+
+def test_blas_threads_holds_numpys_blas_to_the_share_and_gives_it_back():
+    import numpy as np
+    from threadpoolctl import threadpool_info
+
+    from simtest.backend.threads import blas_threads
+
+    def blas() -> list[int]:
+        return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+    a = np.ones((64, 64), np.float32)
+    a @ a  # numpy's BLAS is loaded
+    before = blas()
+    assert before, "numpy's BLAS is not visible to threadpoolctl"
+    with blas_threads(1):
+        assert blas() == [1] * len(before)
+        assert float((a @ a)[0, 0]) == 64.0
+    assert blas() == before
+    with pytest.raises(ValueError, match="threads must be at least 1, got 0"):
+        blas_threads(0)

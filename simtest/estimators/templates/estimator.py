@@ -298,8 +298,14 @@ class TemplateEstimator:
         self.segmenter, self.more_segmenters = segmenters[0], segmenters[1:]
 
     def estimate(self, observation: Observation) -> list[PoseEstimate]:
-        """Pose estimates (metres, camera frame) of the regions found (see the module doc)."""
-        obs = observation
+        """Pose estimates (metres, camera frame) of the regions found (see the module doc). numpy's BLAS runs on
+        at most ``threads`` threads meanwhile (:func:`simtest.backend.threads.blas_threads`), as the encoder does."""
+        from simtest.backend.threads import blas_threads
+
+        with blas_threads(self.encoder.threads):
+            return self._estimate(observation)
+
+    def _estimate(self, obs: Observation) -> list[PoseEstimate]:
         self.last_failures, self.last_candidates, self._edges = [], [], None
         K = np.asarray(obs.K, np.float64)
         regions = self.regions(obs)
