@@ -9,8 +9,8 @@ scaled by each factor of :data:`TEMPLATE_FRAMING_STARTS`, the best match kept (1
 regions on real frames often hold only part of their object, on renders the whole; on the 100 real LM-O frames
 27.7 % ADD(-S)-0.1d and AR_MSSD 0.349, against 25.5 % and 0.331 from 1.4 alone and 24.8 % and 0.307 from 1 alone,
 twelfth and thirteenth rounds); besides the class map's regions, those of class probability above
-:data:`TEMPLATE_REGION_EXTRA` that overlap none of them (29.0 % and AR_MSSD 0.360 against 27.7 % and 0.349
-without, fourteenth round); the local template search around the best match (first step
+:data:`TEMPLATE_REGION_EXTRA` that overlap none of them (0.2: 29.0 % and AR_MSSD 0.360 against 27.7 % and 0.349
+without, fourteenth round; 0.05: 31.9 % and 0.387 against 30.0 % and 0.371 with 0.2, eighteenth round); the local template search around the best match (first step
 :data:`TEMPLATE_LOCAL_DEG` degrees); the outline fit to the shipped outline networks' probability at
 temperature 2 averaged with its mirror image's (:func:`~simtest.estimators.templates.outline.shipped_outline`:
 for LM-O two networks that draw the whole silhouette, hidden parts too, their probabilities averaged; 30.0 % and
@@ -32,8 +32,9 @@ TEMPLATE_CANDIDATES, TEMPLATE_SELECT, TEMPLATE_REFINE, TEMPLATE_FRAMING = 3, "ma
 TEMPLATE_LOCAL_DEG, TEMPLATE_OUTLINE_MASK, TEMPLATE_OUTLINE_TEMPERATURE = 4.0, "soft+flip", 2.0
 #: Factors of the region's window side the framing search starts from (the best-matching result is kept).
 TEMPLATE_FRAMING_STARTS: tuple[float, ...] = (1.0, 1.4)
-#: Class probability above which regions the class map misses become candidates too (0: none; fourteenth round).
-TEMPLATE_REGION_EXTRA = 0.2
+#: Class probability above which regions the class map misses become candidates too (0: none; fourteenth and
+#: eighteenth rounds).
+TEMPLATE_REGION_EXTRA = 0.05
 
 
 def template_stage(detect: str, region_rank: str, objects: Any, options: dict[str, Any]) -> TemplateEstimator:
