@@ -111,6 +111,15 @@ def pooled_regions(segmenters: list, probs: list[np.ndarray], obs: Observation, 
     return out
 
 
+def _surplus(regions: list[tuple[int | None, int, np.ndarray, float]], target_obj_ids) -> bool:
+    """Whether some object has more ``regions`` than it has expected instances (pooled detectors and extra
+    regions can give one object several even with ``candidates=1``: they are then candidates too)."""
+    from collections import Counter
+
+    wanted, found = Counter(int(o) for o in target_obj_ids), Counter(int(r[1]) for r in regions)
+    return any(n > wanted[o] for o, n in found.items())
+
+
 class TemplateEstimator:
     """Template matching pose estimator; see the module doc.
 
@@ -132,7 +141,9 @@ class TemplateEstimator:
         local_deg: First step (degrees) of the local template search around the best bank match (0: none;
             :mod:`.local`).
         candidates: With ``detect=rgb`` and known targets, the detector regions posed per expected instance
-            (ranked by ``region_rank``); ``select`` decides which pose is kept (:data:`SELECTS`).
+            (ranked by ``region_rank``); ``select`` decides which pose is kept (:data:`SELECTS`). With 1, an
+            object that still gets more regions than instances (pooled detectors, ``region_extra``) has them all
+            posed and as many kept, so it never gets more estimates than instances.
         region_threshold: With ``detect=rgb``, 0 takes regions from the detector's class map, above 0 from the
             pixels where the class's probability exceeds it (:meth:`~simtest.estimators.segicp.infer.
             Segmenter.regions`).
@@ -309,7 +320,8 @@ class TemplateEstimator:
         self.last_failures, self.last_candidates, self._edges = [], [], None
         K = np.asarray(obs.K, np.float64)
         regions = self.regions(obs)
-        if self.candidates > 1 and self.detect == "rgb" and obs.target_obj_ids is not None:
+        if self.detect == "rgb" and obs.target_obj_ids is not None and (
+                self.candidates > 1 or _surplus(regions, obs.target_obj_ids)):
             return self._outlined(obs, self._estimate_candidates(obs, regions, K), K)
         out = []
         for n, (k, oid, mask, dscore) in enumerate(regions):
