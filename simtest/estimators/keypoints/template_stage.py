@@ -1,20 +1,21 @@
 """The ``keypoints`` estimator's template pose stage (``pose=templates``): its settings and the estimator they make.
 
 The stage poses the detector's regions by template matching
-(:class:`~simtest.estimators.templates.estimator.TemplateEstimator`), sharing the keypoint estimator's
-detectors. Its settings were chosen on the real LM-O frames (docs/sim2real.md): per expected instance
+(:class:`~simtest.estimators.templates.estimator.TemplateEstimator`), sharing the keypoint estimator's detectors.
+Its settings were chosen on the real LM-O frames (docs/sim2real.md): per expected instance
 :data:`TEMPLATE_CANDIDATES` regions, the best template match kept; no silhouette fit to the detector's coarse
 regions; the framing search, which frees the pose from the region's outline, started from the region's window
-scaled by each factor of :data:`TEMPLATE_FRAMING_STARTS`, the best match kept (1 and 1.4: the detectors'
-regions on real frames often hold only part of their object, on renders the whole; on the 100 real LM-O frames
-27.7 % ADD(-S)-0.1d and AR_MSSD 0.349, against 25.5 % and 0.331 from 1.4 alone and 24.8 % and 0.307 from 1 alone,
-twelfth and thirteenth rounds); besides the class map's regions, those of class probability above
+scaled by each factor of :data:`TEMPLATE_FRAMING_STARTS`, the best match kept (1 and 1.4: the detectors' regions on
+real frames often hold only part of their object, on renders the whole; on the 100 real LM-O frames 27.7 %
+ADD(-S)-0.1d and AR_MSSD 0.349, against 25.5 % and 0.331 from 1.4 alone and 24.8 % and 0.307 from 1 alone, twelfth
+and thirteenth rounds); besides the class map's regions, those of class probability above
 :data:`TEMPLATE_REGION_EXTRA` that overlap none of them (0.2: 29.0 % and AR_MSSD 0.360 against 27.7 % and 0.349
-without, fourteenth round; 0.05: 31.9 % and 0.387 against 30.0 % and 0.371 with 0.2, eighteenth round); the local template search around the best match (first step
-:data:`TEMPLATE_LOCAL_DEG` degrees); the outline fit to the shipped outline networks' probability at
-temperature 2 averaged with its mirror image's (:func:`~simtest.estimators.templates.outline.shipped_outline`:
-for LM-O two networks that draw the whole silhouette, hidden parts too, their probabilities averaged; 30.0 % and
-AR_MSSD 0.371 against 29.0 % and 0.360 with one that draws the visible pixels, seventeenth round).
+without, fourteenth round; 0.05: 31.9 % and 0.387 against 30.0 % and 0.371 with 0.2, eighteenth round); the local
+template search around the best match (first step :data:`TEMPLATE_LOCAL_DEG` degrees); the outline fit to the
+shipped outline networks' probability at temperature 2 averaged with its mirror image's
+(:func:`~simtest.estimators.templates.outline.shipped_outline`: for LM-O two networks that draw the whole
+silhouette, hidden parts too, their probabilities averaged; 30.0 % and AR_MSSD 0.371 against 29.0 % and 0.360 with
+one that draws the visible pixels, seventeenth round).
 """
 
 from __future__ import annotations

@@ -40,6 +40,7 @@ With the shipped detector's regions (``detect=rgb``): 1.6 % [0.9, 2.8], median r
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 from typing import Any
 
@@ -114,8 +115,6 @@ def pooled_regions(segmenters: list, probs: list[np.ndarray], obs: Observation, 
 def _surplus(regions: list[tuple[int | None, int, np.ndarray, float]], target_obj_ids) -> bool:
     """Whether some object has more ``regions`` than it has expected instances (pooled detectors and extra
     regions can give one object several even with ``candidates=1``: they are then candidates too)."""
-    from collections import Counter
-
     wanted, found = Counter(int(o) for o in target_obj_ids), Counter(int(r[1]) for r in regions)
     return any(n > wanted[o] for o, n in found.items())
 
