@@ -174,7 +174,8 @@ class CropKeypointEstimator(TemplatePoseStage):
             for the objects, if any (LM-O's); False (``--opt outline=false``): no outline fit. outline_mask /
             outline_temperature: how that fit reads the network (``soft+flip``) and the divisor of its logits (2).
             framing_starts: window factors the framing search starts from; region_extra: the class probability
-            above which more candidate regions are taken (None: the stage's, both; :mod:`.template_stage`).
+            above which more candidate regions are taken; occluders: whether other objects' regions are left
+            out of the template scores (None: the stage's, all three; :mod:`.template_stage`).
         region_rank: The order of a class's detector regions: ``prob`` (default: highest mean class probability
             first) or ``area`` (largest first). Chosen on the real LM-O frames (docs/sim2real.md): the detector's
             region holds the object for 44.9 % of 761 real targets ranked by probability, 36.4 % by area; on
@@ -198,7 +199,8 @@ class CropKeypointEstimator(TemplatePoseStage):
                  pose: str | None = None, outline: str | bool | None = None,
                  outline_mask: str = TEMPLATE_OUTLINE_MASK,
                  outline_temperature: float = TEMPLATE_OUTLINE_TEMPERATURE,
-                 framing_starts: tuple[float, ...] | None = None, region_extra: float | None = None, *,
+                 framing_starts: tuple[float, ...] | None = None, region_extra: float | None = None,
+                 occluders: bool | None = None, *,
                  model: Any = None,
                  objects_record: dict[str, Any] | None = None) -> None:
         from simtest.estimators.templates.estimator import check_framing_starts  # local: import cycle
@@ -213,6 +215,8 @@ class CropKeypointEstimator(TemplatePoseStage):
             framing_starts = check_framing_starts(framing_starts, "keypoints: framing_starts")
         if region_extra is not None and not 0.0 <= float(region_extra) < 1.0:
             raise ConfigError(f"keypoints: region_extra must be a class probability in [0, 1), got {region_extra!r}")
+        if occluders is not None and not isinstance(occluders, bool):
+            raise ConfigError(f"keypoints: occluders must be true or false, got {occluders!r}")
         if int(top_n) < 1:
             raise ConfigError(f"keypoints: top_n must be >= 1, got {top_n!r}")
         if candidates is not None and not (isinstance(candidates, int) and not isinstance(candidates, bool)
@@ -259,7 +263,7 @@ class CropKeypointEstimator(TemplatePoseStage):
                          "threads": threads, "min_region_pixels": int(min_region_pixels), "pose": pose,
                          "candidates": candidates, "outline": outline, "outline_mask": outline_mask,
                          "outline_temperature": float(outline_temperature), "framing_starts": framing_starts,
-                         "region_extra": region_extra}
+                         "region_extra": region_extra, "occluders": occluders}
         #: No checkpoint given: the shipped network whose objects match is taken (:meth:`check_objects`).
         self.shipped = checkpoint is None and model is None
         if model is not None:

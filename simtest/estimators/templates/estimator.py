@@ -54,9 +54,9 @@ from simtest.estimators.templates.crops import mask_in_crop, region_crop, window
 from simtest.estimators.templates.edges import edge_distance, fit_edges
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.export import default_encoder
-from simtest.estimators.templates.framing import Framing, framing_search
+from simtest.estimators.templates.framing import Framing, framing_search, hidden_cells
 from simtest.estimators.templates.local import local_search
-from simtest.estimators.templates.match import match_scores, template_pose, template_weights
+from simtest.estimators.templates.match import match_scores, template_coverage, template_pose, template_weights
 from simtest.estimators.templates.outline import check_mask_mode, check_temperature, load_outline, outline_fit
 from simtest.estimators.templates.render import ObjectRenderer
 
@@ -160,6 +160,8 @@ class TemplateEstimator:
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
         framing_starts: Factors of the region's window side (each in [0.25, 4]) from which the framing search
             starts; the best-matching framing is kept (ties: the first).
+        occluders: Leave the pixels of other objects' regions out of the framing and local searches' scores
+            (:mod:`.framing`): a partly hidden object is matched on its part in view.
         outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; several joined by ``+``
             are read as one, their probabilities averaged; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
@@ -185,7 +187,8 @@ class TemplateEstimator:
                  region_threshold: float = 0.0, region_extra: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
                  outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard",
-                 outline_temperature: float = 1.0, framing_starts: tuple[float, ...] = (1.0,)) -> None:
+                 outline_temperature: float = 1.0, framing_starts: tuple[float, ...] = (1.0,),
+                 occluders: bool = False) -> None:
         if detect not in DETECTORS:
             raise ConfigError(f"templates: unknown detect {detect!r}; valid: {', '.join(DETECTORS)}")
         refine = "none" if refine is None else refine
@@ -223,6 +226,8 @@ class TemplateEstimator:
         self.framing = bool(framing)
         #: Factors of the region's window side the framing search starts from.
         self.framing_starts = check_framing_starts(framing_starts)
+        #: Other objects' regions are left out of the framing and local searches' scores.
+        self.occluders = bool(occluders)
         #: Candidate regions posed per expected instance, and the rule that keeps one (:data:`SELECTS`).
         self.candidates, self.select = int(candidates), select
         if not 0.0 <= float(region_threshold) < 1.0:
@@ -384,12 +389,24 @@ class TemplateEstimator:
         a, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
         return crops, q, qm, int(a), int(j), float(scores[a, j])
 
-    def framings(self, rgb: np.ndarray, K: np.ndarray, crop, roll_rad: float, weights: np.ndarray) -> list[Framing]:
+    def framings(self, rgb: np.ndarray, K: np.ndarray, crop, roll_rad: float, weights: np.ndarray,
+                 hidden: np.ndarray | None = None, coverage: np.ndarray | None = None) -> list[Framing]:
         """Step 3: one framing search per factor of :attr:`framing_starts`, each from ``crop``'s window (centre
-        kept, side scaled by the factor) at the roll ``roll_rad`` (radians), against the templates ``weights``."""
+        kept, side scaled by the factor) at the roll ``roll_rad`` (radians), against the templates ``weights``
+        (``hidden`` pixels left out, with the templates' ``coverage``)."""
         centre, side = window_centre(crop, K), crop.window[2]
-        return [framing_search(rgb, K, centre, side * f, roll_rad, self.encoder, weights, self.settings.size)
-                for f in self.framing_starts]
+        return [framing_search(rgb, K, centre, side * f, roll_rad, self.encoder, weights, self.settings.size,
+                               hidden=hidden, coverage=coverage) for f in self.framing_starts]
+
+    def _hidden(self, mask: np.ndarray, others: list[np.ndarray]) -> np.ndarray | None:
+        """With :attr:`occluders`, the pixels of the ``others`` regions outside ``mask`` (None: none)."""
+        if not self.occluders or not others:
+            return None
+        hidden = np.zeros(mask.shape, bool)
+        for m in others:
+            hidden |= np.asarray(m, bool)
+        hidden &= ~np.asarray(mask, bool)
+        return hidden if hidden.any() else None
 
     def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
               ) -> tuple[np.ndarray, np.ndarray, float, dict[str, Any]]:
@@ -399,18 +416,21 @@ class TemplateEstimator:
         info: dict[str, Any] = {"template": int(j), "inplane_deg": float(np.degrees(self.inplane[a])),
                                 "match": best}
         query, query_mask, roll = q[a], None if qm is None else qm[a], float(self.inplane[a])
+        hidden, hidden_query = self._hidden(mask, others), None
         if self.framing:
-            runs = self.framings(rgb, K, crop, float(self.inplane[a]), weights)
+            runs = self.framings(rgb, K, crop, float(self.inplane[a]), weights, hidden, template_coverage(bank))
             k = max(range(len(runs)), key=lambda i: (runs[i].score, -i))
             fr = runs[k]
             info.update(framing_crops=sum(r.crops for r in runs), framing_start=self.framing_starts[k],
                         match_region=best, match=fr.score,
                         inplane_deg=float(np.degrees(fr.roll_rad)))
             crop, j, best, query, query_mask, roll = fr.crop, fr.template, fr.score, fr.query, None, fr.roll_rad
+            cells = hidden_cells(hidden, K, [crop], query.shape[-2:])
+            hidden_query = None if cells is None else cells[0]
         if self.local_deg > 0:
             found, best, info["local_renders"] = local_search(
                 self._renderer(obj), self.settings, self.encoder, query, query_mask, bank.R[j],
-                best, step_deg=self.local_deg)
+                best, step_deg=self.local_deg, hidden=hidden_query)
             if found is not None:
                 bank, j, weights, info["match_local"] = found, 0, template_weights(found), best
         if self.polish > 0:

@@ -10,20 +10,24 @@ the aim moved by ``±shift`` times the side along each image axis, the side scal
 roll turned by ``±roll_deg`` (eight neighbours), encodes the crops, scores each against every template, and
 moves to the best neighbour while its best template scores higher than the current framing's; when none does,
 every step halves, down to ``min_shift``. The query's cells are not weighted by the region's mask (the
-template's own coverage weights them), so the region's outline does not pull the framing back.
+template's own coverage weights them), so the region's outline does not pull the framing back. With ``hidden``
+(the pixels of other objects' regions) the crop's cells those cover are left out of the scores
+(:func:`~simtest.estimators.templates.match.match_scores`): a partly hidden object is not shrunk into its visible
+part, which would put it too far away.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from simtest.estimators.templates.crops import Crop, aimed_crop
+from simtest.estimators.templates.crops import Crop, aimed_crop, mask_in_crop
 from simtest.estimators.templates.encoder import FeatureEncoder
 from simtest.estimators.templates.match import match_scores
 
-__all__ = ["Framing", "framing_search"]
+__all__ = ["Framing", "framing_search", "hidden_cells"]
 
 _MOVES = np.concatenate([np.eye(4), -np.eye(4)])
 
@@ -41,14 +45,27 @@ class Framing:
     crops: int
 
 
+def hidden_cells(hidden: np.ndarray | None, K: np.ndarray, crops: list[Crop], cells: tuple[int, int]
+                 ) -> np.ndarray | None:
+    """(n, h, w) float32: the fraction of each feature cell (``cells`` = (h, w)) of every crop that the real
+    image's mask ``hidden`` (H, W) bool covers (None when there is no such mask or it is empty)."""
+    if hidden is None or not np.any(hidden):
+        return None
+    h, w = cells
+    return np.stack([cv2.resize(mask_in_crop(hidden, K, c).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+                     for c in crops])
+
+
 def framing_search(rgb: np.ndarray, K: np.ndarray, uv, side: float, roll_rad: float, encoder: FeatureEncoder,
                    weights: np.ndarray, size: int, shift: float = 0.08, scale: float = 0.12,
-                   roll_deg: float = 8.0, min_shift: float = 0.01, max_moves: int = 24) -> Framing:
+                   roll_deg: float = 8.0, min_shift: float = 0.01, max_moves: int = 24,
+                   hidden: np.ndarray | None = None, coverage: np.ndarray | None = None) -> Framing:
     """The framing near the aim ``uv`` (real pixels), window ``side`` (pixels) and roll ``roll_rad`` (see the
     module doc) whose crop of ``rgb`` (H, W, 3) uint8 with intrinsics ``K`` best matches the templates
     ``weights`` (:func:`~simtest.estimators.templates.match.template_weights`); crops of ``size`` pixels;
     ``shift`` and ``min_shift`` are fractions of the side, ``scale`` a step of its log, ``roll_deg`` degrees;
-    ``max_moves`` bounds the accepted moves."""
+    ``max_moves`` bounds the accepted moves; ``hidden`` (H, W) bool: pixels left out of the scores, with the
+    templates' ``coverage`` (:func:`~simtest.estimators.templates.match.template_coverage`)."""
     here = np.array([float(uv[0]), float(uv[1]), np.log(float(side)), float(roll_rad)])
 
     def crops_at(params: np.ndarray) -> list[Crop]:
@@ -56,7 +73,7 @@ def framing_search(rgb: np.ndarray, K: np.ndarray, uv, side: float, roll_rad: fl
 
     def best_of(crops: list[Crop]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q = encoder.features(np.stack([c.rgb for c in crops]))
-        scores = match_scores(q, weights)
+        scores = match_scores(q, weights, hidden=hidden_cells(hidden, K, crops, q.shape[-2:]), coverage=coverage)
         return q, scores.max(axis=1), scores.argmax(axis=1)
 
     (crop,) = crops_at(here[None])

@@ -13,7 +13,7 @@ import numpy as np
 
 from simtest.estimators.templates.bank import BankSettings, TemplateBank, render_templates
 from simtest.estimators.templates.encoder import FeatureEncoder
-from simtest.estimators.templates.match import match_scores, template_weights
+from simtest.estimators.templates.match import match_scores, template_coverage, template_weights
 from simtest.estimators.templates.render import ObjectRenderer
 
 __all__ = ["local_search"]
@@ -23,10 +23,12 @@ _AXES = np.concatenate([np.eye(3), -np.eye(3)])
 
 def local_search(renderer: ObjectRenderer, settings: BankSettings, encoder: FeatureEncoder, query: np.ndarray,
                  query_mask: np.ndarray | None, R_start: np.ndarray, score: float, step_deg: float = 4.0,
-                 min_step_deg: float = 1.0, rounds: int = 2) -> tuple[TemplateBank | None, float, int]:
+                 min_step_deg: float = 1.0, rounds: int = 2, hidden: np.ndarray | None = None
+                 ) -> tuple[TemplateBank | None, float, int]:
     """The best template found around rotation ``R_start`` (model to crop camera) for one query crop's unit
-    features ``query`` (C, h, w) and cell mask ``query_mask`` (h, w) or None, whose bank match scored
-    ``score``: ``(a one-template bank, or None when nothing scored higher; its score; templates rendered)``."""
+    features ``query`` (C, h, w), cell mask ``query_mask`` (h, w) or None and hidden cells ``hidden`` (h, w) or
+    None (:func:`~simtest.estimators.templates.match.match_scores`), whose bank match scored ``score``:
+    ``(a one-template bank, or None when nothing scored higher; its score; templates rendered)``."""
     best, best_R, best_score, n = None, np.asarray(R_start, np.float64), float(score), 0
     step = float(step_deg)
     qm = None if query_mask is None else query_mask[None]
@@ -35,7 +37,8 @@ def local_search(renderer: ObjectRenderer, settings: BankSettings, encoder: Feat
             rots = np.stack([cv2.Rodrigues(np.radians(step) * a.reshape(3, 1))[0] @ best_R for a in _AXES])
             cand = render_templates(renderer, rots, settings, encoder)
             n += len(rots)
-            s = match_scores(query[None], template_weights(cand), qm)[0]
+            s = match_scores(query[None], template_weights(cand), qm, None if hidden is None else hidden[None],
+                             template_coverage(cand))[0]
             k = int(np.argmax(s))
             if s[k] <= best_score:
                 break

@@ -4,7 +4,11 @@ Score of template ``j`` for a query crop: the mean, over the template's object c
 of each cell the object covers), of the cosine similarity between the query's and the template's cell
 features at the same cell (Nguyen et al., "Templates for 3D object pose estimation revisited", CVPR 2022).
 With ``query_mask`` the query's cells are weighted by its own region mask too, so cells of the query's
-background or occluders add nothing.
+background or occluders add nothing. With ``hidden`` the query's cells that show something in front of the
+object (another object's region) are left out of the score and out of the coverage it is divided by: the score
+is then the mean over the template's cells in view, so a template is not marked down for the part an occluder
+hides (the coverage counted is at least :data:`MIN_SEEN` of the template's, so that a template hidden almost
+whole cannot win on a few cells).
 """
 
 from __future__ import annotations
@@ -13,7 +17,10 @@ import numpy as np
 
 from simtest.estimators.templates.bank import TemplateBank
 
-__all__ = ["template_weights", "match_scores", "template_pose"]
+__all__ = ["template_weights", "template_coverage", "match_scores", "template_pose", "MIN_SEEN"]
+
+#: The smallest fraction of a template's coverage a score is divided by when cells are ``hidden``.
+MIN_SEEN = 0.5
 
 
 def template_weights(bank: TemplateBank) -> np.ndarray:
@@ -24,11 +31,26 @@ def template_weights(bank: TemplateBank) -> np.ndarray:
     return (bank.feats.astype(np.float32) * w[:, None]).reshape(len(bank), -1)
 
 
-def match_scores(query: np.ndarray, weights: np.ndarray, query_masks: np.ndarray | None = None) -> np.ndarray:
+def template_coverage(bank: TemplateBank) -> np.ndarray:
+    """(N, h w) float32: each template's cell coverage (the fraction of each cell its object covers)."""
+    return bank.masks.astype(np.float32).reshape(len(bank), -1)
+
+
+def match_scores(query: np.ndarray, weights: np.ndarray, query_masks: np.ndarray | None = None,
+                 hidden: np.ndarray | None = None, coverage: np.ndarray | None = None) -> np.ndarray:
     """(n, N) scores of ``n`` query crops' unit features (n, C, h, w) against the templates' ``weights``
-    (:func:`template_weights`); with ``query_masks`` (n, h, w) in [0, 1] each query cell is weighted by it."""
+    (:func:`template_weights`); with ``query_masks`` (n, h, w) in [0, 1] each query cell is weighted by it;
+    with ``hidden`` (n, h, w) in [0, 1] (the fraction of each cell something in front covers) and the templates'
+    ``coverage`` (:func:`template_coverage`) hidden cells are left out (see the module doc)."""
     q = query if query_masks is None else query * query_masks[:, None]
-    return q.reshape(len(q), -1).astype(np.float32) @ weights.T
+    if hidden is None or not np.any(hidden):
+        return q.reshape(len(q), -1).astype(np.float32) @ weights.T
+    if coverage is None:
+        raise ValueError("match_scores: hidden cells need the templates' coverage")
+    seen = 1.0 - np.clip(np.asarray(hidden, np.float32).reshape(len(q), -1), 0.0, 1.0)
+    scores = (q.reshape(len(q), q.shape[1], -1).astype(np.float32) * seen[:, None]).reshape(len(q), -1) @ weights.T
+    total = np.maximum(coverage.sum(axis=1), 1e-6)
+    return scores / np.maximum((seen @ coverage.T) / total, MIN_SEEN)
 
 
 def template_pose(bank: TemplateBank, j: int, K_crop: np.ndarray, R_virt: np.ndarray

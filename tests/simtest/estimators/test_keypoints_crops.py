@@ -403,7 +403,8 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
 
     from simtest.estimators import load_estimator
     from simtest.estimators.keypoints.crop_infer import TEMPLATE_CANDIDATES
-    from simtest.estimators.keypoints.template_stage import TEMPLATE_FRAMING_STARTS, TEMPLATE_REGION_EXTRA
+    from simtest.estimators.keypoints.template_stage import (TEMPLATE_FRAMING_STARTS, TEMPLATE_OCCLUDERS,
+                                                             TEMPLATE_REGION_EXTRA)
 
     monkeypatch.setenv("SIMTEST_CACHE", str(tmp_path))
     objects = load_dataset_objects(small_dataset)
@@ -427,6 +428,10 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     assert load_estimator("keypoints", region_extra=0.2)._options["region_extra"] == 0.2
     with pytest.raises(ConfigError, match="region_extra must be a class probability in \\[0, 1\\), got -0.1"):
         load_estimator("keypoints", region_extra=-0.1)
+    assert est.templates.occluders is TEMPLATE_OCCLUDERS is False  # other objects' regions count (nineteenth round)
+    assert load_estimator("keypoints", occluders=True)._options["occluders"] is True
+    with pytest.raises(ConfigError, match="occluders must be true or false, got 'yes'"):
+        load_estimator("keypoints", occluders="yes")
     assert load_estimator("keypoints", outline_mask="hard")._options["outline_mask"] == "hard"
     with pytest.raises(ConfigError, match="unknown outline_mask 'fuzzy'; valid: hard, soft, soft\\+flip"):
         load_estimator("keypoints", outline_mask="fuzzy")
