@@ -160,8 +160,9 @@ class TemplateEstimator:
             (docs/sim2real_depth.py); yet scaling every estimate did not raise the real score (seventh round).
         framing_starts: Factors of the region's window side (each in [0.25, 4]) from which the framing search
             starts; the best-matching framing is kept (ties: the first).
-        occluders: Leave the pixels of other objects' regions out of the framing and local searches' scores
-            (:mod:`.framing`): a partly hidden object is matched on its part in view.
+        occluders: Leave the pixels of the image's other regions out of the framing and local searches' scores
+            (:mod:`.framing`; with ``candidates`` > 1 or a surplus of regions: the other objects' first regions),
+            so that a partly hidden object is matched on its part in view.
         outline: An outline network (``.onnx`` or ``.pt`` of ``simtest train outlines``; several joined by ``+``
             are read as one, their probabilities averaged; None or False: none) that fits
             every kept pose to the object's visible mask (step 8); outline_max_scale: the largest relative depth
@@ -418,7 +419,8 @@ class TemplateEstimator:
         query, query_mask, roll = q[a], None if qm is None else qm[a], float(self.inplane[a])
         hidden, hidden_query = self._hidden(mask, others), None
         if self.framing:
-            runs = self.framings(rgb, K, crop, float(self.inplane[a]), weights, hidden, template_coverage(bank))
+            runs = self.framings(rgb, K, crop, float(self.inplane[a]), weights, hidden,
+                                 None if hidden is None else template_coverage(bank))
             k = max(range(len(runs)), key=lambda i: (runs[i].score, -i))
             fr = runs[k]
             info.update(framing_crops=sum(r.crops for r in runs), framing_start=self.framing_starts[k],

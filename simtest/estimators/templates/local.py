@@ -37,8 +37,8 @@ def local_search(renderer: ObjectRenderer, settings: BankSettings, encoder: Feat
             rots = np.stack([cv2.Rodrigues(np.radians(step) * a.reshape(3, 1))[0] @ best_R for a in _AXES])
             cand = render_templates(renderer, rots, settings, encoder)
             n += len(rots)
-            s = match_scores(query[None], template_weights(cand), qm, None if hidden is None else hidden[None],
-                             template_coverage(cand))[0]
+            hid, cover = (None, None) if hidden is None else (hidden[None], template_coverage(cand))
+            s = match_scores(query[None], template_weights(cand), qm, hid, cover)[0]
             k = int(np.argmax(s))
             if s[k] <= best_score:
                 break
