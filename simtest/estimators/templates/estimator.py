@@ -112,6 +112,14 @@ def pooled_regions(segmenters: list, probs: list[np.ndarray], obs: Observation, 
     return out
 
 
+def _union(masks: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the pixels of any of ``masks`` (each (H, W))."""
+    out = np.zeros(shape, bool)
+    for m in masks:
+        out |= np.asarray(m, bool)
+    return out
+
+
 def _surplus(regions: list[tuple[int | None, int, np.ndarray, float]], target_obj_ids) -> bool:
     """Whether some object has more ``regions`` than it has expected instances (pooled detectors and extra
     regions can give one object several even with ``candidates=1``: they are then candidates too)."""
@@ -403,10 +411,7 @@ class TemplateEstimator:
         """With :attr:`occluders`, the pixels of the ``others`` regions outside ``mask`` (None: none)."""
         if not self.occluders or not others:
             return None
-        hidden = np.zeros(mask.shape, bool)
-        for m in others:
-            hidden |= np.asarray(m, bool)
-        hidden &= ~np.asarray(mask, bool)
+        hidden = _union(others, mask.shape) & ~np.asarray(mask, bool)
         return hidden if hidden.any() else None
 
     def _pose(self, obj, rgb: np.ndarray, mask: np.ndarray, K: np.ndarray, others: list[np.ndarray]
@@ -471,10 +476,7 @@ class TemplateEstimator:
 
         valid = crop.valid.copy()
         if others:
-            occ = np.zeros(shape, np.uint8)
-            for m in others:
-                occ |= np.asarray(m, np.uint8)
-            valid &= ~mask_in_crop(occ, K, crop)
+            valid &= ~mask_in_crop(_union(others, shape), K, crop)
         Rv = crop.R_virt
         fit = fit_translation(obj, Rv @ R, Rv @ t, crop.K, crop.mask.astype(np.float64), valid,
                               max_scale=self.refine_max_scale, step_deg=self.refine_deg,

@@ -12,8 +12,9 @@ moves to the best neighbour while its best template scores higher than the curre
 every step halves, down to ``min_shift``. The query's cells are not weighted by the region's mask (the
 template's own coverage weights them), so the region's outline does not pull the framing back. With ``hidden``
 (the pixels of other objects' regions) the crop's cells those cover are left out of the scores
-(:func:`~simtest.estimators.templates.match.match_scores`): a partly hidden object is not shrunk into its visible
-part, which would put it too far away.
+(:func:`~simtest.estimators.templates.match.match_scores`), so that the cells over something in front do not
+mark the true framing down (on a render this keeps a partly hidden object from being shrunk into its visible
+part; on the real LM-O frames it did not gain, docs/sim2real.md, nineteenth round).
 """
 
 from __future__ import annotations
