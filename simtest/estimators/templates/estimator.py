@@ -146,7 +146,7 @@ class TemplateEstimator:
         framing: Move and scale the crop window until the templates match it best (:mod:`.framing`), so
             the pose's depth and position no longer follow the region's outline.
         local_deg: First step (degrees) of the local template search around the best bank match (0: none;
-            :mod:`.local`).
+            :mod:`.local`); local_min_deg: its last step (degrees; the step halves from ``local_deg`` down to it).
         candidates: With ``detect=rgb`` and known targets, the detector regions posed per expected instance
             (ranked by ``region_rank``); ``select`` decides which pose is kept (:data:`SELECTS`). With 1, an
             object that still gets more regions than instances (pooled detectors, ``region_extra``) has them all
@@ -192,7 +192,7 @@ class TemplateEstimator:
                  inplane_deg: float = 10.0, inplane_range_deg: float = 60.0, query_mask: bool = True,
                  refine: str | None = "silhouette", refine_deg: float = 0.0, refine_max_scale: float = 0.3, refine_min_px: float = 0.5,
                  threads: int = 1, encoder: str | None = None, region_rank: str = "prob",
-                 local_deg: float = 0.0, candidates: int = 1, select: str = "match", framing: bool = False,
+                 local_deg: float = 0.0, local_min_deg: float = 1.0, candidates: int = 1, select: str = "match", framing: bool = False,
                  region_threshold: float = 0.0, region_extra: float = 0.0, polish: float = 0.0, polish_min_shift: float = 0.0025,
                  depth_scale: float = 1.0, background: int = 0, outline: str | bool | None = None,
                  outline_max_scale: float = 0.1, outline_deg: float = 2.0, outline_mask: str = "hard",
@@ -207,6 +207,8 @@ class TemplateEstimator:
             raise ConfigError(f"templates: unknown select {select!r}; valid: {', '.join(SELECTS)}")
         if int(candidates) < 1:
             raise ConfigError(f"templates: need candidates >= 1, got {candidates!r}")
+        if not float(local_min_deg) > 0:
+            raise ConfigError(f"templates: need local_min_deg > 0 (degrees), got {local_min_deg!r}")
         if not float(inplane_deg) > 0 or not float(inplane_range_deg) >= 0:
             raise ConfigError(f"templates: need inplane_deg > 0 and inplane_range_deg >= 0, got {inplane_deg!r}, "
                               f"{inplane_range_deg!r}")
@@ -227,6 +229,8 @@ class TemplateEstimator:
         self.banks: dict[int, tuple[TemplateBank, np.ndarray]] = {}
         #: First step of the local template search (degrees; 0: none), :mod:`.local`.
         self.local_deg = float(local_deg)
+        #: Last step of the local template search (degrees).
+        self.local_min_deg = float(local_min_deg)
         self.renderers: dict[int, ObjectRenderer] = {}
         self.segmenter = None
         self.more_segmenters: list = []
@@ -437,7 +441,7 @@ class TemplateEstimator:
         if self.local_deg > 0:
             found, best, info["local_renders"] = local_search(
                 self._renderer(obj), self.settings, self.encoder, query, query_mask, bank.R[j],
-                best, step_deg=self.local_deg, hidden=hidden_query)
+                best, step_deg=self.local_deg, min_step_deg=self.local_min_deg, hidden=hidden_query)
             if found is not None:
                 bank, j, weights, info["match_local"] = found, 0, template_weights(found), best
         if self.polish > 0:

@@ -416,6 +416,7 @@ def test_pose_templates_poses_the_detections_by_template_matching(small_dataset,
     assert est.templates.segmenter is est.segmenter and est.templates.candidates == 1
     assert est.templates.refine == "none"  # the detector's regions are too coarse to fit a silhouette to
     assert est.templates.framing and est.templates.local_deg == 4.0  # the framing and local searches
+    assert est.templates.local_min_deg == 1.0  # the local search's 4, 2 and 1 degree steps (twentieth round)
     assert est.templates.outline_mask == "soft+flip"  # how an outline fit reads its network (tenth round)
     assert est.templates.outline_temperature == 2.0  # at temperature 2 (eleventh round)
     assert load_estimator("keypoints", outline_temperature=1)._options["outline_temperature"] == 1.0

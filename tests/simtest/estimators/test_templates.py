@@ -304,6 +304,15 @@ def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects,
         TemplateEstimator(polish=0.7)
     with pytest.raises(ConfigError, match="polish_min_shift"):
         TemplateEstimator(polish=0.02, polish_min_shift=0.0)
+    # the local search stopped at 2 degrees instead of 1 renders fewer templates and matches no better
+    est.depth_scale, est.polish = 1.0, 0.0
+    (fine,) = est.estimate(obs)
+    est.local_min_deg = 2.0
+    (coarse,) = est.estimate(obs)
+    assert 0 < coarse.info["local_renders"] < fine.info["local_renders"]
+    assert coarse.info.get("match_local", coarse.info["match"]) <= fine.info.get("match_local", fine.info["match"])
+    with pytest.raises(ConfigError, match="local_min_deg > 0 .*got 0"):
+        TemplateEstimator(local_deg=4.0, local_min_deg=0)
 
 
 def test_silhouette_fit_runs_after_the_framing_search(objects, cache, monkeypatch):
