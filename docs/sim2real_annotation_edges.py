@@ -21,7 +21,6 @@ import json
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -30,15 +29,6 @@ from simtest.estimators.templates.edges import edge_distance, fit_edges  # noqa:
 from simtest.io import bop  # noqa: E402
 from simtest.io.bop_splits import dataset_split_dir, scene_dirs  # noqa: E402
 from simtest.objects.loaders import load_dataset_objects  # noqa: E402
-
-
-def _rgb(scene: Path, im: int) -> np.ndarray:
-    """Image ``im`` of ``scene`` (PNG or JPEG, as BOP sets hold it): (H, W, 3) uint8 RGB."""
-    path = next((scene / "rgb").glob(f"{im:06d}.*"), None)
-    bgr = None if path is None else cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise SystemExit(f"{scene / 'rgb'}: no readable image {im:06d}.png or .jpg")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def annotation_edges(data: Path, min_visible: float = 0.9, shift_px: float = 3.0, max_scale: float = 0.12,
@@ -56,7 +46,7 @@ def annotation_edges(data: Path, min_visible: float = 0.9, shift_px: float = 3.0
                 if g.visib_fract < min_visible:
                     continue
                 if dist is None:
-                    dist = edge_distance(_rgb(scene, im))
+                    dist = edge_distance(bop.read_image(scene, im))
                 T, obj = g.T_cam_obj, objects.get(g.obj_id)
                 f = fit_edges(obj, T.R, T.t, d["K"], dist, shift_px=shift_px, max_scale=max_scale, min_gain=0.0)
                 out.append({"scene_id": int(scene.name), "im_id": int(im), "gt_id": k, "obj_id": int(g.obj_id),
