@@ -207,8 +207,9 @@ class TemplateEstimator:
             raise ConfigError(f"templates: unknown select {select!r}; valid: {', '.join(SELECTS)}")
         if int(candidates) < 1:
             raise ConfigError(f"templates: need candidates >= 1, got {candidates!r}")
-        if not float(local_min_deg) > 0:
-            raise ConfigError(f"templates: need local_min_deg > 0 (degrees), got {local_min_deg!r}")
+        if not float(local_min_deg) > 0 or (float(local_deg) > 0 and float(local_min_deg) > float(local_deg)):
+            raise ConfigError(f"templates: need 0 < local_min_deg <= local_deg (degrees; a larger last step would "
+                              f"skip the local search), got local_min_deg={local_min_deg!r}, local_deg={local_deg!r}")
         if not float(inplane_deg) > 0 or not float(inplane_range_deg) >= 0:
             raise ConfigError(f"templates: need inplane_deg > 0 and inplane_range_deg >= 0, got {inplane_deg!r}, "
                               f"{inplane_range_deg!r}")

@@ -311,8 +311,10 @@ def test_polish_refines_the_framing_and_depth_scale_moves_along_the_ray(objects,
     (coarse,) = est.estimate(obs)
     assert 0 < coarse.info["local_renders"] < fine.info["local_renders"]
     assert coarse.info.get("match_local", coarse.info["match"]) <= fine.info.get("match_local", fine.info["match"])
-    with pytest.raises(ConfigError, match="local_min_deg > 0 .*got 0"):
+    with pytest.raises(ConfigError, match="0 < local_min_deg <= local_deg .*got local_min_deg=0,"):
         TemplateEstimator(local_deg=4.0, local_min_deg=0)
+    with pytest.raises(ConfigError, match="got local_min_deg=8, local_deg=4.0"):
+        TemplateEstimator(local_deg=4.0, local_min_deg=8)
 
 
 def test_silhouette_fit_runs_after_the_framing_search(objects, cache, monkeypatch):
